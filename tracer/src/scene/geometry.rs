@@ -1,0 +1,81 @@
+//! The scene's primitives — triangles then spheres in one index space — as the
+//! kd-tree sees them.
+
+use glam::Vec3;
+
+use super::TriangleMesh;
+use crate::accel::{PrimHit, Primitives, RayPrecomp};
+use crate::geometry::clip::clipped_triangle_bounds;
+use crate::geometry::sphere::intersect_sphere;
+use crate::geometry::triangle::intersect_triangle;
+use crate::geometry::{Aabb, Ray};
+
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Sphere {
+    pub center: Vec3,
+    pub radius: f32,
+    pub material: u32,
+}
+
+impl Sphere {
+    pub fn bounds(&self) -> Aabb {
+        Aabb::new(self.center - Vec3::splat(self.radius), self.center + Vec3::splat(self.radius))
+    }
+}
+
+/// All primitives of a scene. Index `i < mesh.tris.len()` is a triangle, the rest are
+/// spheres in order.
+#[derive(Clone, Debug, Default)]
+pub struct Geometry {
+    pub mesh: TriangleMesh,
+    pub spheres: Vec<Sphere>,
+}
+
+/// Which primitive an index denotes.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum PrimRef {
+    Triangle(usize),
+    Sphere(usize),
+}
+
+impl Geometry {
+    #[inline]
+    pub fn resolve(&self, i: u32) -> PrimRef {
+        let n = self.mesh.tris.len();
+        if (i as usize) < n { PrimRef::Triangle(i as usize) } else { PrimRef::Sphere(i as usize - n) }
+    }
+}
+
+impl Primitives for Geometry {
+    fn len(&self) -> usize {
+        self.mesh.tris.len() + self.spheres.len()
+    }
+
+    fn bounds(&self, i: u32) -> Aabb {
+        match self.resolve(i) {
+            PrimRef::Triangle(t) => Aabb::from_points(&self.mesh.corners(t)),
+            PrimRef::Sphere(s) => self.spheres[s].bounds(),
+        }
+    }
+
+    fn clipped_bounds(&self, i: u32, clip: &Aabb) -> Aabb {
+        match self.resolve(i) {
+            PrimRef::Triangle(t) => clipped_triangle_bounds(self.mesh.corners(t), clip),
+            PrimRef::Sphere(s) => self.spheres[s].bounds().intersection(*clip),
+        }
+    }
+
+    #[inline]
+    fn intersect(&self, i: u32, ray: &Ray, pre: &RayPrecomp, tmax: f32) -> Option<PrimHit> {
+        match self.resolve(i) {
+            PrimRef::Triangle(t) => {
+                let [p0, p1, p2] = self.mesh.corners(t);
+                intersect_triangle(ray, &pre.shear, p0, p1, p2, tmax).map(|h| PrimHit { t: h.t, u: h.b1, v: h.b2 })
+            }
+            PrimRef::Sphere(s) => {
+                let sp = &self.spheres[s];
+                intersect_sphere(ray, sp.center, sp.radius, 0.0, tmax).map(|t| PrimHit { t, u: 0.0, v: 0.0 })
+            }
+        }
+    }
+}
