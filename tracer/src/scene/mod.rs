@@ -1,8 +1,112 @@
-//! Scene input: the TOML scene file, OBJ/MTL meshes, and the assembled [`Scene`].
+//! Scene input — the TOML scene file, OBJ/MTL meshes — and the assembled [`Scene`] with
+//! its ray queries.
 
+pub mod file;
+pub mod generate;
 pub mod geometry;
+pub mod load;
 pub mod mesh;
 pub mod obj;
 
 pub use geometry::{Geometry, PrimRef, Sphere};
+pub use load::{RenderSettings, SceneError, load_scene, scene_from_bare_obj, scene_from_toml};
 pub use mesh::{NONE, Tri, TriangleMesh};
+
+use glam::{Vec2, Vec3};
+
+use crate::accel::{Hit, KdTree};
+use crate::camera::Camera;
+use crate::geometry::Ray;
+use crate::light::LightSet;
+use crate::material::Material;
+use crate::texture::Texture;
+
+/// Everything needed to render: immutable once built, shared by all render threads.
+pub struct Scene {
+    pub camera: Camera,
+    pub settings: RenderSettings,
+    pub geometry: Geometry,
+    pub accel: KdTree,
+    pub materials: Vec<Material>,
+    /// The name of each material (from `newmtl`), for messages and tests.
+    pub material_names: Vec<String>,
+    pub textures: Vec<Texture>,
+    pub lights: LightSet,
+    pub background: Vec3,
+    /// Some material has `d < 1` (stochastic opacity): shadow rays must see through it.
+    pub has_cutouts: bool,
+    /// Bounding sphere of the geometry.
+    pub center: Vec3,
+    pub radius: f32,
+    pub warnings: Vec<String>,
+}
+
+/// The local geometry at a ray hit.
+#[derive(Clone, Copy, Debug)]
+pub struct SurfaceHit {
+    pub p: Vec3,
+    /// Geometric normal of the front face (counter-clockwise winding; outward on spheres).
+    pub ng: Vec3,
+    /// Shading normal, on the same side as `ng`.
+    pub ns: Vec3,
+    pub uv: Vec2,
+    pub material: u32,
+    pub prim: u32,
+    pub t: f32,
+}
+
+impl Scene {
+    #[inline]
+    pub fn intersect(&self, ray: &Ray, tmax: f32) -> Option<Hit> {
+        self.accel.intersect(&self.geometry, ray, tmax)
+    }
+
+    #[inline]
+    pub fn occluded(&self, ray: &Ray, tmax: f32) -> bool {
+        self.accel.occluded(&self.geometry, ray, tmax)
+    }
+
+    /// Surface data at a hit found by [`Scene::intersect`] for `ray`.
+    pub fn interaction(&self, ray: &Ray, hit: &Hit) -> SurfaceHit {
+        match self.geometry.resolve(hit.prim) {
+            PrimRef::Triangle(i) => {
+                let mesh = &self.geometry.mesh;
+                let tri = &mesh.tris[i];
+                let [p0, p1, p2] = mesh.corners(i);
+                let b = Vec3::new(1.0 - hit.u - hit.v, hit.u, hit.v);
+                // Interpolating the corners is more accurate than ray.at(t) far away.
+                let p = b.x * p0 + b.y * p1 + b.z * p2;
+                let ng = (p1 - p0).cross(p2 - p0).normalize_or_zero();
+                let ns = if tri.n[0] != NONE {
+                    let n = b.x * mesh.normals[tri.n[0] as usize]
+                        + b.y * mesh.normals[tri.n[1] as usize]
+                        + b.z * mesh.normals[tri.n[2] as usize];
+                    let n = n.normalize_or_zero();
+                    if n == Vec3::ZERO || !n.is_finite() {
+                        ng
+                    } else if n.dot(ng) < 0.0 {
+                        -n
+                    } else {
+                        n
+                    }
+                } else {
+                    ng
+                };
+                let uv = load::uv_or_barycentric(&mesh.uvs, tri.uv, b);
+                SurfaceHit { p, ng, ns, uv, material: tri.material, prim: hit.prim, t: hit.t }
+            }
+            PrimRef::Sphere(i) => {
+                let s = &self.geometry.spheres[i];
+                let n = (ray.at(hit.t) - s.center).normalize_or_zero();
+                let n = if n == Vec3::ZERO { Vec3::Z } else { n };
+                // Re-project onto the surface to remove the error of ray.at(t).
+                let p = s.center + s.radius * n;
+                let uv = Vec2::new(
+                    (n.z.atan2(n.x) / std::f32::consts::TAU).rem_euclid(1.0),
+                    n.y.clamp(-1.0, 1.0).acos() / std::f32::consts::PI,
+                );
+                SurfaceHit { p, ng: n, ns: n, uv, material: s.material, prim: hit.prim, t: hit.t }
+            }
+        }
+    }
+}

@@ -1,0 +1,231 @@
+//! `coordinator bench`: kd-tree build time, memory, ray throughput (primary, shadow,
+//! diffuse bounce) and full-render speed, per scene. Figures are medians of repeated
+//! runs, since the machines we run on are shared and noisy.
+
+use std::path::PathBuf;
+use std::time::Instant;
+
+use clap::Args;
+use glam::{Vec2, Vec3};
+use tracer::accel::{BuildParams, KdTree};
+use tracer::film::SampleRange;
+use tracer::geometry::{Frame, Ray, offset_origin};
+use tracer::integrator::Integrator;
+use tracer::scene::Scene;
+
+#[derive(Args)]
+pub struct BenchArgs {
+    /// Scenes to measure (default: the built-in Cornell box, every scenes/*/scene.toml
+    /// found under the current directory, and a generated mesh).
+    pub scenes: Vec<PathBuf>,
+    /// Triangles in the generated displaced-sphere mesh (0 = leave it out).
+    #[arg(long, default_value_t = 1_000_000)]
+    pub mesh_triangles: usize,
+    /// Rays per throughput measurement.
+    #[arg(long, default_value_t = 500_000)]
+    pub rays: usize,
+    /// Repetitions of each measurement (the median is printed).
+    #[arg(long, default_value_t = 3)]
+    pub repeat: usize,
+    /// Samples per pixel of the full-render measurement.
+    #[arg(long, default_value_t = 4)]
+    pub spp: u32,
+}
+
+pub fn run(args: BenchArgs) -> anyhow::Result<()> {
+    let mut scenes: Vec<(String, Scene)> = Vec::new();
+    if args.scenes.is_empty() {
+        scenes.push(("cornell-box (built-in)".into(), crate::builtin::load(None)?));
+        if let Ok(dir) = std::fs::read_dir("scenes") {
+            let mut paths: Vec<PathBuf> =
+                dir.flatten().map(|e| e.path().join("scene.toml")).filter(|p| p.exists()).collect();
+            paths.sort();
+            for p in paths {
+                scenes.push((p.display().to_string(), tracer::scene::load_scene(&p)?));
+            }
+        }
+    } else {
+        for p in &args.scenes {
+            scenes.push((p.display().to_string(), tracer::scene::load_scene(p)?));
+        }
+    }
+    if args.mesh_triangles > 0 {
+        let t = Instant::now();
+        let mesh = tracer::scene::generate::displaced_sphere(args.mesh_triangles, 7);
+        let model = tracer::scene::obj::ObjModel {
+            mesh,
+            materials: vec![tracer::material::MaterialDesc::default_grey("generated")],
+            ..Default::default()
+        };
+        let scene = tracer::scene::scene_from_bare_obj(model);
+        eprintln!("generated mesh in {:.2}s", t.elapsed().as_secs_f64());
+        scenes.push((format!("displaced sphere ({} triangles)", scene.geometry.mesh.tris.len()), scene));
+    }
+
+    println!("threads: {} (ray throughput is measured on one thread: Mrays/s per core)", rayon::current_num_threads());
+    for (name, mut scene) in scenes {
+        // Throughput rays use a 256-wide film so that the figures compare across scenes.
+        let aspect = scene.camera.width as f32 / scene.camera.height as f32;
+        scene.camera.width = 256;
+        scene.camera.height = (256.0 / aspect).round().max(1.0) as u32;
+        bench_scene(&name, &scene, &args);
+    }
+    Ok(())
+}
+
+fn median(mut v: Vec<f64>) -> f64 {
+    v.sort_by(f64::total_cmp);
+    v[v.len() / 2]
+}
+
+/// A small deterministic generator for the benchmark's incoherent rays.
+struct SplitMix(u64);
+
+impl SplitMix {
+    fn next_f32(&mut self) -> f32 {
+        self.0 = self.0.wrapping_add(0x9E3779B97F4A7C15);
+        let mut z = self.0;
+        z = (z ^ (z >> 30)).wrapping_mul(0xBF58476D1CE4E5B9);
+        z = (z ^ (z >> 27)).wrapping_mul(0x94D049BB133111EB);
+        ((z ^ (z >> 31)) >> 40) as f32 / (1u64 << 24) as f32
+    }
+
+    fn next_2d(&mut self) -> Vec2 {
+        Vec2::new(self.next_f32(), self.next_f32())
+    }
+}
+
+fn bench_scene(name: &str, scene: &Scene, args: &BenchArgs) {
+    let repeat = args.repeat.max(1);
+    let geom = &scene.geometry;
+    let ntri = geom.mesh.tris.len().max(1);
+    println!("\n== {name}");
+
+    let builds: Vec<f64> = (0..repeat)
+        .map(|_| {
+            let t = Instant::now();
+            let tree = KdTree::build(geom, &BuildParams::default());
+            std::hint::black_box(&tree);
+            t.elapsed().as_secs_f64()
+        })
+        .collect();
+    let stats = scene.accel.stats();
+    let mesh_bytes = geom.mesh.positions.len() * 12
+        + geom.mesh.normals.len() * 12
+        + geom.mesh.uvs.len() * 8
+        + geom.mesh.tris.len() * std::mem::size_of::<tracer::scene::Tri>();
+    println!(
+        "kd-tree build: {:.3} ms (median of {repeat}); {} nodes, {} leaves, depth {}, {} refs",
+        median(builds) * 1e3,
+        stats.nodes,
+        stats.leaves,
+        stats.max_depth,
+        stats.prim_refs
+    );
+    println!(
+        "memory: mesh {:.1} B/tri + tree {:.1} B/tri = {:.1} B/tri",
+        mesh_bytes as f64 / ntri as f64,
+        stats.bytes as f64 / ntri as f64,
+        (mesh_bytes + stats.bytes) as f64 / ntri as f64
+    );
+
+    // Primary rays: one per pixel, jittered, repeated to reach the requested count.
+    let cam = &scene.camera;
+    let mut rng = SplitMix(1);
+    let primary: Vec<Ray> = (0..args.rays)
+        .map(|i| {
+            let p = i % (cam.width * cam.height) as usize;
+            let film = Vec2::new((p % cam.width as usize) as f32, (p / cam.width as usize) as f32) + rng.next_2d();
+            cam.generate_ray(film, rng.next_2d())
+        })
+        .collect();
+    let mut hits = Vec::with_capacity(primary.len());
+    let primary_rate = rate(repeat, primary.len(), || {
+        hits.clear();
+        for r in &primary {
+            hits.push(scene.intersect(r, f32::INFINITY).map(|h| (r, h)));
+        }
+    });
+    let points: Vec<(Vec3, Vec3)> = hits
+        .iter()
+        .flatten()
+        .map(|(r, h)| {
+            let si = scene.interaction(r, h);
+            let n = if si.ng.dot(r.dir) > 0.0 { -si.ng } else { si.ng };
+            (si.p, n)
+        })
+        .collect();
+    println!("primary rays: {primary_rate:.2} Mrays/s ({} of {} hit)", points.len(), primary.len());
+    if points.is_empty() {
+        return;
+    }
+
+    // Shadow rays: from visible points to random points in the scene's bounds (any hit).
+    let (lo, hi) = (scene.center - Vec3::splat(scene.radius), scene.center + Vec3::splat(scene.radius));
+    let shadow: Vec<(Ray, f32)> = (0..args.rays)
+        .map(|i| {
+            let (p, n) = points[i % points.len()];
+            let q = lo + (hi - lo) * Vec3::new(rng.next_f32(), rng.next_f32(), rng.next_f32());
+            let o = offset_origin(p, n, q - p);
+            let d = q - o;
+            let dist = d.length().max(1e-6);
+            (Ray::new(o, d / dist), dist)
+        })
+        .collect();
+    let mut blocked = 0usize;
+    let shadow_rate = rate(repeat, shadow.len(), || {
+        blocked = shadow.iter().filter(|(r, t)| scene.occluded(r, *t)).count();
+    });
+    println!("shadow rays (any hit): {shadow_rate:.2} Mrays/s ({blocked} blocked)");
+
+    // Diffuse bounce rays: cosine-distributed around the normals of visible points.
+    let bounce: Vec<Ray> = (0..args.rays)
+        .map(|i| {
+            let (p, n) = points[i % points.len()];
+            let local = tracer::sampling::sample_cosine_hemisphere(rng.next_2d());
+            let d = Frame::from_normal(n).to_world(local).normalize();
+            Ray::new(offset_origin(p, n, d), d)
+        })
+        .collect();
+    let mut nhit = 0usize;
+    let bounce_rate = rate(repeat, bounce.len(), || {
+        nhit = bounce.iter().filter(|r| scene.intersect(r, f32::INFINITY).is_some()).count();
+    });
+    println!("diffuse bounce rays (closest hit): {bounce_rate:.2} Mrays/s ({nhit} hit)");
+
+    // Full render, all threads.
+    let spp = args.spp.max(1);
+    let mut rays = 0u64;
+    let mut samples = 0u64;
+    let times: Vec<f64> = (0..repeat)
+        .map(|_| {
+            let t = Instant::now();
+            let (_, s) = tracer::render::render_image(scene, Integrator::Path, SampleRange::new(0, spp), 16, &|_| {});
+            rays = s.rays;
+            samples = s.samples;
+            t.elapsed().as_secs_f64()
+        })
+        .collect();
+    let secs = median(times);
+    println!(
+        "render {}×{} at {spp} spp, max_depth {}: {:.3} s, {:.3} M samples/s, {:.2} M rays/s (all threads)",
+        scene.camera.width,
+        scene.camera.height,
+        scene.settings.max_depth,
+        secs,
+        samples as f64 / secs / 1e6,
+        rays as f64 / secs / 1e6
+    );
+}
+
+/// Median throughput in Mrays/s of `f`, which traces `n` rays.
+fn rate(repeat: usize, n: usize, mut f: impl FnMut()) -> f64 {
+    let times: Vec<f64> = (0..repeat)
+        .map(|_| {
+            let t = Instant::now();
+            f();
+            t.elapsed().as_secs_f64()
+        })
+        .collect();
+    n as f64 / median(times) / 1e6
+}

@@ -1,0 +1,175 @@
+//! The look-at camera of the report: position, look-at point, an "up" hint corrected to
+//! be orthogonal to the forward direction, right = forward × up, a vertical field of view
+//! and a pixel grid with row 0 at the top. Optional thin lens for depth of field.
+
+use glam::{Vec2, Vec3};
+
+use crate::geometry::Ray;
+
+#[derive(Clone, Debug, PartialEq)]
+pub struct Camera {
+    pub position: Vec3,
+    pub forward: Vec3,
+    pub right: Vec3,
+    pub up: Vec3,
+    pub width: u32,
+    pub height: u32,
+    /// tan(fov/2): the half-height of the image plane at distance 1.
+    tan_half_fov: f32,
+    /// Lens radius (0 = pinhole) and distance of the plane in focus.
+    aperture: f32,
+    focus_distance: f32,
+}
+
+#[derive(Debug, thiserror::Error, PartialEq)]
+pub enum CameraError {
+    #[error("camera: position and look_at coincide")]
+    NoDirection,
+    #[error("camera: up is parallel to the viewing direction")]
+    UpParallel,
+    #[error("camera: fov must be in (0, 180) degrees, got {0}")]
+    Fov(f32),
+    #[error("camera: width and height must be positive, got {0}×{1}")]
+    Size(u32, u32),
+    #[error("camera: aperture must be ≥ 0 and focus_distance > 0")]
+    Lens,
+}
+
+impl Camera {
+    pub fn look_at(
+        position: Vec3,
+        look_at: Vec3,
+        up_hint: Vec3,
+        fov_degrees: f32,
+        width: u32,
+        height: u32,
+    ) -> Result<Self, CameraError> {
+        let forward = (look_at - position).normalize_or_zero();
+        if forward == Vec3::ZERO || !forward.is_finite() {
+            return Err(CameraError::NoDirection);
+        }
+        let right = forward.cross(up_hint).normalize_or_zero();
+        if right == Vec3::ZERO || !right.is_finite() {
+            return Err(CameraError::UpParallel);
+        }
+        if !(fov_degrees > 0.0 && fov_degrees < 180.0) {
+            return Err(CameraError::Fov(fov_degrees));
+        }
+        if width == 0 || height == 0 {
+            return Err(CameraError::Size(width, height));
+        }
+        // The corrected up: orthogonal to forward and right, on the side of the hint.
+        let up = right.cross(forward);
+        Ok(Self {
+            position,
+            forward,
+            right,
+            up,
+            width,
+            height,
+            tan_half_fov: (fov_degrees.to_radians() * 0.5).tan(),
+            aperture: 0.0,
+            focus_distance: (look_at - position).length(),
+        })
+    }
+
+    /// Adds a thin lens of radius `aperture` focused at `focus_distance` along forward.
+    pub fn with_lens(mut self, aperture: f32, focus_distance: f32) -> Result<Self, CameraError> {
+        if !(aperture >= 0.0 && focus_distance > 0.0 && aperture.is_finite() && focus_distance.is_finite()) {
+            return Err(CameraError::Lens);
+        }
+        self.aperture = aperture;
+        self.focus_distance = focus_distance;
+        Ok(self)
+    }
+
+    pub fn has_lens(&self) -> bool {
+        self.aperture > 0.0
+    }
+
+    /// The ray through film position `film` (in pixels: x right, y down, (0,0) the top
+    /// left corner of the image). `lens` is a uniform sample in [0,1)², used only with a
+    /// thin lens.
+    #[inline]
+    pub fn generate_ray(&self, film: Vec2, lens: Vec2) -> Ray {
+        let aspect = self.width as f32 / self.height as f32;
+        let sx = (2.0 * film.x / self.width as f32 - 1.0) * self.tan_half_fov * aspect;
+        let sy = (1.0 - 2.0 * film.y / self.height as f32) * self.tan_half_fov;
+        let dir = (self.forward + sx * self.right + sy * self.up).normalize();
+        if self.aperture <= 0.0 {
+            return Ray::new(self.position, dir);
+        }
+        // Points at distance focus_distance along forward stay sharp.
+        let focus = self.position + dir * (self.focus_distance / dir.dot(self.forward));
+        let d = crate::sampling::concentric_disk(lens) * self.aperture;
+        let origin = self.position + d.x * self.right + d.y * self.up;
+        Ray::new(origin, (focus - origin).normalize())
+    }
+
+    /// Projects a world point to film coordinates (pixels), if it is in front.
+    pub fn project(&self, p: Vec3) -> Option<Vec2> {
+        let v = p - self.position;
+        let z = v.dot(self.forward);
+        if z <= 0.0 {
+            return None;
+        }
+        let aspect = self.width as f32 / self.height as f32;
+        let sx = v.dot(self.right) / z / (self.tan_half_fov * aspect);
+        let sy = v.dot(self.up) / z / self.tan_half_fov;
+        Some(Vec2::new((sx + 1.0) * 0.5 * self.width as f32, (1.0 - sy) * 0.5 * self.height as f32))
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn cam() -> Camera {
+        Camera::look_at(Vec3::new(0.0, 0.0, -5.0), Vec3::ZERO, Vec3::Y, 60.0, 200, 100).unwrap()
+    }
+
+    #[test]
+    fn right_is_forward_cross_up_and_lands_right() {
+        let c = cam();
+        assert!((c.right - Vec3::Z.cross(Vec3::Y)).length() < 1e-6);
+        // A point to the camera's right and above the centre: right half, top half.
+        let p = c.project(c.position + 5.0 * c.forward + 1.0 * c.right + 0.5 * c.up).unwrap();
+        assert!(p.x > 100.0 && p.y < 50.0, "{p}");
+    }
+
+    #[test]
+    fn centre_pixel_looks_forward_and_corners_span_fov() {
+        let c = cam();
+        let r = c.generate_ray(Vec2::new(100.0, 50.0), Vec2::ZERO);
+        assert!((r.dir - c.forward).length() < 1e-6);
+        let top = c.generate_ray(Vec2::new(100.0, 0.0), Vec2::ZERO);
+        assert!((top.dir.angle_between(c.forward).to_degrees() - 30.0).abs() < 1e-3);
+        assert!(top.dir.dot(c.up) > 0.0);
+        // project() inverts generate_ray().
+        let f = Vec2::new(37.25, 81.5);
+        let q = c.project(c.generate_ray(f, Vec2::ZERO).at(3.0)).unwrap();
+        assert!((q - f).length() < 1e-3);
+    }
+
+    #[test]
+    fn up_hint_is_corrected_and_bad_input_rejected() {
+        let c = Camera::look_at(Vec3::ZERO, Vec3::new(0.0, -1.0, 1.0), Vec3::Y, 40.0, 10, 10).unwrap();
+        assert!(c.up.dot(c.forward).abs() < 1e-6 && c.up.y > 0.0);
+        assert_eq!(Camera::look_at(Vec3::ZERO, Vec3::ZERO, Vec3::Y, 40.0, 1, 1), Err(CameraError::NoDirection));
+        assert_eq!(Camera::look_at(Vec3::ZERO, Vec3::Y, Vec3::Y, 40.0, 1, 1), Err(CameraError::UpParallel));
+        assert_eq!(Camera::look_at(Vec3::ZERO, Vec3::Z, Vec3::Y, 180.0, 1, 1), Err(CameraError::Fov(180.0)));
+    }
+
+    #[test]
+    fn thin_lens_keeps_focus_plane_sharp() {
+        let c = cam().with_lens(0.5, 5.0).unwrap();
+        let f = Vec2::new(60.0, 20.0);
+        let pinhole = c.generate_ray(f, Vec2::ZERO);
+        let target = c.position + pinhole.dir * (5.0 / pinhole.dir.dot(c.forward));
+        for lens in [Vec2::new(0.1, 0.9), Vec2::new(0.7, 0.3)] {
+            let r = c.generate_ray(f, lens);
+            let t = (target - r.origin).dot(r.dir);
+            assert!((r.at(t) - target).length() < 1e-4);
+        }
+    }
+}

@@ -1,0 +1,256 @@
+//! The film: per-pixel radiance sums and sample counts that merge *exactly*.
+//!
+//! Floating-point addition is not associative, so summing the same samples in a
+//! different grouping (one worker or four, batches in any order) would change the last
+//! bits. Each sample is therefore converted to fixed point (2^-32 resolution, i128
+//! accumulators) before it is added: integer addition is associative, so the film of
+//! samples [0,a) merged with that of [a,b) is bit-identical to the film of [0,b).
+
+use glam::Vec3;
+
+/// Fixed-point scale: radiance 1.0 is 2^32. Resolution 2.3e-10; the i128 range
+/// (±1.7e38 / 2^32 ≈ 4e28) cannot overflow from finite f32 samples within a pixel.
+const FIXED_ONE: f64 = 4294967296.0;
+
+/// A rectangle of pixels: `x0..x0+width`, `y0..y0+height`, row 0 at the top.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
+pub struct Tile {
+    pub x0: u32,
+    pub y0: u32,
+    pub width: u32,
+    pub height: u32,
+}
+
+impl Tile {
+    pub fn new(x0: u32, y0: u32, width: u32, height: u32) -> Self {
+        Self { x0, y0, width, height }
+    }
+
+    pub fn pixel_count(&self) -> usize {
+        self.width as usize * self.height as usize
+    }
+
+    /// Splits a `width × height` image into tiles of at most `size × size`, row-major.
+    pub fn grid(width: u32, height: u32, size: u32) -> Vec<Tile> {
+        let size = size.max(1);
+        let mut tiles = Vec::new();
+        for y0 in (0..height).step_by(size as usize) {
+            for x0 in (0..width).step_by(size as usize) {
+                tiles.push(Tile::new(x0, y0, size.min(width - x0), size.min(height - y0)));
+            }
+        }
+        tiles
+    }
+}
+
+/// A half-open range of sample indices `[start, end)`.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
+pub struct SampleRange {
+    pub start: u32,
+    pub end: u32,
+}
+
+impl SampleRange {
+    pub fn new(start: u32, end: u32) -> Self {
+        Self { start, end }
+    }
+
+    pub fn len(&self) -> u32 {
+        self.end.saturating_sub(self.start)
+    }
+
+    pub fn is_empty(&self) -> bool {
+        self.len() == 0
+    }
+}
+
+/// Converts one channel of one sample to fixed point. Exact and deterministic: the f32
+/// widens to f64 exactly, the multiplication by 2^32 is exact, and `round` is exact.
+#[inline]
+fn to_fixed(v: f32) -> i128 {
+    (v as f64 * FIXED_ONE).round() as i128
+}
+
+/// Per-pixel sums for one tile. Non-finite samples are counted (and contribute zero)
+/// rather than poisoning the pixel.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub struct Accumulation {
+    pub tile: Tile,
+    /// Fixed-point RGB sums, row-major within the tile.
+    pub sums: Vec<[i128; 3]>,
+    pub counts: Vec<u32>,
+    /// Samples that were NaN or infinite and were replaced by zero.
+    pub nonfinite: u64,
+}
+
+#[derive(Debug, thiserror::Error, PartialEq, Eq)]
+pub enum MergeError {
+    #[error("tile mismatch: {0:?} vs {1:?}")]
+    TileMismatch(Tile, Tile),
+    #[error("malformed accumulation: {0} sums and {1} counts for {2} pixels")]
+    Malformed(usize, usize, usize),
+    #[error("sample count overflow")]
+    Overflow,
+}
+
+impl Accumulation {
+    pub fn new(tile: Tile) -> Self {
+        let n = tile.pixel_count();
+        Self { tile, sums: vec![[0; 3]; n], counts: vec![0; n], nonfinite: 0 }
+    }
+
+    /// Adds one sample to pixel `i` (index within the tile).
+    #[inline]
+    pub fn add_sample(&mut self, i: usize, radiance: Vec3) {
+        let v = if radiance.is_finite() {
+            radiance
+        } else {
+            self.nonfinite += 1;
+            Vec3::ZERO
+        };
+        let s = &mut self.sums[i];
+        s[0] += to_fixed(v.x);
+        s[1] += to_fixed(v.y);
+        s[2] += to_fixed(v.z);
+        self.counts[i] += 1;
+    }
+
+    fn check(&self) -> Result<(), MergeError> {
+        let n = self.tile.pixel_count();
+        if self.sums.len() != n || self.counts.len() != n {
+            return Err(MergeError::Malformed(self.sums.len(), self.counts.len(), n));
+        }
+        Ok(())
+    }
+
+    /// Adds another accumulation of the same tile (exact, order-independent).
+    pub fn merge(&mut self, other: &Accumulation) -> Result<(), MergeError> {
+        if self.tile != other.tile {
+            return Err(MergeError::TileMismatch(self.tile, other.tile));
+        }
+        self.check()?;
+        other.check()?;
+        for (c, o) in self.counts.iter().zip(&other.counts) {
+            c.checked_add(*o).ok_or(MergeError::Overflow)?;
+        }
+        for (s, o) in self.sums.iter_mut().zip(&other.sums) {
+            for k in 0..3 {
+                s[k] += o[k];
+            }
+        }
+        for (c, o) in self.counts.iter_mut().zip(&other.counts) {
+            *c += o;
+        }
+        self.nonfinite += other.nonfinite;
+        Ok(())
+    }
+
+    /// Mean radiance of pixel `i`, or zero where no sample landed.
+    pub fn mean(&self, i: usize) -> Vec3 {
+        let n = self.counts[i];
+        if n == 0 {
+            return Vec3::ZERO;
+        }
+        let s = self.sums[i];
+        let k = 1.0 / (FIXED_ONE * n as f64);
+        Vec3::new((s[0] as f64 * k) as f32, (s[1] as f64 * k) as f32, (s[2] as f64 * k) as f32)
+    }
+}
+
+/// A whole image assembled from tiles: mean radiance and sample count per pixel.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Image {
+    pub width: u32,
+    pub height: u32,
+    pub pixels: Vec<Vec3>,
+    pub counts: Vec<u32>,
+}
+
+impl Image {
+    pub fn new(width: u32, height: u32) -> Self {
+        let n = width as usize * height as usize;
+        Self { width, height, pixels: vec![Vec3::ZERO; n], counts: vec![0; n] }
+    }
+
+    /// Writes a tile's means into the image (the tile must lie inside it).
+    pub fn put(&mut self, acc: &Accumulation) {
+        let t = acc.tile;
+        for ty in 0..t.height {
+            for tx in 0..t.width {
+                let i = (ty * t.width + tx) as usize;
+                let o = ((t.y0 + ty) * self.width + t.x0 + tx) as usize;
+                self.pixels[o] = acc.mean(i);
+                self.counts[o] = acc.counts[i];
+            }
+        }
+    }
+
+    #[inline]
+    pub fn at(&self, x: u32, y: u32) -> Vec3 {
+        self.pixels[(y * self.width + x) as usize]
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn merge_is_exact_regardless_of_grouping() {
+        let tile = Tile::new(0, 0, 3, 1);
+        let samples: Vec<Vec3> = (0..64).map(|i| Vec3::splat(((i * 7919) % 113) as f32 * 0.0137 + 1e-7)).collect();
+        let mut whole = Accumulation::new(tile);
+        for s in &samples {
+            whole.add_sample(1, *s);
+        }
+        let (mut a, mut b) = (Accumulation::new(tile), Accumulation::new(tile));
+        for s in &samples[..23] {
+            a.add_sample(1, *s);
+        }
+        for s in samples[23..].iter().rev() {
+            b.add_sample(1, *s);
+        }
+        let mut ba = b.clone();
+        ba.merge(&a).unwrap();
+        a.merge(&b).unwrap();
+        assert_eq!(a, whole);
+        assert_eq!(ba, whole);
+        let mean = samples.iter().map(|s| s.x as f64).sum::<f64>() / 64.0;
+        assert!((whole.mean(1).x as f64 - mean).abs() < 1e-6);
+    }
+
+    #[test]
+    fn nonfinite_samples_are_counted_not_kept() {
+        let mut a = Accumulation::new(Tile::new(0, 0, 1, 1));
+        a.add_sample(0, Vec3::new(f32::NAN, 1.0, 1.0));
+        a.add_sample(0, Vec3::splat(f32::INFINITY));
+        a.add_sample(0, Vec3::ONE);
+        assert_eq!(a.nonfinite, 2);
+        assert_eq!(a.counts[0], 3);
+        assert!(a.mean(0).is_finite());
+    }
+
+    #[test]
+    fn mismatched_tiles_do_not_merge() {
+        let mut a = Accumulation::new(Tile::new(0, 0, 2, 2));
+        let b = Accumulation::new(Tile::new(2, 0, 2, 2));
+        assert!(a.merge(&b).is_err());
+        let mut bad = Accumulation::new(Tile::new(0, 0, 2, 2));
+        bad.counts.pop();
+        assert!(a.merge(&bad).is_err());
+    }
+
+    #[test]
+    fn grid_covers_image_once() {
+        let tiles = Tile::grid(100, 70, 32);
+        let mut cover = vec![0u8; 100 * 70];
+        for t in &tiles {
+            for y in t.y0..t.y0 + t.height {
+                for x in t.x0..t.x0 + t.width {
+                    cover[(y * 100 + x) as usize] += 1;
+                }
+            }
+        }
+        assert!(cover.iter().all(|&c| c == 1));
+    }
+}

@@ -1,0 +1,341 @@
+//! Lights: one enum for every kind, and the set that picks one in proportion to power.
+//!
+//! Area lights (emissive triangles and spheres) and the environment are sampled with a
+//! solid-angle pdf so that the path integrator can weight them against BSDF sampling by
+//! multiple importance sampling; point, spot and directional lights are delta lights,
+//! reachable by light sampling alone.
+
+use std::f32::consts::PI;
+
+use glam::{Vec2, Vec3};
+
+use crate::geometry::{Frame, offset_origin};
+use crate::sampling::{sample_uniform_sphere, sample_uniform_triangle, uniform_sphere_pdf};
+
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum Light {
+    /// Radiant intensity `intensity` (W/sr) in every direction.
+    Point { position: Vec3, intensity: Vec3 },
+    /// A cone around `direction` (unit): full intensity within `cos_falloff_start`,
+    /// smoothstep falloff to zero at `cos_total`.
+    Spot { position: Vec3, direction: Vec3, intensity: Vec3, cos_total: f32, cos_falloff_start: f32 },
+    /// Parallel light travelling along `direction` (unit).
+    Directional { direction: Vec3, irradiance: Vec3 },
+    /// An emissive triangle (primitive `prim`), emitting `radiance` from its front face.
+    Triangle { prim: u32, p0: Vec3, e1: Vec3, e2: Vec3, normal: Vec3, area: f32, radiance: Vec3 },
+    /// An emissive sphere (primitive `prim`), emitting `radiance` outwards.
+    Sphere { prim: u32, center: Vec3, radius: f32, radiance: Vec3 },
+    /// Constant radiance from every direction (the report's "ambient light").
+    Environment { radiance: Vec3 },
+}
+
+/// Incident light from one sampled point of a light.
+#[derive(Clone, Copy, Debug)]
+pub struct LightSample {
+    /// Unit direction from the shading point towards the light.
+    pub wi: Vec3,
+    /// Incident radiance (area lights), or irradiance-like `I/r²` / `E` (delta lights).
+    pub li: Vec3,
+    /// Solid-angle pdf of `wi` (1 for delta lights); excludes the light selection pmf.
+    pub pdf: f32,
+    /// Where the shadow ray ends: the sampled point, or `None` for lights at infinity.
+    pub target: Option<Vec3>,
+    pub delta: bool,
+}
+
+#[inline]
+fn luminance(c: Vec3) -> f32 {
+    0.2126 * c.x + 0.7152 * c.y + 0.0722 * c.z
+}
+
+#[inline]
+fn smoothstep(x: f32, a: f32, b: f32) -> f32 {
+    if a == b {
+        return if x < a { 0.0 } else { 1.0 };
+    }
+    let t = ((x - a) / (b - a)).clamp(0.0, 1.0);
+    t * t * (3.0 - 2.0 * t)
+}
+
+impl Light {
+    /// Emitted power (luminance of W), used to choose lights. `scene_radius` bounds the
+    /// area that infinite lights illuminate.
+    pub fn power(&self, scene_radius: f32) -> f32 {
+        let disc = PI * scene_radius * scene_radius;
+        let p = match *self {
+            Light::Point { intensity, .. } => 4.0 * PI * luminance(intensity),
+            Light::Spot { intensity, cos_total, cos_falloff_start, .. } => {
+                2.0 * PI * luminance(intensity) * (1.0 - 0.5 * (cos_total + cos_falloff_start))
+            }
+            Light::Directional { irradiance, .. } => disc * luminance(irradiance),
+            Light::Triangle { area, radiance, .. } => PI * area * luminance(radiance),
+            Light::Sphere { radius, radiance, .. } => PI * 4.0 * PI * radius * radius * luminance(radiance),
+            Light::Environment { radiance } => PI * 4.0 * disc * luminance(radiance),
+        };
+        if p.is_finite() { p.max(0.0) } else { 0.0 }
+    }
+
+    pub fn is_delta(&self) -> bool {
+        matches!(self, Light::Point { .. } | Light::Spot { .. } | Light::Directional { .. })
+    }
+
+    /// Samples incident light at `p` (with geometric normal `n` for ray offsets).
+    pub fn sample_li(&self, p: Vec3, u: Vec2) -> Option<LightSample> {
+        match *self {
+            Light::Point { position, intensity } => {
+                let d = position - p;
+                let d2 = d.length_squared();
+                let wi = d / d2.sqrt();
+                Some(LightSample { wi, li: intensity / d2, pdf: 1.0, target: Some(position), delta: true })
+            }
+            Light::Spot { position, direction, intensity, cos_total, cos_falloff_start } => {
+                let d = position - p;
+                let d2 = d.length_squared();
+                let wi = d / d2.sqrt();
+                let falloff = smoothstep((-wi).dot(direction), cos_total, cos_falloff_start);
+                if falloff <= 0.0 {
+                    return None;
+                }
+                Some(LightSample { wi, li: intensity * falloff / d2, pdf: 1.0, target: Some(position), delta: true })
+            }
+            Light::Directional { direction, irradiance } => {
+                Some(LightSample { wi: -direction, li: irradiance, pdf: 1.0, target: None, delta: true })
+            }
+            Light::Triangle { p0, e1, e2, normal, area, radiance, .. } => {
+                let [_, b1, b2] = sample_uniform_triangle(u);
+                let q = p0 + b1 * e1 + b2 * e2;
+                let d = q - p;
+                let d2 = d.length_squared();
+                if d2 == 0.0 {
+                    return None;
+                }
+                let wi = d / d2.sqrt();
+                // One-sided: only the front (counter-clockwise) face emits.
+                let cos_l = -wi.dot(normal);
+                if cos_l <= 0.0 {
+                    return None;
+                }
+                let pdf = d2 / (cos_l * area);
+                let target = offset_origin(q, normal, -wi);
+                Some(LightSample { wi, li: radiance, pdf, target: Some(target), delta: false })
+            }
+            Light::Sphere { center, radius, radiance, .. } => {
+                let (wi, q, pdf) = sample_sphere_cone(p, center, radius, u)?;
+                let n = (q - center) / radius;
+                let target = offset_origin(q, n, -wi);
+                Some(LightSample { wi, li: radiance, pdf, target: Some(target), delta: false })
+            }
+            Light::Environment { radiance } => {
+                let wi = sample_uniform_sphere(u);
+                Some(LightSample { wi, li: radiance, pdf: uniform_sphere_pdf(), target: None, delta: false })
+            }
+        }
+    }
+
+    /// The solid-angle pdf with which `sample_li` at `p` would produce direction `wi`
+    /// reaching this light at `q` (a point on it, for area lights).
+    pub fn pdf_li(&self, p: Vec3, wi: Vec3, q: Vec3) -> f32 {
+        match *self {
+            Light::Triangle { normal, area, .. } => {
+                let cos_l = -wi.dot(normal);
+                if cos_l <= 0.0 {
+                    return 0.0;
+                }
+                (q - p).length_squared() / (cos_l * area)
+            }
+            Light::Sphere { center, radius, .. } => {
+                let d2 = (center - p).length_squared();
+                let r2 = radius * radius;
+                if d2 <= r2 {
+                    return 0.0;
+                }
+                let sin2_max = r2 / d2;
+                let one_minus_cos_max = sin2_max / (1.0 + (1.0 - sin2_max).sqrt());
+                1.0 / (2.0 * PI * one_minus_cos_max)
+            }
+            Light::Environment { .. } => uniform_sphere_pdf(),
+            _ => 0.0,
+        }
+    }
+}
+
+/// Uniform sampling of the cone of directions a sphere subtends from `p` (pbrt-v4's
+/// `Sphere::Sample(ctx)`), with the point on the sphere computed analytically so that it
+/// exists even for directions at the silhouette. Returns `(wi, point, pdf)`; `None` when
+/// `p` is inside the sphere (it emits outwards only, so nothing reaches `p`).
+fn sample_sphere_cone(p: Vec3, center: Vec3, radius: f32, u: Vec2) -> Option<(Vec3, Vec3, f32)> {
+    let d2 = (center - p).length_squared();
+    let r2 = radius * radius;
+    if d2 <= r2 {
+        return None;
+    }
+    let dist = d2.sqrt();
+    let sin2_max = r2 / d2;
+    let sin_max = sin2_max.sqrt();
+    let cos_max = (1.0 - sin2_max).max(0.0).sqrt();
+    let mut one_minus_cos_max = 1.0 - cos_max;
+    let mut cos_t = (cos_max - 1.0) * u.x + 1.0;
+    let mut sin2_t = (1.0 - cos_t * cos_t).max(0.0);
+    if sin2_max < 0.00068523 {
+        // Small cones: Taylor expansion keeps precision (sin² ≈ 1 - cos²).
+        sin2_t = sin2_max * u.x;
+        cos_t = (1.0 - sin2_t).sqrt();
+        one_minus_cos_max = sin2_max / 2.0;
+    }
+    // Angle alpha at the sphere's centre between the sampled point and the direction to p.
+    let cos_alpha = sin2_t / sin_max + cos_t * (1.0 - sin2_t / sin2_max).max(0.0).sqrt();
+    let sin_alpha = (1.0 - cos_alpha * cos_alpha).max(0.0).sqrt();
+    let phi = 2.0 * PI * u.y;
+    let frame = Frame::from_normal((center - p) / dist);
+    let w = Vec3::new(sin_alpha * phi.cos(), sin_alpha * phi.sin(), cos_alpha);
+    let n = frame.to_world(-w);
+    let q = center + radius * n;
+    let wi = (q - p).normalize();
+    Some((wi, q, 1.0 / (2.0 * PI * one_minus_cos_max)))
+}
+
+/// The scene's lights with a power-proportional selection distribution (a CDF).
+#[derive(Clone, Debug, Default)]
+pub struct LightSet {
+    pub lights: Vec<Light>,
+    cdf: Vec<f32>,
+    pmf: Vec<f32>,
+    /// For each primitive, the index of its area light, or `u32::MAX`.
+    prim_light: Vec<u32>,
+    environment: Option<u32>,
+}
+
+impl LightSet {
+    pub fn new(lights: Vec<Light>, prim_count: usize, scene_radius: f32) -> Self {
+        let powers: Vec<f32> = lights.iter().map(|l| l.power(scene_radius)).collect();
+        let total: f64 = powers.iter().map(|&p| p as f64).sum();
+        let mut pmf = Vec::with_capacity(lights.len());
+        let mut cdf = Vec::with_capacity(lights.len());
+        let mut acc = 0.0f64;
+        for &p in &powers {
+            let q = if total > 0.0 { p as f64 / total } else { 0.0 };
+            acc += q;
+            pmf.push(q as f32);
+            cdf.push(acc as f32);
+        }
+        // The last light with nonzero probability closes the CDF exactly at 1.
+        if let Some(last) = pmf.iter().rposition(|&q| q > 0.0) {
+            for c in &mut cdf[last..] {
+                *c = 1.0;
+            }
+        }
+        let mut prim_light = vec![u32::MAX; prim_count];
+        let mut environment = None;
+        for (i, l) in lights.iter().enumerate() {
+            match *l {
+                Light::Triangle { prim, .. } | Light::Sphere { prim, .. } => prim_light[prim as usize] = i as u32,
+                Light::Environment { .. } => environment = Some(i as u32),
+                _ => {}
+            }
+        }
+        Self { lights, cdf, pmf, prim_light, environment }
+    }
+
+    pub fn is_empty(&self) -> bool {
+        self.lights.is_empty() || self.cdf.last().is_none_or(|&c| c <= 0.0)
+    }
+
+    /// Picks a light with probability proportional to its power: `(index, pmf)`.
+    #[inline]
+    pub fn select(&self, u: f32) -> Option<(usize, f32)> {
+        if self.is_empty() {
+            return None;
+        }
+        let i = self.cdf.partition_point(|&c| c <= u).min(self.cdf.len() - 1);
+        let p = self.pmf[i];
+        (p > 0.0).then_some((i, p))
+    }
+
+    #[inline]
+    pub fn pmf(&self, light: usize) -> f32 {
+        self.pmf[light]
+    }
+
+    /// The area light that primitive `prim` belongs to.
+    #[inline]
+    pub fn light_of_prim(&self, prim: u32) -> Option<usize> {
+        match self.prim_light.get(prim as usize) {
+            Some(&l) if l != u32::MAX => Some(l as usize),
+            _ => None,
+        }
+    }
+
+    pub fn environment(&self) -> Option<usize> {
+        self.environment.map(|e| e as usize)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn selection_follows_power() {
+        let lights = vec![
+            Light::Point { position: Vec3::ZERO, intensity: Vec3::ONE },
+            Light::Point { position: Vec3::ZERO, intensity: Vec3::ZERO },
+            Light::Point { position: Vec3::ZERO, intensity: Vec3::splat(3.0) },
+        ];
+        let set = LightSet::new(lights, 0, 1.0);
+        assert!((set.pmf(0) - 0.25).abs() < 1e-6 && set.pmf(1) == 0.0 && (set.pmf(2) - 0.75).abs() < 1e-6);
+        assert_eq!(set.select(0.1).unwrap().0, 0);
+        assert_eq!(set.select(0.25).unwrap().0, 2);
+        assert_eq!(set.select(0.999_999_9).unwrap().0, 2);
+        assert!(LightSet::new(vec![], 0, 1.0).select(0.5).is_none());
+    }
+
+    #[test]
+    fn sphere_cone_samples_lie_on_sphere_with_matching_pdf() {
+        let (c, r) = (Vec3::new(0.3, 4.0, -1.0), 0.7);
+        let l = Light::Sphere { prim: 0, center: c, radius: r, radiance: Vec3::ONE };
+        let p = Vec3::new(0.0, 0.0, 0.5);
+        for i in 0..64 {
+            let u = Vec2::new((i % 8) as f32 / 8.0 + 0.03, (i / 8) as f32 / 8.0 + 0.05);
+            let s = l.sample_li(p, u).unwrap();
+            let (_, q, pdf) = sample_sphere_cone(p, c, r, u).unwrap();
+            assert!(((q - c).length() - r).abs() < 1e-4);
+            // The sampled point is visible from p (on the near side).
+            assert!((q - c).dot(p - q) >= -1e-4);
+            assert!((l.pdf_li(p, s.wi, q) - pdf).abs() / pdf < 1e-4);
+        }
+        assert!(l.sample_li(c, Vec2::splat(0.5)).is_none());
+    }
+
+    #[test]
+    fn triangle_light_is_one_sided() {
+        let l = Light::Triangle {
+            prim: 0,
+            p0: Vec3::ZERO,
+            e1: Vec3::X,
+            e2: Vec3::Y,
+            normal: Vec3::Z,
+            area: 0.5,
+            radiance: Vec3::ONE,
+        };
+        assert!(l.sample_li(Vec3::new(0.2, 0.2, 1.0), Vec2::splat(0.3)).is_some());
+        assert!(l.sample_li(Vec3::new(0.2, 0.2, -1.0), Vec2::splat(0.3)).is_none());
+    }
+
+    #[test]
+    fn spot_falls_off_smoothly_to_zero_at_the_cone() {
+        let cos = |deg: f32| deg.to_radians().cos();
+        let l = Light::Spot {
+            position: Vec3::ZERO,
+            direction: -Vec3::Y,
+            intensity: Vec3::ONE,
+            cos_total: cos(30.0),
+            cos_falloff_start: cos(20.0),
+        };
+        let at = |deg: f32| {
+            let p = Vec3::new(deg.to_radians().sin(), -deg.to_radians().cos(), 0.0);
+            l.sample_li(p, Vec2::ZERO).map_or(0.0, |s| s.li.x)
+        };
+        assert!((at(0.0) - 1.0).abs() < 1e-5 && (at(19.0) - 1.0).abs() < 1e-5);
+        assert!(at(25.0) > 0.0 && at(25.0) < 1.0 && at(31.0) == 0.0);
+    }
+}

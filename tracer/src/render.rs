@@ -1,0 +1,87 @@
+//! Rendering units of work. [`render_unit`] is the one function that both the
+//! in-process renderer and the farm's workers call: a tile over a range of sample
+//! indices, into an [`Accumulation`] that merges exactly with any other range.
+
+use std::sync::atomic::{AtomicU64, Ordering};
+
+use glam::Vec2;
+use rayon::prelude::*;
+
+use crate::film::{Accumulation, Image, SampleRange, Tile};
+use crate::integrator::{Integrator, RayCount, li};
+use crate::sampler::Sampler;
+use crate::scene::Scene;
+
+/// Renders `samples` of every pixel of `tile`. Each sample's random numbers depend only
+/// on (scene seed, pixel, sample index), so the result does not depend on where or in
+/// which grouping the samples are rendered.
+pub fn render_unit(scene: &Scene, integrator: Integrator, tile: Tile, samples: SampleRange) -> Accumulation {
+    render_unit_counted(scene, integrator, tile, samples).0
+}
+
+/// [`render_unit`] that also returns the number of rays traced.
+pub fn render_unit_counted(
+    scene: &Scene,
+    integrator: Integrator,
+    tile: Tile,
+    samples: SampleRange,
+) -> (Accumulation, RayCount) {
+    let mut acc = Accumulation::new(tile);
+    let mut count = RayCount::default();
+    let cam = &scene.camera;
+    let seed = scene.settings.seed;
+    for ty in 0..tile.height {
+        for tx in 0..tile.width {
+            let (x, y) = (tile.x0 + tx, tile.y0 + ty);
+            let i = (ty * tile.width + tx) as usize;
+            for s in samples.start..samples.end {
+                let mut sampler = Sampler::new(seed, x, y, s);
+                // Box filter: uniform positions within the pixel.
+                let film = Vec2::new(x as f32, y as f32) + sampler.next_2d();
+                let lens = if cam.has_lens() { sampler.next_2d() } else { Vec2::ZERO };
+                let ray = cam.generate_ray(film, lens);
+                let l = li(integrator, scene, ray, &mut sampler, &mut count);
+                acc.add_sample(i, l);
+            }
+        }
+    }
+    (acc, count)
+}
+
+/// Totals of a whole-image render.
+#[derive(Clone, Copy, Debug, Default)]
+pub struct RenderStats {
+    pub samples: u64,
+    pub rays: u64,
+    pub nonfinite: u64,
+}
+
+/// Renders the whole image in this process on the rayon pool: tiles in parallel, each
+/// over all of `samples`. `progress(samples_done)` is called as tiles finish.
+pub fn render_image(
+    scene: &Scene,
+    integrator: Integrator,
+    samples: SampleRange,
+    tile_size: u32,
+    progress: &(dyn Fn(u64) + Sync),
+) -> (Image, RenderStats) {
+    let (w, h) = (scene.camera.width, scene.camera.height);
+    let rays = AtomicU64::new(0);
+    let accs: Vec<Accumulation> = Tile::grid(w, h, tile_size)
+        .into_par_iter()
+        .map(|tile| {
+            let (acc, count) = render_unit_counted(scene, integrator, tile, samples);
+            rays.fetch_add(count.rays, Ordering::Relaxed);
+            progress(tile.pixel_count() as u64 * samples.len() as u64);
+            acc
+        })
+        .collect();
+    let mut image = Image::new(w, h);
+    let mut stats = RenderStats { rays: rays.into_inner(), ..Default::default() };
+    for acc in &accs {
+        image.put(acc);
+        stats.nonfinite += acc.nonfinite;
+        stats.samples += acc.counts.iter().map(|&c| c as u64).sum::<u64>();
+    }
+    (image, stats)
+}

@@ -1,0 +1,300 @@
+//! Warping functions from the unit square [0,1)² to the domains the renderer samples
+//! (disk, hemisphere, sphere, cone, power-cosine lobe, triangle), each with its pdf.
+//!
+//! Directions are in a local frame whose z axis is the lobe/cone axis (use
+//! [`crate::geometry::frame::Frame`] to go to world space). Solid-angle pdfs are per
+//! steradian; the disk pdf is per unit area of the unit disk. Every function is total:
+//! inputs on the closed square [0,1]² and degenerate parameters give finite results.
+
+use glam::{Vec2, Vec3};
+use std::f32::consts::{FRAC_PI_2, FRAC_PI_4, PI};
+
+pub const INV_PI: f32 = std::f32::consts::FRAC_1_PI;
+pub const INV_2PI: f32 = 0.5 * std::f32::consts::FRAC_1_PI;
+pub const INV_4PI: f32 = 0.25 * std::f32::consts::FRAC_1_PI;
+
+/// Unit vector with polar angle given by (`sin_theta`, `cos_theta`) and azimuth `phi`.
+#[inline]
+pub fn spherical_direction(sin_theta: f32, cos_theta: f32, phi: f32) -> Vec3 {
+    let (sin_phi, cos_phi) = phi.sin_cos();
+    Vec3::new(sin_theta * cos_phi, sin_theta * sin_phi, cos_theta)
+}
+
+/// Shirley–Chiu concentric map of the square onto the unit disk: uniform in area, low
+/// distortion, so stratification of `u` survives (used by cosine sampling and the lens).
+#[inline]
+pub fn sample_uniform_disk_concentric(u: Vec2) -> Vec2 {
+    let o = 2.0 * u - Vec2::ONE;
+    if o.x == 0.0 && o.y == 0.0 {
+        return Vec2::ZERO;
+    }
+    let (r, theta) =
+        if o.x.abs() > o.y.abs() { (o.x, FRAC_PI_4 * (o.y / o.x)) } else { (o.y, FRAC_PI_2 - FRAC_PI_4 * (o.x / o.y)) };
+    let (sin, cos) = theta.sin_cos();
+    r * Vec2::new(cos, sin)
+}
+
+/// Short name for [`sample_uniform_disk_concentric`] (the camera lens uses this one).
+#[inline]
+pub fn concentric_disk(u: Vec2) -> Vec2 {
+    sample_uniform_disk_concentric(u)
+}
+
+/// Area density of [`sample_uniform_disk_concentric`] on the unit disk.
+#[inline]
+pub fn uniform_disk_pdf() -> f32 {
+    INV_PI
+}
+
+/// Cosine-weighted hemisphere about +z (Malley's method: lift the concentric disk).
+#[inline]
+pub fn sample_cosine_hemisphere(u: Vec2) -> Vec3 {
+    let d = sample_uniform_disk_concentric(u);
+    let z = (1.0 - d.length_squared()).max(0.0).sqrt();
+    Vec3::new(d.x, d.y, z)
+}
+
+/// pdf = cos θ / π on the upper hemisphere, 0 below.
+#[inline]
+pub fn cosine_hemisphere_pdf(cos_theta: f32) -> f32 {
+    cos_theta.max(0.0) * INV_PI
+}
+
+/// Uniform direction on the unit sphere.
+#[inline]
+pub fn sample_uniform_sphere(u: Vec2) -> Vec3 {
+    let z = 1.0 - 2.0 * u.x;
+    let r = (1.0 - z * z).max(0.0).sqrt();
+    spherical_direction(r, z, 2.0 * PI * u.y)
+}
+
+/// pdf = 1 / (4π).
+#[inline]
+pub fn uniform_sphere_pdf() -> f32 {
+    INV_4PI
+}
+
+/// Uniform direction on the upper hemisphere (z ≥ 0).
+#[inline]
+pub fn sample_uniform_hemisphere(u: Vec2) -> Vec3 {
+    let z = u.x;
+    let r = (1.0 - z * z).max(0.0).sqrt();
+    spherical_direction(r, z, 2.0 * PI * u.y)
+}
+
+/// pdf = 1 / (2π) on the upper hemisphere.
+#[inline]
+pub fn uniform_hemisphere_pdf() -> f32 {
+    INV_2PI
+}
+
+/// Uniform direction inside the cone about +z of half-angle θmax (`cos_theta_max` in
+/// [-1, 1]; -1 is the whole sphere). Works from 1 − cos θ so tiny cones (distant
+/// spherical lights) keep their precision.
+#[inline]
+pub fn sample_uniform_cone(u: Vec2, cos_theta_max: f32) -> Vec3 {
+    let one_minus_cos = u.x * (1.0 - cos_theta_max.clamp(-1.0, 1.0));
+    let cos_theta = 1.0 - one_minus_cos;
+    // sin²θ = (1 − cos θ)(1 + cos θ), without the cancellation of 1 − cos²θ.
+    let sin_theta = (one_minus_cos * (2.0 - one_minus_cos)).max(0.0).sqrt();
+    spherical_direction(sin_theta, cos_theta, 2.0 * PI * u.y)
+}
+
+/// pdf = 1 / (2π (1 − cos θmax)) inside the cone. A degenerate cone (cos θmax = 1) is a
+/// delta direction: callers must treat it as such; 0 is returned rather than ∞.
+#[inline]
+pub fn uniform_cone_pdf(cos_theta_max: f32) -> f32 {
+    let solid_angle = 2.0 * PI * (1.0 - cos_theta_max.clamp(-1.0, 1.0));
+    if solid_angle > 0.0 { 1.0 / solid_angle } else { 0.0 }
+}
+
+/// Power-cosine lobe about +z: density ∝ cos^n θ per solid angle (n ≥ 0; n = 0 is the
+/// uniform hemisphere). Inverting the cdf gives cos θ = u^(1/(n+1)); sin²θ is taken from
+/// expm1 so that sharp lobes (n up to 10⁴) keep their precision near the axis.
+#[inline]
+pub fn sample_power_cosine(u: Vec2, exponent: f32) -> Vec3 {
+    let inv_np1 = 1.0 / (exponent.max(0.0) + 1.0);
+    let log_cos = u.x.ln() * inv_np1; // ln cos θ, −∞ for u.x = 0 (θ = π/2)
+    let cos_theta = log_cos.exp();
+    let sin_theta = (-(2.0 * log_cos).exp_m1()).clamp(0.0, 1.0).sqrt();
+    spherical_direction(sin_theta, cos_theta, 2.0 * PI * u.y)
+}
+
+/// pdf = (n + 1)/(2π) cos^n θ on the upper hemisphere, 0 below.
+#[inline]
+pub fn power_cosine_pdf(cos_theta: f32, exponent: f32) -> f32 {
+    if cos_theta <= 0.0 {
+        return 0.0;
+    }
+    let n = exponent.max(0.0);
+    (n + 1.0) * INV_2PI * cos_theta.min(1.0).powf(n)
+}
+
+/// Uniform point on a triangle as barycentrics (b0, b1, b2), pdf = 1 / area. Heitz's
+/// low-distortion map (as pbrt-v4): keeps the stratification of `u`.
+#[inline]
+pub fn sample_uniform_triangle(u: Vec2) -> [f32; 3] {
+    let (b0, b1) = if u.x < u.y {
+        let b0 = 0.5 * u.x;
+        (b0, u.y - b0)
+    } else {
+        let b1 = 0.5 * u.y;
+        (u.x - b1, b1)
+    };
+    [b0, b1, (1.0 - b0 - b1).max(0.0)]
+}
+
+/// Veach's power heuristic (β = 2) weight of strategy f taken `nf` times against g taken
+/// `ng` times. An infinite pdf (delta) wins outright.
+#[inline]
+pub fn power_heuristic(nf: f32, f_pdf: f32, ng: f32, g_pdf: f32) -> f32 {
+    let f = nf * f_pdf;
+    let g = ng * g_pdf;
+    if f.is_infinite() {
+        return 1.0;
+    }
+    let (f2, g2) = (f * f, g * g);
+    if f2 + g2 > 0.0 && (f2 + g2).is_finite() { f2 / (f2 + g2) } else { 0.0 }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::bsdf::chi2::{Rng, chi2_sphere, integrate_sphere, sidak_alpha};
+
+    /// Number of χ² tests in this module, for the Šidák correction.
+    const CHI2_TESTS: usize = 8;
+
+    fn assert_chi2(name: &str, sample: impl FnMut(&mut Rng) -> Option<Vec3>, pdf: impl Fn(Vec3) -> f64 + Sync) {
+        let r = chi2_sphere(sample, pdf, 24, 48, 400_000, 0x5eed_0001);
+        let alpha = sidak_alpha(CHI2_TESTS);
+        assert!(
+            r.p_value > alpha,
+            "{name}: χ² = {:.1}, dof {}, p = {:.2e} < {alpha:.2e}",
+            r.statistic,
+            r.dof,
+            r.p_value
+        );
+    }
+
+    #[test]
+    fn warps_match_their_pdfs_chi2() {
+        assert_chi2(
+            "cosine hemisphere",
+            |r| Some(sample_cosine_hemisphere(r.vec2())),
+            |w| cosine_hemisphere_pdf(w.z) as f64,
+        );
+        assert_chi2("uniform sphere", |r| Some(sample_uniform_sphere(r.vec2())), |_| uniform_sphere_pdf() as f64);
+        assert_chi2(
+            "uniform hemisphere",
+            |r| Some(sample_uniform_hemisphere(r.vec2())),
+            |w| {
+                if w.z >= 0.0 { uniform_hemisphere_pdf() as f64 } else { 0.0 }
+            },
+        );
+        for cos_max in [0.25f32, -0.5] {
+            assert_chi2(
+                "uniform cone",
+                |r| Some(sample_uniform_cone(r.vec2(), cos_max)),
+                |w| {
+                    if w.z >= cos_max { uniform_cone_pdf(cos_max) as f64 } else { 0.0 }
+                },
+            );
+        }
+        // Cone edges on bin boundaries (cos θ bins of width 1/12): the cell quadrature
+        // assumes a smooth pdf inside each cell.
+        for n in [0.0f32, 1.0, 10.0] {
+            assert_chi2(
+                "power cosine",
+                |r| Some(sample_power_cosine(r.vec2(), n)),
+                |w| power_cosine_pdf(w.z, n) as f64,
+            );
+        }
+    }
+
+    #[test]
+    fn pdfs_integrate_to_one() {
+        type Pdf = fn(Vec3) -> f64;
+        let cases: [(&str, Pdf); 6] = [
+            ("cosine", |w| cosine_hemisphere_pdf(w.z) as f64),
+            ("sphere", |_| uniform_sphere_pdf() as f64),
+            ("power n=0", |w| power_cosine_pdf(w.z, 0.0) as f64),
+            ("power n=7.5", |w| power_cosine_pdf(w.z, 7.5) as f64),
+            ("power n=1000", |w| power_cosine_pdf(w.z, 1000.0) as f64),
+            ("cone", |w| if w.z >= 0.9 { uniform_cone_pdf(0.9) as f64 } else { 0.0 }),
+        ];
+        for (name, pdf) in cases {
+            // The cone's edge is not on a grid line, so it needs the finer grid to reach 1e-3.
+            let integral = integrate_sphere(&pdf, 512, 64, 0.0);
+            assert!((integral - 1.0).abs() < 1e-3, "{name}: ∫pdf = {integral}");
+        }
+    }
+
+    #[test]
+    fn tiny_cone_keeps_precision() {
+        // A 0.01° cone: 1 − cos θmax ≈ 1.5e-8 is below f32 resolution at 1, so pass the
+        // value the light code would compute from sin²θmax / 2.
+        let cos_max = 1.0 - 1.5e-8f32;
+        let mut rng = Rng::new(3);
+        for _ in 0..1000 {
+            let w = sample_uniform_cone(rng.vec2(), cos_max);
+            assert!(w.is_finite() && (w.length() - 1.0).abs() < 1e-5 && w.z >= cos_max);
+        }
+    }
+
+    #[test]
+    fn disk_and_triangle_are_uniform() {
+        // Disk: fraction of points within radius r is r²; mean of x and y is 0.
+        let mut rng = Rng::new(7);
+        let n = 200_000;
+        let mut inside_half = 0usize;
+        let mut mean = Vec2::ZERO;
+        for _ in 0..n {
+            let p = sample_uniform_disk_concentric(rng.vec2());
+            assert!(p.length() <= 1.0 + 1e-6);
+            inside_half += (p.length() < 0.5) as usize;
+            mean += p / n as f32;
+        }
+        let frac = inside_half as f64 / n as f64;
+        let sigma = (0.25f64 * 0.75 / n as f64).sqrt();
+        assert!((frac - 0.25).abs() < 5.0 * sigma, "disk: P(r < 1/2) = {frac}");
+        assert!(mean.length() < 5.0 * (0.25f32 / n as f32).sqrt(), "disk mean {mean}");
+
+        // Triangle: each barycentric coordinate is Beta(1, 2): mean 1/3, P(b < 1/2) = 3/4.
+        let mut sums = [0f64; 3];
+        let mut below_half = [0usize; 3];
+        for _ in 0..n {
+            let b = sample_uniform_triangle(rng.vec2());
+            assert!(b.iter().all(|&x| (0.0..=1.0).contains(&x)) && (b.iter().sum::<f32>() - 1.0).abs() < 1e-6);
+            for k in 0..3 {
+                sums[k] += b[k] as f64;
+                below_half[k] += (b[k] < 0.5) as usize;
+            }
+        }
+        let sigma_mean = (1.0f64 / 18.0 / n as f64).sqrt(); // Var Beta(1,2) = 1/18
+        let sigma_frac = (0.75f64 * 0.25 / n as f64).sqrt();
+        for k in 0..3 {
+            assert!((sums[k] / n as f64 - 1.0 / 3.0).abs() < 5.0 * sigma_mean, "triangle mean b{k}");
+            assert!((below_half[k] as f64 / n as f64 - 0.75).abs() < 5.0 * sigma_frac, "triangle P(b{k} < 1/2)");
+        }
+    }
+
+    #[test]
+    fn degenerate_inputs_stay_finite() {
+        for u in [Vec2::ZERO, Vec2::ONE, Vec2::new(0.5, 0.5), Vec2::new(0.0, 1.0), Vec2::new(1.0, 0.0)] {
+            assert!(sample_uniform_disk_concentric(u).is_finite());
+            assert!(sample_cosine_hemisphere(u).is_finite());
+            assert!(sample_uniform_sphere(u).is_finite());
+            assert!(sample_uniform_cone(u, 1.0).is_finite());
+            for n in [0.0, 1.0, 1000.0, 1e4] {
+                let w = sample_power_cosine(u, n);
+                assert!(w.is_finite() && (w.length() - 1.0).abs() < 1e-5, "power n={n} u={u}: {w}");
+            }
+        }
+        assert_eq!(uniform_cone_pdf(1.0), 0.0);
+        assert!(power_cosine_pdf(1.0, 1e4).is_finite());
+        assert_eq!(power_heuristic(1.0, f32::INFINITY, 1.0, 1.0), 1.0);
+        assert_eq!(power_heuristic(1.0, 0.0, 1.0, 0.0), 0.0);
+        assert!((power_heuristic(1.0, 1.0, 1.0, 1.0) - 0.5).abs() < 1e-6);
+    }
+}

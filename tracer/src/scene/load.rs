@@ -1,0 +1,384 @@
+//! Assembling a [`Scene`] from a TOML scene file or a bare OBJ: loading meshes, placing
+//! them, classifying materials, collecting lights and building the kd-tree.
+
+use std::path::{Path, PathBuf};
+
+use glam::{Mat3, Vec2, Vec3};
+
+use super::file::{LightDesc, SceneFile, SphereDesc};
+use super::obj::{ObjError, ObjModel, load_obj};
+use super::{Geometry, NONE, Scene, Sphere};
+use crate::accel::{BuildParams, KdTree, Primitives};
+use crate::camera::Camera;
+use crate::light::{Light, LightSet};
+use crate::material::{Material, MaterialDesc};
+use crate::texture::Texture;
+
+#[derive(Debug, thiserror::Error)]
+pub enum SceneError {
+    #[error("{path}: {message}")]
+    Io { path: String, message: String },
+    /// TOML syntax or schema errors; the message names the line and the key.
+    #[error("{path}: {message}")]
+    Syntax { path: String, message: String },
+    #[error("{path}: {field}: {message}")]
+    Invalid { path: String, field: String, message: String },
+    #[error(transparent)]
+    Obj(#[from] ObjError),
+}
+
+/// Render settings from the `[render]` table.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct RenderSettings {
+    pub spp: u32,
+    /// Mitsuba 3 `path` semantics: path segments from the camera, -1 = unlimited.
+    pub max_depth: i32,
+    pub seed: u64,
+}
+
+impl Default for RenderSettings {
+    fn default() -> Self {
+        Self { spp: 64, max_depth: 8, seed: 0 }
+    }
+}
+
+/// Loads a scene: a `.toml` scene file, or a bare `.obj` that is framed automatically.
+pub fn load_scene(path: &Path) -> Result<Scene, SceneError> {
+    let is_obj = path.extension().and_then(|e| e.to_str()).is_some_and(|e| e.eq_ignore_ascii_case("obj"));
+    if is_obj {
+        let model = load_obj(path)?;
+        return Ok(scene_from_bare_obj(model));
+    }
+    let text = std::fs::read_to_string(path)
+        .map_err(|e| SceneError::Io { path: path.display().to_string(), message: e.to_string() })?;
+    let base = path.parent().unwrap_or(Path::new(".")).to_path_buf();
+    scene_from_toml(&text, &path.display().to_string(), &base)
+}
+
+/// Parses and assembles a scene file's text; relative paths resolve against `base`.
+pub fn scene_from_toml(text: &str, display_name: &str, base: &Path) -> Result<Scene, SceneError> {
+    let file: SceneFile = toml::from_str(text)
+        .map_err(|e| SceneError::Syntax { path: display_name.to_string(), message: e.to_string() })?;
+    assemble(&file, display_name, base)
+}
+
+#[derive(Default)]
+struct Builder {
+    geometry: Geometry,
+    materials: Vec<Material>,
+    material_names: Vec<String>,
+    textures: Vec<Texture>,
+    warnings: Vec<String>,
+}
+
+impl Builder {
+    /// Appends a model, placing it with `transform(p)` and its normals with `normal_m`.
+    fn add_model(&mut self, model: ObjModel, linear: Mat3, translate: Vec3) {
+        let ObjModel { mesh, materials, textures, warnings } = model;
+        let (mat_base, tex_base) = (self.materials.len() as u32, self.textures.len() as u32);
+        let (pos_base, n_base, uv_base) = (
+            self.geometry.mesh.positions.len() as u32,
+            self.geometry.mesh.normals.len() as u32,
+            self.geometry.mesh.uvs.len() as u32,
+        );
+        let normal_m = linear.inverse().transpose();
+        // A mirroring transform turns counter-clockwise into clockwise: swap two corners
+        // so that front faces (and one-sided emitters) stay on the same side.
+        let mirrored = linear.determinant() < 0.0;
+        let out = &mut self.geometry.mesh;
+        out.positions.extend(mesh.positions.iter().map(|&p| linear * p + translate));
+        out.normals.extend(mesh.normals.iter().map(|&n| (normal_m * n).normalize_or_zero()));
+        out.uvs.extend_from_slice(&mesh.uvs);
+        let shift = |idx: [u32; 3], base: u32| idx.map(|i| if i == NONE { NONE } else { i + base });
+        out.tris.extend(mesh.tris.iter().map(|t| {
+            let mut t = super::Tri {
+                v: shift(t.v, pos_base),
+                n: shift(t.n, n_base),
+                uv: shift(t.uv, uv_base),
+                material: t.material + mat_base,
+            };
+            if mirrored {
+                t.v.swap(1, 2);
+                t.n.swap(1, 2);
+                t.uv.swap(1, 2);
+            }
+            t
+        }));
+        self.material_names.extend(materials.iter().map(|m| m.name.clone()));
+        self.materials.extend(materials.iter().map(|m| {
+            let mut m = m.clone();
+            m.map_kd = m.map_kd.map(|t| t + tex_base);
+            Material::from_desc(&m)
+        }));
+        self.textures.extend(textures);
+        self.warnings.extend(warnings);
+    }
+}
+
+fn vec3(v: [f32; 3]) -> Vec3 {
+    Vec3::from_array(v)
+}
+
+fn assemble(file: &SceneFile, name: &str, base: &Path) -> Result<Scene, SceneError> {
+    let invalid = |field: String, message: String| SceneError::Invalid { path: name.to_string(), field, message };
+    let finite3 = |field: String, v: [f32; 3]| {
+        if v.iter().all(|x| x.is_finite()) { Ok(vec3(v)) } else { Err(invalid(field, "must be finite".into())) }
+    };
+    let non_negative3 = |field: String, v: [f32; 3]| {
+        if v.iter().all(|x| x.is_finite() && *x >= 0.0) {
+            Ok(vec3(v))
+        } else {
+            Err(invalid(field, "must be finite and ≥ 0".into()))
+        }
+    };
+
+    // Camera.
+    let c = &file.camera;
+    let camera = Camera::look_at(
+        finite3("camera.position".into(), c.position)?,
+        finite3("camera.look_at".into(), c.look_at)?,
+        finite3("camera.up".into(), c.up)?,
+        c.fov,
+        c.width,
+        c.height,
+    )
+    .map_err(|e| invalid("camera".into(), e.to_string()))?;
+    let camera = if c.aperture != 0.0 || c.focus_distance.is_some() {
+        let focus = c.focus_distance.unwrap_or_else(|| (vec3(c.look_at) - vec3(c.position)).length());
+        camera.with_lens(c.aperture, focus).map_err(|e| invalid("camera.aperture".into(), e.to_string()))?
+    } else {
+        camera
+    };
+
+    // Render settings.
+    let r = &file.render;
+    if r.spp == 0 {
+        return Err(invalid("render.spp".into(), "must be at least 1".into()));
+    }
+    if r.max_depth == 0 || r.max_depth < -1 {
+        return Err(invalid("render.max_depth".into(), "must be -1 (unlimited) or ≥ 1".into()));
+    }
+    let settings = RenderSettings { spp: r.spp, max_depth: r.max_depth, seed: r.seed };
+
+    // Meshes.
+    let mut b = Builder::default();
+    for (i, m) in file.mesh.iter().enumerate() {
+        let field = |k: &str| format!("mesh[{i}].{k}");
+        let path: PathBuf = base.join(&m.obj);
+        let model = load_obj(&path)?;
+        let scale = finite3(field("scale"), m.scale.map_or([1.0; 3], |s| s.to_vec()))?;
+        if scale.cmpeq(Vec3::ZERO).any() {
+            return Err(invalid(field("scale"), "must not be zero".into()));
+        }
+        let angle = m.rotate_y.unwrap_or(0.0);
+        if !angle.is_finite() {
+            return Err(invalid(field("rotate_y"), "must be finite".into()));
+        }
+        let translate = finite3(field("translate"), m.translate.unwrap_or([0.0; 3]))?;
+        let linear = Mat3::from_rotation_y(angle.to_radians()) * Mat3::from_diagonal(scale);
+        b.add_model(model, linear, translate);
+    }
+
+    // Spheres, each with its inline material.
+    for (i, s) in file.sphere.iter().enumerate() {
+        let field = |k: &str| format!("sphere[{i}].{k}");
+        let center = finite3(field("center"), s.center)?;
+        if !(s.radius > 0.0 && s.radius.is_finite()) {
+            return Err(invalid(field("radius"), format!("must be > 0, got {}", s.radius)));
+        }
+        let desc = sphere_material(s, &field, &invalid)?;
+        b.geometry.spheres.push(Sphere { center, radius: s.radius, material: b.materials.len() as u32 });
+        b.materials.push(Material::from_desc(&desc));
+        b.material_names.push(format!("sphere[{i}]"));
+    }
+
+    // Point, spot and directional lights.
+    let mut lights = Vec::new();
+    for (i, l) in file.light.iter().enumerate() {
+        let field = |k: &str| format!("light[{i}].{k}");
+        let unit = |k: &str, v: [f32; 3]| {
+            let d = finite3(field(k), v)?.normalize_or_zero();
+            if d == Vec3::ZERO { Err(invalid(field(k), "must not be zero".into())) } else { Ok(d) }
+        };
+        lights.push(match *l {
+            LightDesc::Point { position, intensity } => Light::Point {
+                position: finite3(field("position"), position)?,
+                intensity: non_negative3(field("intensity"), intensity)?,
+            },
+            LightDesc::Spot { position, direction, intensity, cone_angle, falloff_start } => {
+                if !(cone_angle > 0.0 && cone_angle <= 180.0) {
+                    return Err(invalid(field("cone_angle"), format!("must be in (0, 180] degrees, got {cone_angle}")));
+                }
+                let start = falloff_start.unwrap_or(cone_angle);
+                if !(start >= 0.0 && start <= cone_angle) {
+                    return Err(invalid(field("falloff_start"), format!("must be in [0, cone_angle], got {start}")));
+                }
+                Light::Spot {
+                    position: finite3(field("position"), position)?,
+                    direction: unit("direction", direction)?,
+                    intensity: non_negative3(field("intensity"), intensity)?,
+                    cos_total: cone_angle.to_radians().cos(),
+                    cos_falloff_start: start.to_radians().cos(),
+                }
+            }
+            LightDesc::Directional { direction, irradiance } => Light::Directional {
+                direction: unit("direction", direction)?,
+                irradiance: non_negative3(field("irradiance"), irradiance)?,
+            },
+        });
+    }
+    let background = non_negative3("background.radiance".into(), file.background.radiance)?;
+
+    Ok(finish(b, camera, settings, lights, background))
+}
+
+fn sphere_material(
+    s: &SphereDesc,
+    field: &dyn Fn(&str) -> String,
+    invalid: &dyn Fn(String, String) -> SceneError,
+) -> Result<MaterialDesc, SceneError> {
+    let colour = |k: &str, v: Option<[f32; 3]>| -> Result<Vec3, SceneError> {
+        match v {
+            None => Ok(Vec3::ZERO),
+            Some(v) if v.iter().all(|x| x.is_finite() && *x >= 0.0) => Ok(vec3(v)),
+            Some(_) => Err(invalid(field(k), "must be finite and ≥ 0".into())),
+        }
+    };
+    let scalar = |k: &str, v: Option<f32>, default: f32, ok: &dyn Fn(f32) -> bool| match v {
+        None => Ok(default),
+        Some(x) if x.is_finite() && ok(x) => Ok(x),
+        Some(x) => Err(invalid(field(k), format!("out of range: {x}"))),
+    };
+    let any_field = s.kd.is_some()
+        || s.ks.is_some()
+        || s.ns.is_some()
+        || s.ke.is_some()
+        || s.ni.is_some()
+        || s.d.is_some()
+        || s.tf.is_some()
+        || s.illum.is_some();
+    if !any_field {
+        return Ok(MaterialDesc::default_grey("sphere"));
+    }
+    Ok(MaterialDesc {
+        name: "sphere".into(),
+        kd: colour("kd", s.kd)?,
+        ks: colour("ks", s.ks)?,
+        ke: colour("ke", s.ke)?,
+        tf: if s.tf.is_some() { colour("tf", s.tf)? } else { Vec3::ONE },
+        ns: scalar("ns", s.ns, 0.0, &|x| x >= 0.0)?,
+        ni: scalar("ni", s.ni, 1.0, &|x| x > 0.0)?,
+        d: scalar("d", s.d, 1.0, &|x| (0.0..=1.0).contains(&x))?,
+        illum: s.illum,
+        ..MaterialDesc::default()
+    })
+}
+
+/// Collects area lights and builds the kd-tree.
+fn finish(b: Builder, camera: Camera, settings: RenderSettings, mut lights: Vec<Light>, background: Vec3) -> Scene {
+    let Builder { geometry, materials, material_names, textures, warnings } = b;
+    for w in &warnings {
+        tracing::warn!("{w}");
+    }
+    let accel = KdTree::build(&geometry, &BuildParams::default());
+    let bounds = accel.bounds();
+    let (center, radius) = if bounds.is_empty() {
+        (Vec3::ZERO, 1.0)
+    } else {
+        (bounds.center(), (0.5 * bounds.diagonal().length()).max(1e-3))
+    };
+
+    for (i, t) in geometry.mesh.tris.iter().enumerate() {
+        let m = &materials[t.material as usize];
+        if !m.is_emissive() {
+            continue;
+        }
+        let [p0, p1, p2] = geometry.mesh.corners(i);
+        let (e1, e2) = (p1 - p0, p2 - p0);
+        let c = e1.cross(e2);
+        let area = 0.5 * c.length();
+        if area > 0.0 && area.is_finite() {
+            lights.push(Light::Triangle {
+                prim: i as u32,
+                p0,
+                e1,
+                e2,
+                normal: c.normalize(),
+                area,
+                radiance: m.emission,
+            });
+        }
+    }
+    let ntri = geometry.mesh.tris.len();
+    for (i, s) in geometry.spheres.iter().enumerate() {
+        let m = &materials[s.material as usize];
+        if m.is_emissive() {
+            lights.push(Light::Sphere {
+                prim: (ntri + i) as u32,
+                center: s.center,
+                radius: s.radius,
+                radiance: m.emission,
+            });
+        }
+    }
+    if background.max_element() > 0.0 {
+        lights.push(Light::Environment { radiance: background });
+    }
+    let lights = LightSet::new(lights, geometry.len(), radius);
+    let has_cutouts = materials.iter().any(|m| m.opacity < 1.0);
+    Scene {
+        camera,
+        settings,
+        geometry,
+        accel,
+        materials,
+        material_names,
+        textures,
+        lights,
+        background,
+        has_cutouts,
+        center,
+        radius,
+        warnings,
+    }
+}
+
+/// A bare OBJ: the camera frames its bounding box (OBJ files come at any scale) and, if
+/// nothing emits, a default light (a key "sun" plus a dim sky) makes the model visible.
+pub fn scene_from_bare_obj(model: ObjModel) -> Scene {
+    let bounds = crate::geometry::Aabb::from_points(&model.mesh.positions);
+    let any_emitter = model.materials.iter().any(|m| m.ke.max_element() > 0.0);
+    let mut b = Builder::default();
+    b.add_model(model, Mat3::IDENTITY, Vec3::ZERO);
+    let (center, radius) = if bounds.is_empty() {
+        (Vec3::ZERO, 1.0)
+    } else {
+        (bounds.center(), (0.5 * bounds.diagonal().length()).max(1e-6))
+    };
+    let fov = 40.0f32;
+    // Far enough that the bounding sphere fits the vertical field of view.
+    let dist = radius / (0.5 * fov.to_radians()).sin() * 1.05;
+    let dir = Vec3::new(0.35, 0.35, 1.0).normalize();
+    let camera = Camera::look_at(center + dir * dist, center, Vec3::Y, fov, 640, 480)
+        .expect("auto-framed camera is well formed");
+    let (lights, background) = if any_emitter {
+        (vec![], Vec3::ZERO)
+    } else {
+        (
+            vec![Light::Directional {
+                direction: Vec3::new(-0.4, -1.0, -0.6).normalize(),
+                irradiance: Vec3::splat(2.5),
+            }],
+            Vec3::splat(0.25),
+        )
+    };
+    finish(b, camera, RenderSettings::default(), lights, background)
+}
+
+/// Used by [`Scene::interaction`]: interpolated texture coordinates or the barycentrics.
+pub(super) fn uv_or_barycentric(uvs: &[Vec2], idx: [u32; 3], b: Vec3) -> Vec2 {
+    if idx[0] == NONE || idx[1] == NONE || idx[2] == NONE {
+        return Vec2::new(b.y, b.z);
+    }
+    b.x * uvs[idx[0] as usize] + b.y * uvs[idx[1] as usize] + b.z * uvs[idx[2] as usize]
+}

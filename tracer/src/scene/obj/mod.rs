@@ -1,0 +1,385 @@
+//! OBJ/MTL loading.
+//!
+//! tobj parses the geometry and the MTL statements; a light line pass of our own (see
+//! `scan`) runs first to validate with line numbers, to record smoothing groups (which
+//! tobj does not report) and to sanitise the text. Polygons are triangulated here as fans
+//! (counter-clockwise order kept), all groups are merged into one [`TriangleMesh`], and
+//! shading normals come from `vn`, from smoothing groups, or are left flat.
+
+mod mtl;
+mod scan;
+mod smoothing;
+#[cfg(test)]
+mod tests;
+
+use std::collections::HashMap;
+use std::path::Path;
+
+use glam::{Vec2, Vec3};
+
+pub use self::mtl::{MtlLibrary, load_mtl};
+use self::mtl::{RawMaterial, TextureCache};
+use self::scan::{Corner, ObjScan};
+use self::smoothing::SmoothNormals;
+use super::{NONE, Tri, TriangleMesh};
+use crate::material::MaterialDesc;
+use crate::texture::Texture;
+
+/// What an OBJ file yields: its triangles (object space), their materials, the textures
+/// those materials use, and warnings (missing MTL file, unknown material, ...).
+#[derive(Clone, Debug, Default)]
+pub struct ObjModel {
+    pub mesh: TriangleMesh,
+    pub materials: Vec<MaterialDesc>,
+    pub textures: Vec<Texture>,
+    pub warnings: Vec<String>,
+}
+
+#[derive(Debug, thiserror::Error)]
+pub enum ObjError {
+    #[error("{path}: {message}")]
+    Io { path: String, message: String },
+    #[error("{path}:{line}: {message}")]
+    Parse { path: String, line: usize, message: String },
+}
+
+/// Name of the grey material given to faces without `usemtl`.
+pub const DEFAULT_MATERIAL_NAME: &str = "default";
+
+/// Loads an OBJ file, its MTL libraries (relative to the OBJ's folder) and their `map_Kd`
+/// textures (relative to each MTL's folder).
+pub fn load_obj(path: &Path) -> Result<ObjModel, ObjError> {
+    let display = path.display().to_string();
+    let text = mtl::read_text(path, &display)?;
+    load_obj_from_str(&text, path.parent().unwrap_or(Path::new("")), &display)
+}
+
+/// Loads OBJ text; `base_dir` is where `mtllib` paths are resolved, `display_name` names
+/// the file in errors and warnings.
+pub fn load_obj_from_str(text: &str, base_dir: &Path, display_name: &str) -> Result<ObjModel, ObjError> {
+    let text = text.strip_prefix('\u{feff}').unwrap_or(text);
+    let scan = scan::scan(text, display_name)?;
+    let models = parse_with_tobj(&scan, display_name)?;
+    let mut warnings = scan.warnings.clone();
+    let library = load_libraries(&scan, base_dir, display_name, &mut warnings)?;
+    let model = Builder::new(&scan, display_name, library, warnings).build(&models)?;
+    for w in &model.warnings {
+        tracing::warn!("{w}");
+    }
+    Ok(model)
+}
+
+fn parse_with_tobj(scan: &ObjScan, display: &str) -> Result<Vec<tobj::Model>, ObjError> {
+    let options =
+        tobj::LoadOptions { triangulate: false, single_index: false, ignore_points: true, ignore_lines: true };
+    let fail = |message: String| ObjError::Io { path: display.to_string(), message };
+    let result = std::panic::catch_unwind(|| {
+        let mut reader = std::io::Cursor::new(scan.text.as_bytes());
+        tobj::load_obj_buf(&mut reader, &options, |_| Ok((Vec::new(), Default::default())))
+    });
+    match result {
+        Ok(Ok((models, _))) => Ok(models),
+        Ok(Err(e)) => Err(fail(format!("OBJ parser (tobj): {e}"))),
+        Err(_) => Err(fail("OBJ parser (tobj) panicked".into())),
+    }
+}
+
+/// The materials of all `mtllib` files, by name (a later definition wins).
+#[derive(Default)]
+struct Library {
+    materials: Vec<RawMaterial>,
+    by_name: HashMap<String, usize>,
+}
+
+fn load_libraries(
+    scan: &ObjScan,
+    base_dir: &Path,
+    display: &str,
+    warnings: &mut Vec<String>,
+) -> Result<Library, ObjError> {
+    let mut lib = Library::default();
+    for (line, arg) in &scan.mtllibs {
+        // `mtllib a.mtl b.mtl` names several files; a single name may contain spaces.
+        let files: Vec<&str> = if mtl::resolve_path(base_dir, arg).is_file() {
+            vec![arg.as_str()]
+        } else {
+            arg.split_whitespace().collect()
+        };
+        for file in files {
+            let path = mtl::resolve_path(base_dir, file);
+            let mtl_display = path.display().to_string();
+            let text = match std::fs::read(&path) {
+                Ok(bytes) => mtl::decode_utf8(bytes, &mtl_display)?,
+                Err(e) => {
+                    warnings.push(format!(
+                        "{display}:{line}: material library '{file}' could not be read ({mtl_display}: {e}); \
+                         its materials will be grey diffuse"
+                    ));
+                    continue;
+                }
+            };
+            let dir = path.parent().unwrap_or(Path::new("")).to_path_buf();
+            for raw in mtl::parse_mtl_str(&text, &mtl_display, &dir, warnings)? {
+                lib.by_name.insert(raw.desc.name.clone(), lib.materials.len());
+                lib.materials.push(raw);
+            }
+        }
+    }
+    Ok(lib)
+}
+
+/// Per-polygon data gathered from tobj before triangulation.
+struct Polygon {
+    /// Output position indices.
+    v: Vec<u32>,
+    /// Output uv indices (all corners) or empty.
+    uv: Vec<u32>,
+    /// Output normal indices from `vn` (all corners, non-zero) or empty.
+    n: Vec<u32>,
+    smoothing: u32,
+    material: u32,
+}
+
+struct Builder<'a> {
+    scan: &'a ObjScan,
+    display: &'a str,
+    library: Library,
+    warnings: Vec<String>,
+    mesh: TriangleMesh,
+    materials: Vec<MaterialDesc>,
+    textures: TextureCache,
+    /// Output material per `usemtl` name (index = name index), and for "no usemtl".
+    material_slots: Vec<Option<u32>>,
+    default_slot: Option<u32>,
+}
+
+impl<'a> Builder<'a> {
+    fn new(scan: &'a ObjScan, display: &'a str, library: Library, warnings: Vec<String>) -> Self {
+        Self {
+            scan,
+            display,
+            library,
+            warnings,
+            mesh: TriangleMesh::default(),
+            materials: Vec::new(),
+            textures: TextureCache::default(),
+            material_slots: vec![None; scan.material_names.len()],
+            default_slot: None,
+        }
+    }
+
+    fn internal(&self, line: usize, what: &str) -> ObjError {
+        ObjError::Parse {
+            path: self.display.to_string(),
+            line,
+            message: format!("internal error: tobj's {what} disagree with the line scan"),
+        }
+    }
+
+    /// The output material index for a face's `usemtl` slot, resolving it on first use.
+    fn material(&mut self, slot: u32) -> u32 {
+        if slot == NONE {
+            if let Some(i) = self.default_slot {
+                return i;
+            }
+            let i = self.push_material(MaterialDesc::default_grey(DEFAULT_MATERIAL_NAME));
+            self.default_slot = Some(i);
+            return i;
+        }
+        let s = slot as usize;
+        if let Some(Some(i)) = self.material_slots.get(s) {
+            return *i;
+        }
+        let Some((name, line)) = self.scan.material_names.get(s) else {
+            return self.material(NONE);
+        };
+        let desc = match self.library.by_name.get(name) {
+            Some(&m) => mtl::resolve_material(&self.library.materials[m], &mut self.textures, &mut self.warnings),
+            None => {
+                self.warnings.push(format!(
+                    "{}:{line}: unknown material '{name}' (not defined in any loaded MTL file); using grey diffuse",
+                    self.display
+                ));
+                MaterialDesc::default_grey(name)
+            }
+        };
+        let i = self.push_material(desc);
+        self.material_slots[s] = Some(i);
+        i
+    }
+
+    fn push_material(&mut self, desc: MaterialDesc) -> u32 {
+        self.materials.push(desc);
+        self.materials.len() as u32 - 1
+    }
+
+    fn build(mut self, models: &[tobj::Model]) -> Result<ObjModel, ObjError> {
+        let scan = self.scan;
+        let mut pos_map = vec![NONE; scan.num_v];
+        let mut uv_map = vec![NONE; scan.num_vt];
+        let mut normal_map: Vec<Option<u32>> = vec![None; scan.num_vn];
+        let mut polygons: Vec<Polygon> = Vec::with_capacity(scan.faces.len());
+        let mut zero_vn_faces = 0usize;
+
+        // Walk tobj's faces in file order alongside the scan's.
+        let mut faces = scan.faces.iter();
+        for model in models {
+            let m = &model.mesh;
+            let arities: Vec<usize> = if m.face_arities.is_empty() {
+                vec![3; m.indices.len() / 3]
+            } else {
+                m.face_arities.iter().map(|&a| a as usize).collect()
+            };
+            let mut offset = 0usize;
+            for arity in arities {
+                let face = faces.next().ok_or_else(|| self.internal(0, "face count"))?;
+                if face.len != arity {
+                    return Err(self.internal(face.line, "face sizes"));
+                }
+                let corners: &[Corner] = scan
+                    .corners
+                    .get(face.first..face.first + face.len)
+                    .ok_or_else(|| self.internal(face.line, "faces"))?;
+                let mut poly = Polygon {
+                    v: Vec::with_capacity(arity),
+                    uv: Vec::new(),
+                    n: Vec::new(),
+                    smoothing: face.smoothing,
+                    material: face.material,
+                };
+                let all_vt = corners.iter().all(|c| c.vt != NONE);
+                let all_vn = corners.iter().all(|c| c.vn != NONE);
+                let mut vn_ok = all_vn;
+                for (k, c) in corners.iter().enumerate() {
+                    let at = offset + k;
+                    // Position.
+                    let out = &mut pos_map[c.v as usize];
+                    if *out == NONE {
+                        let li = *m.indices.get(at).ok_or_else(|| self.internal(face.line, "indices"))? as usize;
+                        let p =
+                            m.positions.get(3 * li..3 * li + 3).ok_or_else(|| self.internal(face.line, "positions"))?;
+                        *out = self.mesh.positions.len() as u32;
+                        self.mesh.positions.push(Vec3::new(p[0], p[1], p[2]));
+                    }
+                    poly.v.push(*out);
+                    // Texture coordinate.
+                    if all_vt {
+                        let out = &mut uv_map[c.vt as usize];
+                        if *out == NONE {
+                            let li =
+                                *m.texcoord_indices.get(at).ok_or_else(|| self.internal(face.line, "uvs"))? as usize;
+                            let t =
+                                m.texcoords.get(2 * li..2 * li + 2).ok_or_else(|| self.internal(face.line, "uvs"))?;
+                            *out = self.mesh.uvs.len() as u32;
+                            self.mesh.uvs.push(Vec2::new(t[0], t[1]));
+                        }
+                        poly.uv.push(*out);
+                    }
+                    // Given normal (a zero-length one makes the face fall back to computed normals).
+                    if vn_ok {
+                        let slot = &mut normal_map[c.vn as usize];
+                        if slot.is_none() {
+                            let li =
+                                *m.normal_indices.get(at).ok_or_else(|| self.internal(face.line, "normals"))? as usize;
+                            let n =
+                                m.normals.get(3 * li..3 * li + 3).ok_or_else(|| self.internal(face.line, "normals"))?;
+                            let n = Vec3::new(n[0], n[1], n[2]).normalize_or_zero();
+                            *slot = Some(if n == Vec3::ZERO || !n.is_finite() {
+                                NONE
+                            } else {
+                                self.mesh.normals.push(n);
+                                self.mesh.normals.len() as u32 - 1
+                            });
+                        }
+                        match *slot {
+                            Some(i) if i != NONE => poly.n.push(i),
+                            _ => {
+                                vn_ok = false;
+                                poly.n.clear();
+                                zero_vn_faces += 1;
+                            }
+                        }
+                    }
+                }
+                offset += arity;
+                polygons.push(poly);
+            }
+        }
+        if let Some(face) = faces.next() {
+            return Err(self.internal(face.line, "face count"));
+        }
+        if zero_vn_faces > 0 {
+            self.warnings.push(format!(
+                "{}: {zero_vn_faces} faces refer to zero-length vn normals; their normals are computed instead",
+                self.display
+            ));
+        }
+
+        // Smoothing groups: accumulate per (group, position).
+        let mut smooth = SmoothNormals::default();
+        let mut pts: Vec<Vec3> = Vec::new();
+        // Faces with their own vn still shape their neighbours' normals.
+        for poly in polygons.iter().filter(|p| p.smoothing != 0) {
+            pts.clear();
+            pts.extend(poly.v.iter().map(|&v| self.mesh.positions[v as usize]));
+            smooth.add_polygon(poly.smoothing, &poly.v, &pts);
+        }
+
+        // Triangulate (fans) and emit.
+        let mut smooth_index: HashMap<(u32, u32), u32> = HashMap::new();
+        let mut degenerate = 0usize;
+        for poly in &polygons {
+            let count = poly.v.len();
+            for i in 1..count.saturating_sub(1) {
+                let c = [0, i, i + 1];
+                let v = c.map(|k| poly.v[k]);
+                let p = v.map(|k| self.mesh.positions[k as usize]);
+                let cross = (p[1] - p[0]).cross(p[2] - p[0]);
+                let len = cross.length();
+                if !(len > 0.0 && len.is_finite()) {
+                    degenerate += 1;
+                    continue;
+                }
+                let uv = if poly.uv.is_empty() { [NONE; 3] } else { c.map(|k| poly.uv[k]) };
+                let n = if !poly.n.is_empty() {
+                    c.map(|k| poly.n[k])
+                } else if poly.smoothing != 0 {
+                    let mut n = [NONE; 3];
+                    for (slot, &vi) in n.iter_mut().zip(&v) {
+                        let key = (poly.smoothing, vi);
+                        *slot = match smooth_index.get(&key) {
+                            Some(&i) => i,
+                            None => {
+                                // Contributions that cancel out: use this triangle's own normal.
+                                let (value, cache) = match smooth.get(key.0, key.1) {
+                                    Some(s) => (s, true),
+                                    None => (cross / len, false),
+                                };
+                                self.mesh.normals.push(value);
+                                let i = self.mesh.normals.len() as u32 - 1;
+                                if cache {
+                                    smooth_index.insert(key, i);
+                                }
+                                i
+                            }
+                        };
+                    }
+                    n
+                } else {
+                    [NONE; 3]
+                };
+                let material = self.material(poly.material);
+                self.mesh.tris.push(Tri { v, n, uv, material });
+            }
+        }
+        if degenerate > 0 {
+            self.warnings.push(format!("{}: dropped {degenerate} degenerate (zero-area) triangles", self.display));
+        }
+        Ok(ObjModel {
+            mesh: self.mesh,
+            materials: self.materials,
+            textures: self.textures.textures,
+            warnings: self.warnings,
+        })
+    }
+}

@@ -1,0 +1,355 @@
+//! MTL material libraries and their `map_Kd` textures.
+//!
+//! A line pass validates numbers (with line numbers), expands one-value colours (`Ks 0.5`)
+//! to three, and keeps only the statements used; tobj then parses the result.
+
+use std::collections::HashMap;
+use std::io::Cursor;
+use std::path::{Path, PathBuf};
+
+use glam::Vec3;
+
+use super::ObjError;
+use super::scan::shorten;
+use crate::material::MaterialDesc;
+use crate::texture::Texture;
+
+/// A material as read from an MTL file, its texture not yet loaded.
+#[derive(Clone, Debug)]
+pub(super) struct RawMaterial {
+    /// Everything but `map_kd`.
+    pub desc: MaterialDesc,
+    /// The `map_Kd` file name (options stripped), relative to `dir`.
+    pub map_kd: Option<String>,
+    /// Folder of the MTL file.
+    pub dir: PathBuf,
+    /// The MTL file, for messages.
+    pub mtl: String,
+}
+
+/// An MTL file with its textures loaded (see [`load_mtl`]).
+#[derive(Clone, Debug, Default)]
+pub struct MtlLibrary {
+    /// In file order; `map_kd` indexes `textures`.
+    pub materials: Vec<MaterialDesc>,
+    pub textures: Vec<Texture>,
+    pub warnings: Vec<String>,
+}
+
+/// Loads an MTL file and its `map_Kd` textures. A missing file or a malformed statement is
+/// an error; a texture that cannot be loaded is a warning and turns its material grey.
+pub fn load_mtl(path: &Path) -> Result<MtlLibrary, ObjError> {
+    let display = path.display().to_string();
+    let text = read_text(path, &display)?;
+    let mut warnings = Vec::new();
+    let dir = path.parent().unwrap_or(Path::new("")).to_path_buf();
+    let raws = parse_mtl_str(&text, &display, &dir, &mut warnings)?;
+    let mut cache = TextureCache::default();
+    let materials = raws.iter().map(|raw| resolve_material(raw, &mut cache, &mut warnings)).collect();
+    for w in &warnings {
+        tracing::warn!("{w}");
+    }
+    Ok(MtlLibrary { materials, textures: cache.textures, warnings })
+}
+
+/// Reads a text file, errors naming it (with the line of invalid UTF-8).
+pub(super) fn read_text(path: &Path, display: &str) -> Result<String, ObjError> {
+    let bytes = std::fs::read(path)
+        .map_err(|e| ObjError::Io { path: display.to_string(), message: format!("cannot read file: {e}") })?;
+    decode_utf8(bytes, display)
+}
+
+/// UTF-8 check (a leading byte-order mark is dropped).
+pub(super) fn decode_utf8(bytes: Vec<u8>, display: &str) -> Result<String, ObjError> {
+    match String::from_utf8(bytes) {
+        Ok(s) => Ok(s.strip_prefix('\u{feff}').map(str::to_string).unwrap_or(s)),
+        Err(e) => {
+            let at = e.utf8_error().valid_up_to();
+            let bytes = e.as_bytes();
+            let line = 1 + bytes[..at].iter().filter(|&&b| b == b'\n').count();
+            Err(ObjError::Parse {
+                path: display.to_string(),
+                line,
+                message: format!("invalid UTF-8 (byte offset {at}); not a text OBJ/MTL file?"),
+            })
+        }
+    }
+}
+
+fn strip_comment(s: &str) -> &str {
+    match s.find('#') {
+        Some(i) => &s[..i],
+        None => s,
+    }
+}
+
+fn parse_number(tok: &str, key: &str) -> Result<f32, String> {
+    let x: f32 = tok.parse().map_err(|_| format!("bad number '{}' in {key}", shorten(tok)))?;
+    if !x.is_finite() {
+        return Err(format!("non-finite number '{}' in {key}", shorten(tok)));
+    }
+    Ok(x)
+}
+
+/// Parses "r g b" as written by the line pass.
+fn parse_rgb(s: &str) -> Option<Vec3> {
+    let v: Vec<f32> = s.split_whitespace().filter_map(|t| t.parse().ok()).collect();
+    match v[..] {
+        [r, g, b, ..] => Some(Vec3::new(r, g, b)),
+        [x] => Some(Vec3::splat(x)),
+        _ => None,
+    }
+}
+
+fn to_vec3(c: Option<[f32; 3]>) -> Option<Vec3> {
+    c.map(Vec3::from_array)
+}
+
+/// Parses MTL text into materials. `dir` is the folder texture paths are relative to.
+pub(super) fn parse_mtl_str(
+    text: &str,
+    display: &str,
+    dir: &Path,
+    warnings: &mut Vec<String>,
+) -> Result<Vec<RawMaterial>, ObjError> {
+    let mut clean = String::with_capacity(text.len());
+    let mut ignored: Vec<String> = Vec::new();
+    for (i, raw) in text.split('\n').enumerate() {
+        let line_no = i + 1;
+        let err = |message: String| ObjError::Parse { path: display.to_string(), line: line_no, message };
+        let trimmed = raw.trim();
+        let keyword = trimmed.split_whitespace().next().unwrap_or("");
+        let rest = trimmed[keyword.len()..].trim();
+        let lower = keyword.to_ascii_lowercase();
+        match lower.as_str() {
+            "" => {}
+            k if k.starts_with('#') => {}
+            "newmtl" => {
+                if rest.is_empty() {
+                    return Err(err("newmtl without a material name".into()));
+                }
+                clean.push_str("newmtl ");
+                clean.push_str(rest);
+            }
+            "ka" | "kd" | "ks" | "ke" | "tf" => {
+                let key = match lower.as_str() {
+                    "ka" => "Ka",
+                    "kd" => "Kd",
+                    "ks" => "Ks",
+                    "ke" => "Ke",
+                    _ => "Tf",
+                };
+                let toks: Vec<&str> = strip_comment(rest).split_whitespace().collect();
+                if toks.first().is_some_and(|t| t.eq_ignore_ascii_case("spectral") || t.eq_ignore_ascii_case("xyz")) {
+                    warnings.push(format!("{display}:{line_no}: {key} {} colours are not supported, ignored", toks[0]));
+                } else {
+                    for tok in toks.iter().take(3) {
+                        parse_number(tok, key).map_err(&err)?;
+                    }
+                    match toks.len() {
+                        1 => clean.push_str(&format!("{key} {0} {0} {0}", toks[0])),
+                        n if n >= 3 => clean.push_str(&format!("{key} {} {} {}", toks[0], toks[1], toks[2])),
+                        n => return Err(err(format!("{key} needs 1 or 3 numbers, found {n}"))),
+                    }
+                }
+            }
+            "ns" | "ni" | "d" | "tr" => {
+                let key = match lower.as_str() {
+                    "ns" => "Ns",
+                    "ni" => "Ni",
+                    "d" => "d",
+                    _ => "Tr",
+                };
+                let tok = strip_comment(rest)
+                    .split_whitespace()
+                    .find(|t| !t.eq_ignore_ascii_case("-halo"))
+                    .ok_or_else(|| err(format!("{key} needs a number")))?;
+                parse_number(tok, key).map_err(&err)?;
+                clean.push_str(&format!("{key} {tok}"));
+            }
+            "illum" => {
+                let tok = strip_comment(rest).split_whitespace().next().unwrap_or("");
+                let model: u8 =
+                    tok.parse().map_err(|_| err(format!("illum needs an integer 0-255, found '{}'", shorten(tok))))?;
+                clean.push_str(&format!("illum {model}"));
+            }
+            "map_kd" => {
+                if rest.is_empty() {
+                    warnings.push(format!("{display}:{line_no}: map_Kd without a file name, ignored"));
+                } else {
+                    clean.push_str("map_Kd ");
+                    clean.push_str(rest);
+                }
+            }
+            _ => {
+                let key = shorten(keyword);
+                if !ignored.contains(&key) && ignored.len() < 16 {
+                    ignored.push(key);
+                }
+            }
+        }
+        clean.push('\n');
+    }
+    if !ignored.is_empty() {
+        warnings.push(format!("{display}: ignored unsupported statements: {}", ignored.join(", ")));
+    }
+
+    let (materials, _) = tobj::load_mtl_buf(&mut Cursor::new(clean.as_bytes()))
+        .map_err(|e| ObjError::Io { path: display.to_string(), message: format!("MTL parser (tobj): {e}") })?;
+    Ok(materials
+        .into_iter()
+        .map(|m| {
+            let param = |k: &str| m.unknown_param.get(k).and_then(|s| parse_rgb(s));
+            let d = m.dissolve.or_else(|| param("Tr").map(|tr| 1.0 - tr.x));
+            let desc = MaterialDesc {
+                name: m.name.clone(),
+                ka: to_vec3(m.ambient).unwrap_or(Vec3::ZERO),
+                kd: to_vec3(m.diffuse).unwrap_or(Vec3::ZERO),
+                ks: to_vec3(m.specular).unwrap_or(Vec3::ZERO),
+                ke: to_vec3(m.emissive).or_else(|| param("Ke")).unwrap_or(Vec3::ZERO),
+                tf: param("Tf").unwrap_or(Vec3::ONE),
+                ns: m.shininess.unwrap_or(0.0),
+                ni: m.optical_density.unwrap_or(1.0),
+                d: d.unwrap_or(1.0),
+                illum: m.illumination_model.map(u32::from),
+                map_kd: None,
+            };
+            let map_kd = m.diffuse_texture.as_deref().and_then(texture_file_name);
+            RawMaterial { desc, map_kd, dir: dir.to_path_buf(), mtl: display.to_string() }
+        })
+        .collect())
+}
+
+/// The file name of a `map_Kd` argument, skipping options such as `-s 1 1 1` or `-bm 0.5`.
+pub(super) fn texture_file_name(arg: &str) -> Option<String> {
+    let mut rest = arg.trim();
+    loop {
+        let opt = rest.split_whitespace().next()?;
+        let arity = match opt {
+            "-blendu" | "-blendv" | "-cc" | "-clamp" | "-bm" | "-boost" | "-texres" | "-imfchan" | "-type" => 1,
+            "-mm" => 2,
+            "-o" | "-s" | "-t" => 3,
+            _ => break,
+        };
+        rest = rest[opt.len()..].trim_start();
+        for k in 0..arity {
+            let tok = rest.split_whitespace().next()?;
+            // -o/-s/-t take 1 to 3 numbers, -mm 2 numbers; stop at the first non-number.
+            if k > 0 && tok.parse::<f32>().is_err() {
+                break;
+            }
+            rest = rest[tok.len()..].trim_start();
+        }
+    }
+    let name = rest.trim();
+    (!name.is_empty()).then(|| name.to_string())
+}
+
+/// Decoded textures, one per distinct path.
+#[derive(Default)]
+pub(super) struct TextureCache {
+    pub textures: Vec<Texture>,
+    by_path: HashMap<PathBuf, Result<u32, String>>,
+}
+
+impl TextureCache {
+    fn get(&mut self, path: &Path) -> Result<u32, String> {
+        let key = std::fs::canonicalize(path).unwrap_or_else(|_| path.to_path_buf());
+        if let Some(r) = self.by_path.get(&key) {
+            return r.clone();
+        }
+        let result = decode_texture(path).map(|tex| {
+            self.textures.push(tex);
+            self.textures.len() as u32 - 1
+        });
+        self.by_path.insert(key, result.clone());
+        result
+    }
+}
+
+/// `dir/name`, tolerating Windows separators in `name` when the file is not found as written.
+pub(super) fn resolve_path(dir: &Path, name: &str) -> PathBuf {
+    let direct = dir.join(name);
+    if !direct.exists() && name.contains('\\') {
+        let alt = dir.join(name.replace('\\', "/"));
+        if alt.exists() {
+            return alt;
+        }
+    }
+    direct
+}
+
+/// The final material: its texture loaded (or, when that fails, a warning and grey diffuse).
+pub(super) fn resolve_material(
+    raw: &RawMaterial,
+    cache: &mut TextureCache,
+    warnings: &mut Vec<String>,
+) -> MaterialDesc {
+    let mut desc = raw.desc.clone();
+    if let Some(name) = &raw.map_kd {
+        let path = resolve_path(&raw.dir, name);
+        match cache.get(&path) {
+            Ok(i) => desc.map_kd = Some(i),
+            Err(e) => {
+                let msg = format!(
+                    "{}: material '{}': map_Kd texture '{}' could not be loaded ({e}); using grey diffuse",
+                    raw.mtl,
+                    desc.name,
+                    path.display()
+                );
+                tracing::warn!("{msg}");
+                warnings.push(msg);
+                desc.kd = MaterialDesc::default_grey("").kd;
+                desc.map_kd = None;
+            }
+        }
+    }
+    desc
+}
+
+fn srgb_to_linear(c: f32) -> f32 {
+    if c <= 0.04045 { c / 12.92 } else { ((c + 0.055) / 1.055).powf(2.4) }
+}
+
+fn clean_texel(c: Vec3) -> Vec3 {
+    Vec3::new(
+        if c.x.is_finite() { c.x.max(0.0) } else { 0.0 },
+        if c.y.is_finite() { c.y.max(0.0) } else { 0.0 },
+        if c.z.is_finite() { c.z.max(0.0) } else { 0.0 },
+    )
+}
+
+/// Decodes an image into linear RGB (8/16-bit images are sRGB-encoded; float images such
+/// as `.hdr` are already linear). Alpha is ignored.
+pub(super) fn decode_texture(path: &Path) -> Result<Texture, String> {
+    use image::DynamicImage;
+    let img = image::ImageReader::open(path)
+        .map_err(|e| e.to_string())?
+        .with_guessed_format()
+        .map_err(|e| e.to_string())?
+        .decode()
+        .map_err(|e| e.to_string())?;
+    let (width, height) = (img.width(), img.height());
+    let texels: Vec<Vec3> = match &img {
+        DynamicImage::ImageRgb32F(_) | DynamicImage::ImageRgba32F(_) => {
+            img.to_rgb32f().pixels().map(|p| clean_texel(Vec3::new(p[0], p[1], p[2]))).collect()
+        }
+        DynamicImage::ImageLuma8(_)
+        | DynamicImage::ImageLumaA8(_)
+        | DynamicImage::ImageRgb8(_)
+        | DynamicImage::ImageRgba8(_) => {
+            let lut: Vec<f32> = (0..=255u8).map(|b| srgb_to_linear(f32::from(b) / 255.0)).collect();
+            let f = |b: u8| lut[usize::from(b)];
+            img.to_rgb8().pixels().map(|p| Vec3::new(f(p[0]), f(p[1]), f(p[2]))).collect()
+        }
+        _ => img
+            .to_rgb32f()
+            .pixels()
+            .map(|p| clean_texel(Vec3::new(srgb_to_linear(p[0]), srgb_to_linear(p[1]), srgb_to_linear(p[2]))))
+            .collect(),
+    };
+    if width == 0 || height == 0 || texels.len() != width as usize * height as usize {
+        return Err("empty image".into());
+    }
+    Ok(Texture { width, height, texels })
+}
