@@ -1,9 +1,21 @@
-//! `coordinator`: tilefarm's command line. `render` renders a scene in this process;
-//! `bench` prints traversal and rendering figures.
+//! `coordinator`: tilefarm's command line — render locally, serve a farm, submit jobs to
+//! it, inspect it, and benchmark the tracer.
 
+mod assets;
 mod bench;
 mod builtin;
+mod client;
+mod farm;
+mod job;
+mod local;
+mod progress;
 mod render_cmd;
+mod schedule;
+mod serve;
+mod server;
+mod service;
+
+use std::io::Write;
 
 use clap::{Parser, Subcommand};
 
@@ -16,27 +28,67 @@ struct Cli {
 
 #[derive(Subcommand)]
 enum Command {
-    /// Render a scene in this process (all cores) and write an EXR (or a PNG preview).
+    /// Render a scene on this machine with local worker processes and write an EXR (or a
+    /// PNG preview). Without a scene, renders the built-in Cornell box.
     Render(render_cmd::RenderArgs),
+    /// Run a long-lived farm that workers join and users submit jobs to.
+    Serve(serve::ServeArgs),
+    /// Upload a scene to a farm and start a job (--wait to follow it and get the image).
+    Submit(client::SubmitArgs),
+    /// List a farm's jobs and workers.
+    Status(client::StatusArgs),
+    /// Cancel a job.
+    Cancel(client::CancelArgs),
     /// Measure kd-tree build time, ray throughput and render speed.
     Bench(bench::BenchArgs),
 }
 
+/// Resolves on Ctrl-C (SIGINT) or SIGTERM.
+pub async fn stop_signal() {
+    #[cfg(unix)]
+    {
+        use tokio::signal::unix::{SignalKind, signal};
+        match signal(SignalKind::terminate()) {
+            Ok(mut term) => {
+                tokio::select! {
+                    _ = tokio::signal::ctrl_c() => {}
+                    _ = term.recv() => {}
+                }
+            }
+            Err(_) => {
+                let _ = tokio::signal::ctrl_c().await;
+            }
+        }
+    }
+    #[cfg(not(unix))]
+    {
+        let _ = tokio::signal::ctrl_c().await;
+    }
+}
+
 fn main() -> std::process::ExitCode {
+    let cli = Cli::parse();
+    // A farm logs its jobs and workers; one-shot commands only warn (RUST_LOG overrides).
+    let default_level = if matches!(cli.command, Command::Serve(_)) { "info" } else { "warn" };
     tracing_subscriber::fmt()
-        .with_env_filter(tracing_subscriber::EnvFilter::try_from_default_env().unwrap_or_else(|_| "info".into()))
+        .with_env_filter(tracing_subscriber::EnvFilter::try_from_default_env().unwrap_or_else(|_| default_level.into()))
         .with_writer(std::io::stderr)
         .init();
-    let cli = Cli::parse();
     let result = match cli.command {
         Command::Render(args) => render_cmd::run(args),
+        Command::Serve(args) => serve::run(args),
+        Command::Submit(args) => client::submit(args),
+        Command::Status(args) => client::status(args),
+        Command::Cancel(args) => client::cancel(args),
         Command::Bench(args) => bench::run(args),
     };
+    let _ = std::io::stdout().flush();
     match result {
         Ok(()) => std::process::ExitCode::SUCCESS,
         Err(e) => {
             eprintln!("error: {e:#}");
-            std::process::ExitCode::FAILURE
+            let interrupted = e.to_string().starts_with("interrupted");
+            std::process::ExitCode::from(if interrupted { 130 } else { 1 })
         }
     }
 }

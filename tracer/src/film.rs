@@ -145,6 +145,27 @@ impl Accumulation {
         Ok(())
     }
 
+    /// The sums as bytes: per pixel three little-endian i128 (the wire format).
+    pub fn sums_to_bytes(&self) -> Vec<u8> {
+        let mut out = Vec::with_capacity(self.sums.len() * 48);
+        for s in &self.sums {
+            for v in s {
+                out.extend_from_slice(&v.to_le_bytes());
+            }
+        }
+        out
+    }
+
+    /// Inverse of [`Accumulation::sums_to_bytes`]; `None` unless the length is a whole
+    /// number of pixels.
+    pub fn sums_from_bytes(bytes: &[u8]) -> Option<Vec<[i128; 3]>> {
+        if !bytes.len().is_multiple_of(48) {
+            return None;
+        }
+        let read = |c: &[u8]| i128::from_le_bytes(c.try_into().expect("16-byte chunk"));
+        Some(bytes.chunks_exact(48).map(|p| [read(&p[0..16]), read(&p[16..32]), read(&p[32..48])]).collect())
+    }
+
     /// Mean radiance of pixel `i`, or zero where no sample landed.
     pub fn mean(&self, i: usize) -> Vec3 {
         let n = self.counts[i];
@@ -217,6 +238,15 @@ mod tests {
         assert_eq!(ba, whole);
         let mean = samples.iter().map(|s| s.x as f64).sum::<f64>() / 64.0;
         assert!((whole.mean(1).x as f64 - mean).abs() < 1e-6);
+    }
+
+    #[test]
+    fn sums_round_trip_through_bytes() {
+        let mut a = Accumulation::new(Tile::new(0, 0, 2, 1));
+        a.add_sample(0, Vec3::new(1.5, -2.0, 1e30));
+        a.add_sample(1, Vec3::new(3.0e-9, 0.0, 7.0));
+        assert_eq!(Accumulation::sums_from_bytes(&a.sums_to_bytes()).unwrap(), a.sums);
+        assert!(Accumulation::sums_from_bytes(&[0u8; 47]).is_none());
     }
 
     #[test]

@@ -28,6 +28,13 @@ pub fn write_image(image: &Image, path: &Path) -> Result<(), OutputError> {
 
 /// Linear float32 R, G, B, A (= 1) and `samples` (u32) channels, lossless ZIP.
 pub fn write_exr(image: &Image, path: &Path) -> Result<(), OutputError> {
+    let bytes = exr_bytes(image).map_err(|message| OutputError::Write { path: path.display().to_string(), message })?;
+    std::fs::write(path, bytes)
+        .map_err(|e| OutputError::Write { path: path.display().to_string(), message: e.to_string() })
+}
+
+/// The EXR file of [`write_exr`] in memory (for sending over the network).
+pub fn exr_bytes(image: &Image) -> Result<Vec<u8>, String> {
     use exr::prelude::*;
     let size = (image.width as usize, image.height as usize);
     let channel = |name: &str, f: &dyn Fn(&Vec3) -> f32| {
@@ -46,10 +53,9 @@ pub fn write_exr(image: &Image, path: &Path) -> Result<(), OutputError> {
         Encoding::SMALL_LOSSLESS,
         AnyChannels::sort(channels.into()),
     );
-    Image::from_layer(layer)
-        .write()
-        .to_file(path)
-        .map_err(|e| OutputError::Write { path: path.display().to_string(), message: e.to_string() })
+    let mut out = std::io::Cursor::new(Vec::new());
+    Image::from_layer(layer).write().to_buffered(&mut out).map_err(|e| e.to_string())?;
+    Ok(out.into_inner())
 }
 
 /// Reads back what [`write_exr`] wrote (RGB and the sample counts, if present).

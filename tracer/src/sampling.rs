@@ -166,7 +166,7 @@ mod tests {
     const CHI2_TESTS: usize = 8;
 
     fn assert_chi2(name: &str, sample: impl FnMut(&mut Rng) -> Option<Vec3>, pdf: impl Fn(Vec3) -> f64 + Sync) {
-        let r = chi2_sphere(sample, pdf, 24, 48, 400_000, 0x5eed_0001);
+        let r = chi2_sphere(sample, pdf, 24, 48, 400_000, 0x5eed_0001, None);
         let alpha = sidak_alpha(CHI2_TESTS);
         assert!(
             r.p_value > alpha,

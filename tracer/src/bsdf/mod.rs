@@ -1,18 +1,40 @@
-//! BSDFs in the local shading frame (z = shading normal). PLACEHOLDER interface: the
-//! lobes are being written in lambert.rs, blinn_phong.rs, mirror.rs, dielectric.rs.
+//! BSDFs in the local shading frame (z = shading normal): Lambertian, diffuse plus
+//! Blinn-Phong, mirror and smooth dielectric.
 //!
 //! Conventions (pbrt's): `wo` points away from the surface towards where the light goes
 //! (the camera side), `wi` towards where it comes from; both unit vectors in local
 //! space. `eval` returns f(wo, wi) * |cos θi| so integrators never multiply by the cosine
 //! themselves. Radiance transport mode throughout (camera paths).
+//!
+//! The reflective BSDFs are two-sided: they shade whichever side `wo` is on and are zero
+//! for `wi` on the other side. Glass is oriented: z points to the exterior.
+//!
+//! Robustness: for any finite input (including `wo.z == 0`, grazing directions, exponent
+//! 0) `eval`/`pdf` return finite values and `sample` returns None or a finite sample.
 
+pub mod blinn_phong;
+pub mod dielectric;
+pub mod lambert;
+pub mod mirror;
+
+#[cfg(test)]
+pub(crate) mod chi2;
+#[cfg(test)]
+mod tests;
+
+use blinn_phong::BlinnPhong;
+use dielectric::Dielectric;
 use glam::{Vec2, Vec3};
+use lambert::Lambert;
+use mirror::SpecularReflection;
 
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub enum Bsdf {
     /// Lambertian reflection, two-sided.
     Diffuse { kd: Vec3 },
-    /// Diffuse base plus normalised Blinn-Phong lobe, two-sided.
+    /// Diffuse base plus normalised Blinn-Phong lobe (`exponent` = MTL Ns ≥ 0), two-sided.
+    /// If kd + ks > 1 in a channel both are scaled down so that it is 1 (see
+    /// [`blinn_phong`] for the energy bound).
     Glossy { kd: Vec3, ks: Vec3, exponent: f32 },
     /// Perfect specular reflection tinted by `ks`, two-sided.
     Mirror { ks: Vec3 },
@@ -33,33 +55,33 @@ pub struct BsdfSample {
 }
 
 impl Bsdf {
+    /// f(wo, wi) |cos θi| (0 for delta BSDFs).
     pub fn eval(&self, wo: Vec3, wi: Vec3) -> Vec3 {
         match *self {
-            Bsdf::Diffuse { kd } if wo.z * wi.z > 0.0 => kd * (wi.z.abs() / std::f32::consts::PI),
-            _ => Vec3::ZERO,
+            Bsdf::Diffuse { kd } => Lambert { kd }.eval(wo, wi),
+            Bsdf::Glossy { kd, ks, exponent } => BlinnPhong::new(kd, ks, exponent).eval(wo, wi),
+            Bsdf::Mirror { .. } | Bsdf::Glass { .. } => Vec3::ZERO,
         }
     }
 
+    /// Solid-angle density with which `sample` produces `wi` (0 for delta BSDFs).
     pub fn pdf(&self, wo: Vec3, wi: Vec3) -> f32 {
         match *self {
-            Bsdf::Diffuse { .. } if wo.z * wi.z > 0.0 => wi.z.abs() / std::f32::consts::PI,
-            _ => 0.0,
+            Bsdf::Diffuse { kd } => Lambert { kd }.pdf(wo, wi),
+            Bsdf::Glossy { kd, ks, exponent } => BlinnPhong::new(kd, ks, exponent).pdf(wo, wi),
+            Bsdf::Mirror { .. } | Bsdf::Glass { .. } => 0.0,
         }
     }
 
-    pub fn sample(&self, wo: Vec3, _u_lobe: f32, u: Vec2) -> Option<BsdfSample> {
+    /// Samples wi given wo: `u_lobe` chooses the lobe (Glossy: diffuse or specular;
+    /// Glass: reflection or transmission), `u` the direction within it. None when the
+    /// sample carries no energy (below the horizon, degenerate wo).
+    pub fn sample(&self, wo: Vec3, u_lobe: f32, u: Vec2) -> Option<BsdfSample> {
         match *self {
-            Bsdf::Diffuse { kd } => {
-                let r = u.x.sqrt();
-                let phi = 2.0 * std::f32::consts::PI * u.y;
-                let mut wi = Vec3::new(r * phi.cos(), r * phi.sin(), (1.0 - u.x).max(0.0).sqrt());
-                if wo.z < 0.0 {
-                    wi.z = -wi.z;
-                }
-                let pdf = wi.z.abs() / std::f32::consts::PI;
-                (pdf > 0.0).then_some(BsdfSample { wi, weight: kd, pdf, delta: false })
-            }
-            _ => None,
+            Bsdf::Diffuse { kd } => Lambert { kd }.sample(wo, u),
+            Bsdf::Glossy { kd, ks, exponent } => BlinnPhong::new(kd, ks, exponent).sample(wo, u_lobe, u),
+            Bsdf::Mirror { ks } => SpecularReflection { ks }.sample(wo),
+            Bsdf::Glass { eta, tint } => Dielectric { eta, tint }.sample(wo, u_lobe),
         }
     }
 
@@ -68,13 +90,41 @@ impl Bsdf {
         matches!(self, Bsdf::Mirror { .. } | Bsdf::Glass { .. })
     }
 
-    /// The diffuse reflectance (for the albedo AOV and for light-selection heuristics).
+    /// The reflectance for the albedo AOV and light-selection heuristics: kd, the
+    /// (energy-clamped) kd + ks bound for Glossy, ks for mirrors, the tint for glass.
     pub fn albedo(&self) -> Vec3 {
         match *self {
             Bsdf::Diffuse { kd } => kd,
-            Bsdf::Glossy { kd, ks, .. } => kd + ks,
+            Bsdf::Glossy { kd, ks, exponent } => {
+                let (kd, ks) = BlinnPhong::new(kd, ks, exponent).reflectances();
+                kd + ks
+            }
             Bsdf::Mirror { ks } => ks,
             Bsdf::Glass { tint, .. } => tint,
         }
     }
+}
+
+/// Both directions on the same side of the surface (strictly).
+#[inline]
+pub(crate) fn same_hemisphere(a: Vec3, b: Vec3) -> bool {
+    a.z * b.z > 0.0
+}
+
+/// `w` (given in the upper hemisphere) moved to the side of the surface `wo` is on.
+#[inline]
+pub(crate) fn to_side_of(wo: Vec3, w: Vec3) -> Vec3 {
+    if wo.z < 0.0 { Vec3::new(w.x, w.y, -w.z) } else { w }
+}
+
+/// Mirror reflection about the shading normal.
+#[inline]
+pub(crate) fn reflect(wo: Vec3) -> Vec3 {
+    Vec3::new(-wo.x, -wo.y, wo.z)
+}
+
+/// Mirror reflection of `wo` about the unit vector `h`.
+#[inline]
+pub(crate) fn reflect_about(wo: Vec3, h: Vec3) -> Vec3 {
+    2.0 * wo.dot(h) * h - wo
 }

@@ -1,16 +1,19 @@
 //! Scene input — the TOML scene file, OBJ/MTL meshes — and the assembled [`Scene`] with
 //! its ray queries.
 
+pub mod assets;
 pub mod file;
 pub mod generate;
 pub mod geometry;
 pub mod load;
 pub mod mesh;
 pub mod obj;
+pub mod overrides;
 
 pub use geometry::{Geometry, PrimRef, Sphere};
 pub use load::{RenderSettings, SceneError, load_scene, scene_from_bare_obj, scene_from_toml};
 pub use mesh::{NONE, Tri, TriangleMesh};
+pub use overrides::Overrides;
 
 use glam::{Vec2, Vec3};
 

@@ -1,67 +1,211 @@
-//! SAH kd-tree. PLACEHOLDER being replaced by the real build: a single leaf.
+//! SAH kd-tree: O(N log N) build with perfect splits (Wald & Havran 2006) in
+//! [`build`], compact 8-byte nodes, and a stack-based front-to-back traversal in
+//! [`traverse`] whose answers are bit-identical to the brute-force loops.
 
-use super::{Hit, Primitives, Ray, RayPrecomp};
+mod build;
+mod traverse;
+
+use super::{Hit, Primitives, Ray};
 use crate::geometry::Aabb;
 
-/// Build parameters (documented in README.md).
+/// Deepest tree the traversal stack supports.
+const MAX_DEPTH: u32 = 60;
+
+/// Build parameters.
+///
+/// The defaults were chosen by measuring single-thread throughput of incoherent rays
+/// (origins on the bounding sphere towards uniform points in the box; `KDTREE_TUNE=…
+/// cargo bench -p tracer --bench kdtree`) on this 2-core machine, on the 100k-triangle
+/// displaced sphere and on a scene of 10k random spheres plus a 20k-triangle mesh.
+/// Closest-hit / any-hit Mrays/s, build time:
+///
+/// | Ci/Ct | 100k mesh | nodes | build | spheres scene | nodes |
+/// |------:|----------:|------:|------:|--------------:|------:|
+/// | 0.20  | 0.97 / 1.29 | 68k | 0.30 s | 0.98 / 1.18 | 16k |
+/// | 0.35  | 1.02 / 1.34 | 148k | 0.35 s | 0.98 / 1.20 | 35k |
+/// | 0.50  | 1.02 / 1.27 | 271k | 0.49 s | 0.94 / 1.16 | 61k |
+/// | 1.00  | 0.97 / 1.13 | 495k | 0.62 s | 0.82 / 0.98 | 122k |
+/// | 1.50  | 0.81 / 0.96 | 718k | 0.75 s | 0.81 / 0.98 | 149k |
+/// | 4.00  | 0.78 / 0.83 | 1.3M | 1.14 s | 0.73 / 0.88 | 301k |
+/// | 80.0 (pbrt) | 0.71 / 0.82 | 1.6M | 1.24 s | 0.73 / 0.87 | 359k |
+///
+/// Traversal here is bound by memory latency and branch misses (about 15 ns per node
+/// step against 12 ns per triangle test), so small trees with a few more primitives per
+/// leaf win, and they build faster too.
 #[derive(Clone, Debug)]
 pub struct BuildParams {
+    /// SAH cost of visiting an interior node. Default 1.
     pub traversal_cost: f32,
+    /// SAH cost of one primitive test; only its ratio to `traversal_cost` shapes the
+    /// tree. Default 0.35: the best closest- and any-hit throughput in the table above.
     pub intersection_cost: f32,
+    /// Fraction (0..1) by which the SAH discounts a split that cuts off empty space.
+    /// Default 0.2. Measured at Ci/Ct 0.35: 0 gives 0.96 / 0.99 Mrays/s (mesh / spheres),
+    /// 0.2 gives 1.02 / 0.98, 0.5 gives 0.88 / 0.61 (thin empty slabs around every
+    /// sphere), 0.8 gives 0.89 / 0.53.
     pub empty_bonus: f32,
+    /// Deepest level; `None` is pbrt's `round(8 + 1.3 log2 N)` (34 for 1M primitives),
+    /// deep enough that the SAH, not the limit, ends nearly every branch. Capped at 60
+    /// (the traversal stack).
     pub max_depth: Option<u32>,
+    /// Nodes with at most this many primitives become leaves without an SAH sweep.
+    /// Default 1. With SAH termination the value barely matters (0, 1, 2 and 4 all
+    /// measured within 3 %): the SAH already stops before leaves get that small.
     pub max_leaf_prims: usize,
 }
 
 impl Default for BuildParams {
     fn default() -> Self {
-        Self { traversal_cost: 1.0, intersection_cost: 1.5, empty_bonus: 0.2, max_depth: None, max_leaf_prims: 2 }
+        Self { traversal_cost: 1.0, intersection_cost: 0.35, empty_bonus: 0.2, max_depth: None, max_leaf_prims: 1 }
     }
 }
 
-#[derive(Clone, Debug, Default)]
+/// Shape and size of a built tree.
+#[derive(Clone, Debug, Default, PartialEq)]
 pub struct KdTreeStats {
     pub nodes: usize,
     pub leaves: usize,
+    pub empty_leaves: usize,
+    /// Deepest leaf (the root is at depth 0).
     pub max_depth: usize,
+    /// The depth limit the build used.
+    pub depth_limit: usize,
+    /// Sum over leaves of their primitive counts.
     pub prim_refs: usize,
+    /// Largest leaf.
+    pub max_leaf_prims: usize,
+    /// Memory of nodes and primitive-index array.
     pub bytes: usize,
 }
 
+/// A node in 8 bytes (pbrt's layout). `flags` low 2 bits: split axis, or 3 for a leaf;
+/// upper 30 bits: the above child's offset from this node (interior; the below child
+/// is the next node), or the primitive count (leaf). `data`: the split position's bits
+/// (interior), the primitive itself (leaf of one), or the offset of the leaf's indices
+/// in `KdTree::ids`.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+struct Node {
+    data: u32,
+    flags: u32,
+}
+
+const LEAF: u32 = 3;
+
+impl Node {
+    fn interior(axis: usize, split: f32, above: u32) -> Self {
+        assert!(above < 1 << 30, "kd-tree: too many nodes");
+        Self { data: split.to_bits(), flags: axis as u32 | (above << 2) }
+    }
+
+    fn leaf(prims: &[u32], ids: &mut Vec<u32>) -> Self {
+        assert!(prims.len() < 1 << 30);
+        let flags = LEAF | ((prims.len() as u32) << 2);
+        match prims {
+            [] => Self { data: 0, flags },
+            [one] => Self { data: *one, flags },
+            _ => {
+                let data = ids.len() as u32;
+                ids.extend_from_slice(prims);
+                Self { data, flags }
+            }
+        }
+    }
+
+    /// The node with its index offset moved by `base` (leaves of several primitives).
+    fn shifted(self, base: u32) -> Self {
+        if self.is_leaf() && self.prim_count() > 1 { Self { data: self.data + base, flags: self.flags } } else { self }
+    }
+
+    #[inline(always)]
+    fn is_leaf(self) -> bool {
+        self.flags & 3 == LEAF
+    }
+    #[inline(always)]
+    fn axis(self) -> usize {
+        (self.flags & 3) as usize
+    }
+    #[inline(always)]
+    fn split(self) -> f32 {
+        f32::from_bits(self.data)
+    }
+    #[inline(always)]
+    fn above(self) -> usize {
+        (self.flags >> 2) as usize
+    }
+    #[inline(always)]
+    fn prim_count(self) -> usize {
+        (self.flags >> 2) as usize
+    }
+}
+
+/// The kd-tree over a [`Primitives`] set. It stores primitive indices only: queries take
+/// the same set again.
 pub struct KdTree {
+    nodes: Vec<Node>,
+    ids: Vec<u32>,
     bounds: Aabb,
-    prims: Vec<u32>,
+    /// Root cell (the primitives' padded extents): what traversal clips rays to.
+    cell: Aabb,
+    stats: KdTreeStats,
 }
 
 impl KdTree {
-    pub fn build<P: Primitives>(prims: &P, _params: &BuildParams) -> Self {
-        let bounds = (0..prims.len() as u32).fold(Aabb::EMPTY, |b, i| b.union(prims.bounds(i)));
-        Self { bounds, prims: (0..prims.len() as u32).collect() }
+    pub fn build<P: Primitives>(prims: &P, params: &BuildParams) -> KdTree {
+        let b = build::build(prims, params);
+        let mut tree =
+            KdTree { nodes: b.out.nodes, ids: b.out.ids, bounds: b.bounds, cell: b.cell, stats: Default::default() };
+        tree.stats = tree.compute_stats(b.max_depth as usize);
+        tree
     }
 
+    /// Union of the primitives' bounds (empty for an empty set).
     pub fn bounds(&self) -> Aabb {
         self.bounds
     }
 
     pub fn stats(&self) -> KdTreeStats {
-        KdTreeStats { nodes: 1, leaves: 1, max_depth: 0, prim_refs: self.prims.len(), bytes: self.prims.len() * 4 }
+        self.stats.clone()
     }
 
+    /// Nearest hit with `0 < t < tmax`: exactly what [`super::brute_force_intersect`]
+    /// returns.
     pub fn intersect<P: Primitives>(&self, prims: &P, ray: &Ray, tmax: f32) -> Option<Hit> {
-        let pre = RayPrecomp::new(ray);
-        let mut best = None;
-        let mut tmax = tmax;
-        for &i in &self.prims {
-            if let Some(h) = prims.intersect(i, ray, &pre, tmax) {
-                tmax = h.t;
-                best = Some(Hit { t: h.t, prim: i, u: h.u, v: h.v });
+        self.intersect_impl(prims, ray, tmax)
+    }
+
+    /// Whether anything is hit with `0 < t < tmax`: exactly
+    /// [`super::brute_force_occluded`], stopping at the first hit found.
+    pub fn occluded<P: Primitives>(&self, prims: &P, ray: &Ray, tmax: f32) -> bool {
+        self.occluded_impl(prims, ray, tmax)
+    }
+
+    fn compute_stats(&self, depth_limit: usize) -> KdTreeStats {
+        let mut s = KdTreeStats {
+            nodes: self.nodes.len(),
+            depth_limit,
+            bytes: self.nodes.len() * size_of::<Node>() + self.ids.len() * 4,
+            ..Default::default()
+        };
+        let mut stack = vec![(0usize, 0usize)];
+        if self.nodes.is_empty() {
+            stack.clear();
+        }
+        while let Some((i, d)) = stack.pop() {
+            let n = self.nodes[i];
+            s.max_depth = s.max_depth.max(d);
+            if n.is_leaf() {
+                s.leaves += 1;
+                s.empty_leaves += usize::from(n.prim_count() == 0);
+                s.prim_refs += n.prim_count();
+                s.max_leaf_prims = s.max_leaf_prims.max(n.prim_count());
+            } else {
+                stack.push((i + 1, d + 1));
+                stack.push((i + n.above(), d + 1));
             }
         }
-        best
-    }
-
-    pub fn occluded<P: Primitives>(&self, prims: &P, ray: &Ray, tmax: f32) -> bool {
-        let pre = RayPrecomp::new(ray);
-        self.prims.iter().any(|&i| prims.intersect(i, ray, &pre, tmax).is_some())
+        s
     }
 }
+
+#[cfg(test)]
+mod tests;

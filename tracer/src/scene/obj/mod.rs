@@ -6,6 +6,7 @@
 //! (counter-clockwise order kept), all groups are merged into one [`TriangleMesh`], and
 //! shading normals come from `vn`, from smoothing groups, or are left flat.
 
+mod deps;
 mod mtl;
 mod scan;
 mod smoothing;
@@ -17,6 +18,7 @@ use std::path::Path;
 
 use glam::{Vec2, Vec3};
 
+pub use self::deps::obj_dependencies;
 pub use self::mtl::{MtlLibrary, load_mtl};
 use self::mtl::{RawMaterial, TextureCache};
 use self::scan::{Corner, ObjScan};

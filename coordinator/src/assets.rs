@@ -1,0 +1,197 @@
+//! Content-addressed scene files. Every file of a job is stored once under its SHA-256,
+//! and a job's folder is laid out from the store by the files' relative paths, so the
+//! coordinator and every worker load byte-identical scenes without a shared filesystem.
+
+use std::collections::HashMap;
+use std::io::Write;
+use std::path::{Component, Path, PathBuf};
+
+use anyhow::{Context, bail};
+use sha2::{Digest, Sha256};
+
+/// A file of a job: where it goes in the job folder, and what it contains.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub struct AssetRef {
+    pub path: String,
+    pub sha256: String,
+    pub size: u64,
+}
+
+impl From<&AssetRef> for proto::AssetRef {
+    fn from(a: &AssetRef) -> Self {
+        proto::AssetRef { path: a.path.clone(), sha256: a.sha256.clone(), size: a.size }
+    }
+}
+
+impl From<&proto::AssetRef> for AssetRef {
+    fn from(a: &proto::AssetRef) -> Self {
+        AssetRef { path: a.path.clone(), sha256: a.sha256.clone(), size: a.size }
+    }
+}
+
+pub fn sha256_hex(bytes: &[u8]) -> String {
+    hex::encode(Sha256::digest(bytes))
+}
+
+/// A relative path that stays inside the folder it is joined to: no root, no `..`, no
+/// backslashes (which mean different things on different systems).
+pub fn safe_relative_path(p: &str) -> anyhow::Result<PathBuf> {
+    if p.is_empty() || p.contains('\\') {
+        bail!("asset path '{p}' is empty or contains a backslash");
+    }
+    let path = Path::new(p);
+    if !path.components().all(|c| matches!(c, Component::Normal(_))) {
+        bail!("asset path '{p}' must be relative, without '..' or '.'");
+    }
+    Ok(path.to_path_buf())
+}
+
+/// The blob store: `<dir>/blobs/<sha256>`.
+pub struct AssetStore {
+    dir: PathBuf,
+    sizes: HashMap<String, u64>,
+}
+
+impl AssetStore {
+    pub fn open(dir: &Path) -> anyhow::Result<Self> {
+        let blobs = dir.join("blobs");
+        std::fs::create_dir_all(&blobs).with_context(|| format!("creating {}", blobs.display()))?;
+        let mut sizes = HashMap::new();
+        for e in std::fs::read_dir(&blobs)?.flatten() {
+            let name = e.file_name().to_string_lossy().into_owned();
+            if name.len() == 64
+                && let Ok(m) = e.metadata()
+            {
+                sizes.insert(name, m.len());
+            }
+        }
+        Ok(Self { dir: dir.to_path_buf(), sizes })
+    }
+
+    pub fn dir(&self) -> &Path {
+        &self.dir
+    }
+
+    pub fn blob_path(&self, sha256: &str) -> PathBuf {
+        self.dir.join("blobs").join(sha256)
+    }
+
+    pub fn contains(&self, sha256: &str) -> bool {
+        self.sizes.contains_key(sha256)
+    }
+
+    /// Stores `bytes` (atomically: temp file, fsync, rename) and returns its digest.
+    pub fn put(&mut self, bytes: &[u8]) -> anyhow::Result<(String, u64)> {
+        let sha = sha256_hex(bytes);
+        if !self.contains(&sha) {
+            let path = self.blob_path(&sha);
+            let tmp = path.with_extension(format!("tmp{}", std::process::id()));
+            let mut f = std::fs::File::create(&tmp).with_context(|| format!("creating {}", tmp.display()))?;
+            f.write_all(bytes)?;
+            f.sync_all()?;
+            std::fs::rename(&tmp, &path)?;
+            self.sizes.insert(sha.clone(), bytes.len() as u64);
+        }
+        Ok((sha, bytes.len() as u64))
+    }
+
+    /// Lays out a job's files under `job_dir` by their relative paths and returns the
+    /// scene file's path there.
+    pub fn materialize(&self, job_dir: &Path, scene: &AssetRef, assets: &[AssetRef]) -> anyhow::Result<PathBuf> {
+        for a in std::iter::once(scene).chain(assets) {
+            let rel = safe_relative_path(&a.path)?;
+            if !self.contains(&a.sha256) {
+                bail!("asset {} ({}) was never uploaded", a.path, a.sha256);
+            }
+            let dest = job_dir.join(&rel);
+            if let Some(parent) = dest.parent() {
+                std::fs::create_dir_all(parent)?;
+            }
+            if !dest.exists() && std::fs::hard_link(self.blob_path(&a.sha256), &dest).is_err() {
+                std::fs::copy(self.blob_path(&a.sha256), &dest)
+                    .with_context(|| format!("placing {} in {}", a.path, job_dir.display()))?;
+            }
+        }
+        Ok(job_dir.join(safe_relative_path(&scene.path)?))
+    }
+}
+
+/// The files of a scene on this machine, relative to their deepest common folder:
+/// `(scene, other files, files referred to but missing)`.
+pub struct LocalScene {
+    pub root: PathBuf,
+    pub scene: PathBuf,
+    pub files: Vec<PathBuf>,
+    pub missing: Vec<PathBuf>,
+}
+
+impl LocalScene {
+    pub fn collect(scene_path: &Path) -> anyhow::Result<Self> {
+        let scene = std::fs::canonicalize(scene_path).with_context(|| format!("{}", scene_path.display()))?;
+        let listed = tracer::scene::assets::scene_files(&scene)?;
+        let (mut files, mut missing) = (Vec::new(), Vec::new());
+        for f in listed.into_iter().skip(1) {
+            match std::fs::canonicalize(&f) {
+                Ok(c) if c.is_file() => files.push(c),
+                _ => missing.push(f),
+            }
+        }
+        let mut root = scene.parent().map(Path::to_path_buf).unwrap_or_default();
+        for f in &files {
+            while !f.starts_with(&root) {
+                root = root.parent().map(Path::to_path_buf).unwrap_or_default();
+            }
+        }
+        Ok(Self { root, scene, files, missing })
+    }
+
+    /// The path of `file` relative to the root, with `/` separators.
+    pub fn relative(&self, file: &Path) -> String {
+        let rel = file.strip_prefix(&self.root).unwrap_or(file);
+        rel.components().map(|c| c.as_os_str().to_string_lossy()).collect::<Vec<_>>().join("/")
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn unsafe_paths_are_refused() {
+        for bad in ["", "/etc/passwd", "../x.obj", "a/../../x", "a\\b.obj", "./a.obj"] {
+            assert!(safe_relative_path(bad).is_err(), "{bad}");
+        }
+        assert_eq!(safe_relative_path("meshes/a.obj").unwrap(), PathBuf::from("meshes/a.obj"));
+    }
+
+    #[test]
+    fn store_dedups_and_materializes_jobs() {
+        let dir = std::env::temp_dir().join(format!("tilefarm-store-test-{}", std::process::id()));
+        let mut store = AssetStore::open(&dir).unwrap();
+        let (a, _) = store.put(b"scene").unwrap();
+        let (a2, _) = store.put(b"scene").unwrap();
+        assert_eq!(a, a2);
+        let (b, size) = store.put(b"mesh data").unwrap();
+        let scene = AssetRef { path: "s/scene.toml".into(), sha256: a, size: 5 };
+        let mesh = AssetRef { path: "m/mesh.obj".into(), sha256: b, size };
+        let p = store.materialize(&dir.join("job"), &scene, std::slice::from_ref(&mesh)).unwrap();
+        assert_eq!(std::fs::read(&p).unwrap(), b"scene");
+        assert_eq!(std::fs::read(dir.join("job/m/mesh.obj")).unwrap(), b"mesh data");
+        let bogus = AssetRef { path: "x".into(), sha256: "0".repeat(64), size: 1 };
+        assert!(store.materialize(&dir.join("job2"), &bogus, &[]).is_err());
+        // Reopening finds what was stored.
+        assert!(AssetStore::open(&dir).unwrap().contains(&mesh.sha256));
+        std::fs::remove_dir_all(&dir).ok();
+    }
+
+    #[test]
+    fn bundled_scene_collects_relative_to_its_folder() {
+        let p = Path::new(env!("CARGO_MANIFEST_DIR")).join("../scenes/cup/scene.toml");
+        let s = LocalScene::collect(&p).unwrap();
+        assert!(s.missing.is_empty());
+        assert_eq!(s.relative(&s.scene), "scene.toml");
+        let mut rel: Vec<String> = s.files.iter().map(|f| s.relative(f)).collect();
+        rel.sort();
+        assert_eq!(rel, ["cup.mtl", "cup.obj", "table.obj"]);
+    }
+}

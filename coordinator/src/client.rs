@@ -1,0 +1,206 @@
+//! The user's side of a farm: `submit` (upload, submit, optionally wait and fetch the
+//! image), `status` and `cancel`.
+
+use std::path::PathBuf;
+use std::time::{Duration, Instant};
+
+use anyhow::Context;
+use clap::Args;
+use proto::jobs_client::JobsClient;
+use tonic::transport::Channel;
+
+use crate::assets::{LocalScene, sha256_hex};
+use crate::progress::{JobBar, summary};
+use crate::render_cmd::JobArgs;
+
+#[derive(Args)]
+pub struct SubmitArgs {
+    /// Scene file (.toml) or a bare .obj; it and every file it refers to are uploaded.
+    pub scene: PathBuf,
+    /// The coordinator's URL, e.g. http://127.0.0.1:7878.
+    #[arg(long)]
+    pub coordinator: String,
+    /// Wait for the job, showing progress, and write the image.
+    #[arg(long)]
+    pub wait: bool,
+    /// Where --wait writes the image (.exr, or .png for a tone-mapped preview).
+    #[arg(short, long, default_value = "out.exr")]
+    pub output: PathBuf,
+    /// With --wait: rewrite a PNG preview of the image so far every few seconds.
+    #[arg(long)]
+    pub preview: Option<PathBuf>,
+    /// No progress bar.
+    #[arg(long, short)]
+    pub quiet: bool,
+    #[command(flatten)]
+    pub job: JobArgs,
+}
+
+#[derive(Args)]
+pub struct StatusArgs {
+    #[arg(long)]
+    pub coordinator: String,
+}
+
+#[derive(Args)]
+pub struct CancelArgs {
+    pub job: String,
+    #[arg(long)]
+    pub coordinator: String,
+}
+
+pub async fn connect(url: &str) -> anyhow::Result<JobsClient<Channel>> {
+    let channel = tonic::transport::Endpoint::from_shared(url.to_string())
+        .with_context(|| format!("bad coordinator URL {url}"))?
+        .connect_timeout(Duration::from_secs(10))
+        .connect()
+        .await
+        .with_context(|| format!("connecting to {url}"))?;
+    Ok(JobsClient::new(channel)
+        .max_decoding_message_size(proto::MAX_MESSAGE_BYTES)
+        .max_encoding_message_size(proto::MAX_MESSAGE_BYTES))
+}
+
+fn runtime() -> anyhow::Result<tokio::runtime::Runtime> {
+    tokio::runtime::Builder::new_multi_thread().worker_threads(2).enable_all().build().context("async runtime")
+}
+
+async fn upload(
+    client: &mut JobsClient<Channel>,
+    path: &std::path::Path,
+    rel: String,
+) -> anyhow::Result<proto::AssetRef> {
+    let bytes = std::fs::read(path).with_context(|| format!("reading {}", path.display()))?;
+    let sha = sha256_hex(&bytes);
+    let chunks: Vec<proto::AssetChunk> =
+        bytes.chunks(proto::ASSET_CHUNK_BYTES).map(|c| proto::AssetChunk { data: c.to_vec() }).collect();
+    let reply = client.upload_asset(tokio_stream::iter(chunks)).await.with_context(|| format!("uploading {rel}"))?;
+    let r = reply.into_inner();
+    anyhow::ensure!(r.sha256 == sha, "upload of {rel} was corrupted (digest {} ≠ {sha})", r.sha256);
+    Ok(proto::AssetRef { path: rel, sha256: sha, size: bytes.len() as u64 })
+}
+
+pub fn submit(args: SubmitArgs) -> anyhow::Result<()> {
+    runtime()?.block_on(async move {
+        let local = LocalScene::collect(&args.scene)?;
+        for m in &local.missing {
+            eprintln!("warning: {} is referred to but missing; the job will report it", m.display());
+        }
+        let mut client = connect(&args.coordinator).await?;
+        let scene = upload(&mut client, &local.scene, local.relative(&local.scene)).await?;
+        let mut assets = Vec::new();
+        for f in &local.files {
+            assets.push(upload(&mut client, f, local.relative(f)).await?);
+        }
+        let reply = client
+            .submit_job(proto::SubmitJobRequest { scene: Some(scene), assets, settings: Some(args.job.settings()) })
+            .await
+            .map_err(|s| anyhow::anyhow!("{}", s.message()))?;
+        let job = reply.into_inner().job_id;
+        println!("{job}");
+        if args.wait {
+            wait(&mut client, &job, &args).await?;
+        }
+        Ok(())
+    })
+}
+
+async fn fetch_image(client: &mut JobsClient<Channel>, job: &str) -> anyhow::Result<tracer::film::Image> {
+    let mut stream = client.fetch_image(proto::JobRequest { job_id: job.to_string() }).await?.into_inner();
+    let mut exr = Vec::new();
+    while let Some(chunk) = stream.message().await? {
+        exr.extend_from_slice(&chunk.exr);
+    }
+    let tmp = std::env::temp_dir().join(format!("tilefarm-fetch-{}-{job}.exr", std::process::id()));
+    std::fs::write(&tmp, &exr)?;
+    let image = tracer::output::read_exr(&tmp);
+    let _ = std::fs::remove_file(&tmp);
+    Ok(image?)
+}
+
+async fn wait(client: &mut JobsClient<Channel>, job: &str, args: &SubmitArgs) -> anyhow::Result<()> {
+    let bar = JobBar::new(args.quiet);
+    let mut stream = client.watch_job(proto::JobRequest { job_id: job.to_string() }).await?.into_inner();
+    let mut last_preview = Instant::now();
+    let mut last = None;
+    let stop = crate::stop_signal();
+    tokio::pin!(stop);
+    loop {
+        let msg = tokio::select! {
+            _ = &mut stop => {
+                bar.finish();
+                anyhow::bail!("interrupted; the job goes on (cancel it with `coordinator cancel {job}`)");
+            }
+            m = stream.message() => m?,
+        };
+        let Some(status) = msg else { break };
+        bar.update(&status);
+        if let Some(p) = &args.preview
+            && status.state() == proto::JobState::Running
+            && last_preview.elapsed() > Duration::from_secs(3)
+        {
+            tracer::output::write_png(&fetch_image(client, job).await?, p)?;
+            last_preview = Instant::now();
+        }
+        last = Some(status);
+    }
+    bar.finish();
+    let status = last.context("the coordinator closed the progress stream without a status")?;
+    match status.state() {
+        proto::JobState::Done => {
+            let image = fetch_image(client, job).await?;
+            tracer::output::write_image(&image, &args.output)?;
+            if let Some(p) = &args.preview {
+                tracer::output::write_png(&image, p)?;
+            }
+            println!("{}; wrote {}", summary(&status), args.output.display());
+            Ok(())
+        }
+        proto::JobState::Failed => anyhow::bail!("job {job} failed: {}", status.error),
+        proto::JobState::Cancelled => anyhow::bail!("job {job} was cancelled"),
+        s => anyhow::bail!("job {job} stopped in state {s:?}"),
+    }
+}
+
+pub fn status(args: StatusArgs) -> anyhow::Result<()> {
+    runtime()?.block_on(async move {
+        let mut client = connect(&args.coordinator).await?;
+        let jobs = client.list_jobs(proto::ListRequest {}).await?.into_inner().jobs;
+        let workers = client.list_workers(proto::ListRequest {}).await?.into_inner().workers;
+        println!("jobs:");
+        for j in jobs {
+            println!(
+                "  {:<8} {:<10} {:>5}/{:<5} units  {}×{}  {}{}",
+                j.job_id,
+                format!("{:?}", j.state()).to_lowercase(),
+                j.units_done,
+                j.units_total,
+                j.width,
+                j.height,
+                j.scene,
+                if j.error.is_empty() { String::new() } else { format!("  error: {}", j.error) }
+            );
+        }
+        println!("workers:");
+        for w in workers {
+            println!(
+                "  {:<4} {:<20} {:>3} threads  {:>3} held  {:>6} done  seen {:.1}s ago",
+                w.worker_id, w.hostname, w.threads, w.units_held, w.units_done, w.last_seen_s
+            );
+        }
+        Ok(())
+    })
+}
+
+pub fn cancel(args: CancelArgs) -> anyhow::Result<()> {
+    runtime()?.block_on(async move {
+        let mut client = connect(&args.coordinator).await?;
+        let s = client
+            .cancel_job(proto::JobRequest { job_id: args.job.clone() })
+            .await
+            .map_err(|s| anyhow::anyhow!("{}", s.message()))?
+            .into_inner();
+        println!("{} {:?}", s.job_id, s.state());
+        Ok(())
+    })
+}

@@ -1,0 +1,268 @@
+//! The coordinator's state: registered workers, jobs in submission order, and the
+//! operations the services perform on them. Guarded by one mutex; every operation is
+//! short (bookkeeping and exact integer merges, never rendering).
+
+use std::collections::{BTreeMap, HashMap};
+use std::sync::Arc;
+use std::time::{Duration, Instant};
+
+use tracer::scene::Scene;
+
+use crate::job::{Applied, Job, JobPhase, Rejection, UnitId, UnitResult, WorkerId};
+
+#[derive(Clone, Debug)]
+pub struct FarmConfig {
+    /// A lease lapses this long after its last renewal.
+    pub lease: Duration,
+    /// How often workers renew their leases.
+    pub heartbeat: Duration,
+}
+
+impl Default for FarmConfig {
+    fn default() -> Self {
+        Self { lease: Duration::from_secs(30), heartbeat: Duration::from_secs(5) }
+    }
+}
+
+#[derive(Clone, Debug)]
+pub struct Worker {
+    pub id: WorkerId,
+    pub hostname: String,
+    pub threads: u32,
+    pub last_seen: Instant,
+    pub units_done: u64,
+}
+
+/// A job's spec as the workers receive it, plus its loaded scene (for the in-process
+/// executor).
+pub struct JobEntry {
+    pub job: Job,
+    pub spec: proto::JobSpec,
+    pub scene: Option<Arc<Scene>>,
+}
+
+#[derive(Debug, thiserror::Error, PartialEq, Eq)]
+pub enum FarmError {
+    #[error("unknown worker {0}: register again")]
+    UnknownWorker(WorkerId),
+    #[error("unknown job {0}")]
+    UnknownJob(String),
+    #[error(transparent)]
+    Rejected(#[from] Rejection),
+}
+
+#[derive(Default)]
+pub struct Farm {
+    pub config: FarmConfig,
+    pub workers: BTreeMap<WorkerId, Worker>,
+    next_worker: WorkerId,
+    /// In submission order: earlier jobs are served first.
+    pub jobs: Vec<JobEntry>,
+    index: HashMap<String, usize>,
+    next_job: u64,
+    /// Tell workers to stop (the local render is over).
+    pub shutting_down: bool,
+}
+
+/// A unit handed out by [`Farm::lease`].
+pub struct Leased {
+    pub spec: proto::JobSpec,
+    pub unit: UnitId,
+    pub tile: tracer::film::Tile,
+    pub samples: tracer::film::SampleRange,
+}
+
+impl Farm {
+    pub fn new(config: FarmConfig) -> Self {
+        Self { config, next_worker: 1, next_job: 1, ..Default::default() }
+    }
+
+    pub fn register(&mut self, hostname: String, threads: u32, now: Instant) -> WorkerId {
+        let id = self.next_worker;
+        self.next_worker += 1;
+        self.workers.insert(id, Worker { id, hostname, threads, last_seen: now, units_done: 0 });
+        id
+    }
+
+    fn touch(&mut self, worker: WorkerId, now: Instant) -> Result<&mut Worker, FarmError> {
+        let w = self.workers.get_mut(&worker).ok_or(FarmError::UnknownWorker(worker))?;
+        w.last_seen = now;
+        Ok(w)
+    }
+
+    /// Workers seen within three lease periods.
+    pub fn live_workers(&self, now: Instant) -> usize {
+        self.workers.values().filter(|w| now.duration_since(w.last_seen) < 3 * self.config.lease).count()
+    }
+
+    /// Creates a job in the loading phase; returns its id.
+    pub fn add_job(&mut self, name: String, mut spec: proto::JobSpec) -> String {
+        let id = format!("job-{}", self.next_job);
+        self.next_job += 1;
+        spec.job_id = id.clone();
+        self.index.insert(id.clone(), self.jobs.len());
+        self.jobs.push(JobEntry { job: Job::loading(id.clone(), name), spec, scene: None });
+        id
+    }
+
+    pub fn entry(&self, job: &str) -> Result<&JobEntry, FarmError> {
+        self.index.get(job).map(|&i| &self.jobs[i]).ok_or_else(|| FarmError::UnknownJob(job.to_string()))
+    }
+
+    pub fn entry_mut(&mut self, job: &str) -> Result<&mut JobEntry, FarmError> {
+        match self.index.get(job) {
+            Some(&i) => Ok(&mut self.jobs[i]),
+            None => Err(FarmError::UnknownJob(job.to_string())),
+        }
+    }
+
+    /// Up to `max` units for `worker`, earliest job first, progressive order within it.
+    pub fn lease(&mut self, worker: WorkerId, max: usize, now: Instant) -> Result<Vec<Leased>, FarmError> {
+        self.touch(worker, now)?;
+        self.reap(now);
+        let deadline = now + self.config.lease;
+        let mut out = Vec::new();
+        for e in &mut self.jobs {
+            while out.len() < max {
+                let Some(unit) = e.job.lease_next(worker, deadline) else { break };
+                let u = &e.job.units[unit as usize];
+                out.push(Leased { spec: e.spec.clone(), unit, tile: u.tile, samples: u.samples });
+            }
+        }
+        Ok(out)
+    }
+
+    /// Renews `worker`'s leases; returns the units it should abandon.
+    pub fn heartbeat(
+        &mut self,
+        worker: WorkerId,
+        held: &[(String, UnitId)],
+        now: Instant,
+    ) -> Result<Vec<(String, UnitId)>, FarmError> {
+        self.touch(worker, now)?;
+        let deadline = now + self.config.lease;
+        let mut abandon = Vec::new();
+        for (job, unit) in held {
+            let keep = match self.index.get(job) {
+                Some(&i) => self.jobs[i].job.renew(worker, *unit, deadline),
+                None => false,
+            };
+            if !keep {
+                abandon.push((job.clone(), *unit));
+            }
+        }
+        Ok(abandon)
+    }
+
+    pub fn submit(
+        &mut self,
+        worker: WorkerId,
+        job: &str,
+        result: &UnitResult,
+        now: Instant,
+    ) -> Result<Applied, FarmError> {
+        self.touch(worker, now)?;
+        let entry = self.entry_mut(job)?;
+        let was_running = entry.job.phase == JobPhase::Running;
+        let applied = entry.job.apply(worker, result)?;
+        if was_running && entry.job.phase == JobPhase::Done {
+            let j = &entry.job;
+            tracing::info!(
+                job = %j.id,
+                scene = %j.name,
+                width = j.width,
+                height = j.height,
+                spp = j.spp,
+                units = j.units.len(),
+                samples = j.samples_done,
+                rays = j.rays,
+                nonfinite = j.nonfinite,
+                seconds = j.elapsed().as_secs_f64(),
+                "job finished"
+            );
+            entry.scene = None;
+        }
+        if applied == Applied::Merged
+            && let Some(w) = self.workers.get_mut(&worker)
+        {
+            w.units_done += 1;
+        }
+        Ok(applied)
+    }
+
+    /// Returns lapsed leases of every job to its queue.
+    pub fn reap(&mut self, now: Instant) {
+        for e in &mut self.jobs {
+            let n = e.job.reap_expired(now);
+            if n > 0 {
+                tracing::warn!(job = %e.job.id, units = n, "leases lapsed; units re-queued");
+            }
+        }
+    }
+
+    pub fn cancel(&mut self, job: &str) -> Result<(), FarmError> {
+        let e = self.entry_mut(job)?;
+        e.job.cancel();
+        e.scene = None;
+        tracing::info!(job = %job, "job cancelled");
+        Ok(())
+    }
+
+    pub fn status(&self, job: &str, now: Instant) -> Result<proto::JobStatus, FarmError> {
+        Ok(status_of(&self.entry(job)?.job, self.live_workers(now)))
+    }
+}
+
+pub fn status_of(j: &Job, workers: usize) -> proto::JobStatus {
+    let (state, error) = match &j.phase {
+        JobPhase::Loading => (proto::JobState::Loading, String::new()),
+        JobPhase::Running => (proto::JobState::Running, String::new()),
+        JobPhase::Done => (proto::JobState::Done, String::new()),
+        JobPhase::Failed(e) => (proto::JobState::Failed, e.clone()),
+        JobPhase::Cancelled => (proto::JobState::Cancelled, String::new()),
+    };
+    proto::JobStatus {
+        job_id: j.id.clone(),
+        state: state as i32,
+        error,
+        units_done: j.units_done,
+        units_total: j.units.len() as u64,
+        samples_done: j.samples_done,
+        samples_total: j.samples_total(),
+        workers: workers as u32,
+        width: j.width,
+        height: j.height,
+        scene: j.name.clone(),
+        elapsed_s: j.elapsed().as_secs_f64(),
+        rays: j.rays,
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn unknown_workers_and_jobs_are_errors() {
+        let mut f = Farm::new(FarmConfig::default());
+        let now = Instant::now();
+        assert_eq!(f.lease(42, 1, now).err(), Some(FarmError::UnknownWorker(42)));
+        let w = f.register("h".into(), 2, now);
+        assert!(f.lease(w, 4, now).unwrap().is_empty());
+        assert!(matches!(f.status("nope", now), Err(FarmError::UnknownJob(_))));
+    }
+
+    #[test]
+    fn earlier_jobs_are_served_first() {
+        let mut f = Farm::new(FarmConfig::default());
+        let now = Instant::now();
+        let w = f.register("h".into(), 2, now);
+        let a = f.add_job("a".into(), proto::JobSpec::default());
+        let b = f.add_job("b".into(), proto::JobSpec::default());
+        f.entry_mut(&b).unwrap().job.start(4, 4, 2, 4, 2, true);
+        f.entry_mut(&a).unwrap().job.start(8, 4, 2, 4, 2, true);
+        let got = f.lease(w, 3, now).unwrap();
+        let jobs: Vec<&str> = got.iter().map(|l| l.spec.job_id.as_str()).collect();
+        assert_eq!(jobs, [a.as_str(), a.as_str(), b.as_str()]);
+    }
+}

@@ -1,0 +1,81 @@
+//! Spawning and reaping local worker processes. Each gets a pipe as its standard input
+//! and runs with `--exit-on-stdin-eof`, so that it exits when this process does — even
+//! when this process is killed and has no chance to clean up.
+
+use std::path::{Path, PathBuf};
+use std::process::Stdio;
+use std::time::Duration;
+
+use anyhow::Context;
+use tokio::process::{Child, Command};
+
+pub struct LocalWorkers {
+    children: Vec<Child>,
+}
+
+/// The `worker` executable: next to this one (both are built into the same target
+/// folder, and installed side by side).
+pub fn worker_executable() -> anyhow::Result<PathBuf> {
+    let me = std::env::current_exe().context("locating this executable")?;
+    let dir = me.parent().context("locating this executable's folder")?;
+    // Test binaries live one level down, in deps/.
+    for d in [dir, dir.parent().unwrap_or(dir)] {
+        let p = d.join(format!("worker{}", std::env::consts::EXE_SUFFIX));
+        if p.is_file() {
+            return Ok(p);
+        }
+    }
+    anyhow::bail!(
+        "the worker executable was not found next to {} (build it: cargo build --release -p worker)",
+        me.display()
+    )
+}
+
+impl LocalWorkers {
+    pub fn spawn(count: usize, threads: usize, url: &str, cache_root: &Path) -> anyhow::Result<Self> {
+        let exe = worker_executable()?;
+        let mut children = Vec::with_capacity(count);
+        for i in 0..count {
+            let mut cmd = Command::new(&exe);
+            // Quiet by default: the progress bar is this process's to draw.
+            if std::env::var_os("RUST_LOG").is_none() {
+                cmd.env("RUST_LOG", "warn");
+            }
+            let child = cmd
+                .arg("--coordinator")
+                .arg(url)
+                .arg("--threads")
+                .arg(threads.to_string())
+                .arg("--cache")
+                .arg(cache_root.join(format!("worker-{i}")))
+                .arg("--exit-on-stdin-eof")
+                .stdin(Stdio::piped())
+                .kill_on_drop(true)
+                .spawn()
+                .with_context(|| format!("starting {}", exe.display()))?;
+            children.push(child);
+        }
+        Ok(Self { children })
+    }
+
+    /// How many are still running.
+    pub fn running(&mut self) -> usize {
+        self.children.iter_mut().map(|c| c.try_wait()).filter(|s| matches!(s, Ok(None))).count()
+    }
+
+    /// Waits up to `grace` for the workers to exit on their own, then kills the rest.
+    pub async fn shutdown(mut self, grace: Duration) {
+        let deadline = tokio::time::Instant::now() + grace;
+        for c in &mut self.children {
+            if tokio::time::timeout_at(deadline, c.wait()).await.is_err() {
+                let _ = c.kill().await;
+            }
+        }
+    }
+
+    pub async fn kill(mut self) {
+        for c in &mut self.children {
+            let _ = c.kill().await;
+        }
+    }
+}

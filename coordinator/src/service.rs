@@ -1,0 +1,407 @@
+//! The tonic services: the thin edge between the wire and the farm's state. Every
+//! message is checked here or in [`crate::job`]; a bad one gets a clear status and
+//! leaves the state untouched.
+
+use std::pin::Pin;
+use std::sync::{Arc, Mutex, MutexGuard};
+use std::time::Instant;
+
+use tokio::sync::mpsc;
+use tokio_stream::Stream;
+use tokio_stream::wrappers::ReceiverStream;
+use tonic::{Request, Response, Status, Streaming};
+use tracer::film::{Accumulation, SampleRange, Tile};
+use tracer::integrator::Integrator;
+
+use crate::assets::{AssetRef, AssetStore};
+use crate::farm::{Farm, FarmError, status_of};
+use crate::job::{Applied, Rejection, UnitResult};
+
+/// Defaults for jobs that do not set their own tile size and batch.
+#[derive(Clone, Copy, Debug)]
+pub struct JobDefaults {
+    pub tile: u32,
+    pub batch_spp: u32,
+}
+
+impl Default for JobDefaults {
+    fn default() -> Self {
+        Self { tile: 64, batch_spp: 16 }
+    }
+}
+
+/// State shared by both services and the commands that run them in-process.
+pub struct Shared {
+    pub farm: Mutex<Farm>,
+    pub store: Mutex<AssetStore>,
+    pub defaults: JobDefaults,
+}
+
+impl Shared {
+    pub fn farm(&self) -> MutexGuard<'_, Farm> {
+        self.farm.lock().unwrap_or_else(|p| p.into_inner())
+    }
+
+    pub fn store(&self) -> MutexGuard<'_, AssetStore> {
+        self.store.lock().unwrap_or_else(|p| p.into_inner())
+    }
+}
+
+/// Upper bound on one uploaded file.
+const MAX_ASSET_BYTES: usize = 4 << 30;
+
+fn status_of_error(e: FarmError) -> Status {
+    match e {
+        FarmError::UnknownWorker(_) | FarmError::UnknownJob(_) => Status::not_found(e.to_string()),
+        FarmError::Rejected(r @ (Rejection::UnknownUnit(_) | Rejection::Malformed { .. })) => {
+            Status::invalid_argument(r.to_string())
+        }
+        FarmError::Rejected(r @ (Rejection::NotHolder(..) | Rejection::NotRunning(_))) => {
+            Status::failed_precondition(r.to_string())
+        }
+    }
+}
+
+fn tile_from(t: Option<&proto::Tile>) -> Result<Tile, Status> {
+    let t = t.ok_or_else(|| Status::invalid_argument("missing tile"))?;
+    Ok(Tile::new(t.x0, t.y0, t.width, t.height))
+}
+
+pub fn tile_to(t: Tile) -> proto::Tile {
+    proto::Tile { x0: t.x0, y0: t.y0, width: t.width, height: t.height }
+}
+
+/// Creates a job from files already in the store and loads its scene in the background.
+pub fn submit_job(
+    shared: &Arc<Shared>,
+    scene: AssetRef,
+    assets: Vec<AssetRef>,
+    settings: proto::RenderSettings,
+) -> Result<String, Status> {
+    {
+        let store = shared.store();
+        for a in std::iter::once(&scene).chain(&assets) {
+            crate::assets::safe_relative_path(&a.path).map_err(|e| Status::invalid_argument(e.to_string()))?;
+            if !store.contains(&a.sha256) {
+                return Err(Status::failed_precondition(format!("asset {} ({}) was not uploaded", a.path, a.sha256)));
+            }
+        }
+    }
+    if !settings.integrator.is_empty() {
+        settings.integrator.parse::<Integrator>().map_err(Status::invalid_argument)?;
+    }
+    let spec = proto::JobSpec {
+        job_id: String::new(),
+        scene: Some((&scene).into()),
+        assets: assets.iter().map(Into::into).collect(),
+        settings: Some(settings.clone()),
+    };
+    let id = shared.farm().add_job(scene.path.clone(), spec);
+    tracing::info!(job = %id, scene = %scene.path, files = assets.len() + 1, "job submitted");
+    let shared = Arc::clone(shared);
+    let job = id.clone();
+    std::thread::spawn(move || {
+        let result = load_job(&shared, &job, &scene, &assets, &settings);
+        let mut farm = shared.farm();
+        if let Ok(e) = farm.entry_mut(&job) {
+            match result {
+                Ok(()) => {}
+                Err(err) => {
+                    tracing::error!(job = %job, "job failed: {err:#}");
+                    e.job.fail(format!("{err:#}"));
+                }
+            }
+        }
+    });
+    Ok(id)
+}
+
+pub fn overrides_of(s: &proto::RenderSettings) -> tracer::scene::Overrides {
+    let nonzero = |v: u32| (v != 0).then_some(v);
+    tracer::scene::Overrides {
+        spp: nonzero(s.spp),
+        width: nonzero(s.width),
+        height: nonzero(s.height),
+        max_depth: s.max_depth,
+        seed: s.seed,
+    }
+}
+
+fn load_job(
+    shared: &Arc<Shared>,
+    job: &str,
+    scene: &AssetRef,
+    assets: &[AssetRef],
+    settings: &proto::RenderSettings,
+) -> anyhow::Result<()> {
+    let scene_path = {
+        let store = shared.store();
+        let dir = store.dir().join("jobs").join(job);
+        store.materialize(&dir, scene, assets)?
+    };
+    let mut loaded = tracer::scene::load_scene(&scene_path)?;
+    overrides_of(settings).apply(&mut loaded).map_err(anyhow::Error::msg)?;
+    let integrator: Integrator = if settings.integrator.is_empty() {
+        Integrator::Path
+    } else {
+        settings.integrator.parse().map_err(anyhow::Error::msg)?
+    };
+    let non_negative = matches!(integrator, Integrator::Path | Integrator::PathLightOnly | Integrator::PathBsdfOnly);
+    let tile = if settings.tile_size > 0 { settings.tile_size } else { shared.defaults.tile };
+    let batch = if settings.batch_spp > 0 { settings.batch_spp } else { shared.defaults.batch_spp };
+    let (w, h, spp) = (loaded.camera.width, loaded.camera.height, loaded.settings.spp);
+    let mut farm = shared.farm();
+    let e = farm.entry_mut(job)?;
+    if e.job.phase.is_final() {
+        return Ok(()); // cancelled while loading
+    }
+    e.job.start(w, h, spp, tile, batch, non_negative);
+    e.scene = Some(Arc::new(loaded));
+    tracing::info!(job = %job, width = w, height = h, spp, tile, batch, units = e.job.units.len(), "job started");
+    Ok(())
+}
+
+pub struct FarmService(pub Arc<Shared>);
+
+type BoxStream<T> = Pin<Box<dyn Stream<Item = Result<T, Status>> + Send>>;
+
+#[tonic::async_trait]
+impl proto::farm_server::Farm for FarmService {
+    async fn register(&self, req: Request<proto::RegisterRequest>) -> Result<Response<proto::RegisterReply>, Status> {
+        let r = req.into_inner();
+        if r.protocol_version != proto::PROTOCOL_VERSION {
+            return Err(Status::failed_precondition(format!(
+                "protocol version {} is not this coordinator's {}",
+                r.protocol_version,
+                proto::PROTOCOL_VERSION
+            )));
+        }
+        let mut farm = self.0.farm();
+        let id = farm.register(r.hostname.clone(), r.threads, Instant::now());
+        tracing::info!(worker = id, host = %r.hostname, threads = r.threads, version = %r.version, "worker registered");
+        Ok(Response::new(proto::RegisterReply {
+            worker_id: id,
+            lease_ms: farm.config.lease.as_millis() as u32,
+            heartbeat_ms: farm.config.heartbeat.as_millis() as u32,
+        }))
+    }
+
+    async fn lease(&self, req: Request<proto::LeaseRequest>) -> Result<Response<proto::LeaseReply>, Status> {
+        let r = req.into_inner();
+        let mut farm = self.0.farm();
+        if farm.shutting_down {
+            return Ok(Response::new(proto::LeaseReply { shutdown: true, ..Default::default() }));
+        }
+        let max = r.max_units.clamp(1, 256) as usize;
+        let leased = farm.lease(r.worker_id, max, Instant::now()).map_err(status_of_error)?;
+        let units: Vec<proto::Unit> = leased
+            .into_iter()
+            .map(|l| proto::Unit {
+                job: Some(l.spec),
+                unit_id: l.unit,
+                tile: Some(tile_to(l.tile)),
+                sample_start: l.samples.start,
+                sample_end: l.samples.end,
+            })
+            .collect();
+        let retry_after_ms = if units.is_empty() { 250 } else { 0 };
+        Ok(Response::new(proto::LeaseReply { units, retry_after_ms, shutdown: false }))
+    }
+
+    async fn heartbeat(
+        &self,
+        req: Request<proto::HeartbeatRequest>,
+    ) -> Result<Response<proto::HeartbeatReply>, Status> {
+        let r = req.into_inner();
+        let held: Vec<(String, u64)> = r.held.into_iter().map(|k| (k.job_id, k.unit_id)).collect();
+        let mut farm = self.0.farm();
+        let abandon = farm.heartbeat(r.worker_id, &held, Instant::now()).map_err(status_of_error)?;
+        Ok(Response::new(proto::HeartbeatReply {
+            abandon: abandon.into_iter().map(|(job_id, unit_id)| proto::UnitKey { job_id, unit_id }).collect(),
+            shutdown: farm.shutting_down,
+        }))
+    }
+
+    async fn submit_result(&self, req: Request<proto::UnitResult>) -> Result<Response<proto::SubmitReply>, Status> {
+        let r = req.into_inner();
+        let result = UnitResult {
+            unit: r.unit_id,
+            tile: tile_from(r.tile.as_ref())?,
+            samples: SampleRange::new(r.sample_start, r.sample_end),
+            sums: Accumulation::sums_from_bytes(&r.sums)
+                .ok_or_else(|| Status::invalid_argument("sums are not a whole number of pixels (48 bytes each)"))?,
+            counts: r.counts,
+            nonfinite: r.nonfinite,
+            rays: r.rays,
+        };
+        let applied = self.0.farm().submit(r.worker_id, &r.job_id, &result, Instant::now());
+        match applied {
+            Ok(a) => Ok(Response::new(proto::SubmitReply { accepted: a == Applied::Merged })),
+            Err(e) => {
+                tracing::warn!(worker = r.worker_id, job = %r.job_id, unit = r.unit_id, "result rejected: {e}");
+                Err(status_of_error(e))
+            }
+        }
+    }
+
+    type FetchAssetStream = BoxStream<proto::AssetChunk>;
+
+    async fn fetch_asset(&self, req: Request<proto::AssetRequest>) -> Result<Response<Self::FetchAssetStream>, Status> {
+        let sha = req.into_inner().sha256;
+        let path = {
+            let store = self.0.store();
+            if sha.len() != 64 || !sha.bytes().all(|b| b.is_ascii_hexdigit()) || !store.contains(&sha) {
+                return Err(Status::not_found(format!("no asset {sha}")));
+            }
+            store.blob_path(&sha)
+        };
+        let (tx, rx) = mpsc::channel(4);
+        tokio::spawn(async move {
+            use tokio::io::AsyncReadExt;
+            let mut f = match tokio::fs::File::open(&path).await {
+                Ok(f) => f,
+                Err(e) => {
+                    let _ = tx.send(Err(Status::internal(format!("reading asset: {e}")))).await;
+                    return;
+                }
+            };
+            let mut buf = vec![0u8; proto::ASSET_CHUNK_BYTES];
+            loop {
+                match f.read(&mut buf).await {
+                    Ok(0) => break,
+                    Ok(n) => {
+                        if tx.send(Ok(proto::AssetChunk { data: buf[..n].to_vec() })).await.is_err() {
+                            break;
+                        }
+                    }
+                    Err(e) => {
+                        let _ = tx.send(Err(Status::internal(format!("reading asset: {e}")))).await;
+                        break;
+                    }
+                }
+            }
+        });
+        Ok(Response::new(Box::pin(ReceiverStream::new(rx))))
+    }
+}
+
+pub struct JobsService(pub Arc<Shared>);
+
+#[tonic::async_trait]
+impl proto::jobs_server::Jobs for JobsService {
+    async fn upload_asset(
+        &self,
+        req: Request<Streaming<proto::AssetChunk>>,
+    ) -> Result<Response<proto::AssetRef>, Status> {
+        let mut stream = req.into_inner();
+        let mut data = Vec::new();
+        while let Some(chunk) = stream.message().await? {
+            if data.len() + chunk.data.len() > MAX_ASSET_BYTES {
+                return Err(Status::resource_exhausted("asset larger than 4 GiB"));
+            }
+            data.extend_from_slice(&chunk.data);
+        }
+        let shared = Arc::clone(&self.0);
+        let (sha256, size) = tokio::task::spawn_blocking(move || shared.store().put(&data))
+            .await
+            .map_err(|e| Status::internal(e.to_string()))?
+            .map_err(|e| Status::internal(format!("storing asset: {e:#}")))?;
+        Ok(Response::new(proto::AssetRef { path: String::new(), sha256, size }))
+    }
+
+    async fn submit_job(
+        &self,
+        req: Request<proto::SubmitJobRequest>,
+    ) -> Result<Response<proto::SubmitJobReply>, Status> {
+        let r = req.into_inner();
+        let scene = r.scene.as_ref().map(AssetRef::from).ok_or_else(|| Status::invalid_argument("missing scene"))?;
+        let assets = r.assets.iter().map(AssetRef::from).collect();
+        let job_id = submit_job(&self.0, scene, assets, r.settings.unwrap_or_default())?;
+        Ok(Response::new(proto::SubmitJobReply { job_id }))
+    }
+
+    type WatchJobStream = BoxStream<proto::JobStatus>;
+
+    async fn watch_job(&self, req: Request<proto::JobRequest>) -> Result<Response<Self::WatchJobStream>, Status> {
+        let job = req.into_inner().job_id;
+        self.0.farm().status(&job, Instant::now()).map_err(status_of_error)?;
+        let (tx, rx) = mpsc::channel(4);
+        let shared = Arc::clone(&self.0);
+        tokio::spawn(async move {
+            let mut last = None;
+            loop {
+                let status = shared.farm().status(&job, Instant::now());
+                let Ok(status) = status else { break };
+                let done = matches!(
+                    status.state(),
+                    proto::JobState::Done | proto::JobState::Failed | proto::JobState::Cancelled
+                );
+                let key = (status.state, status.units_done, status.workers);
+                if last != Some(key) || done {
+                    if tx.send(Ok(status)).await.is_err() {
+                        break;
+                    }
+                    last = Some(key);
+                }
+                if done {
+                    break;
+                }
+                tokio::time::sleep(std::time::Duration::from_millis(200)).await;
+            }
+        });
+        Ok(Response::new(Box::pin(ReceiverStream::new(rx))))
+    }
+
+    type FetchImageStream = BoxStream<proto::ImageChunk>;
+
+    async fn fetch_image(&self, req: Request<proto::JobRequest>) -> Result<Response<Self::FetchImageStream>, Status> {
+        let job = req.into_inner().job_id;
+        let image = {
+            let farm = self.0.farm();
+            let e = farm.entry(&job).map_err(status_of_error)?;
+            if e.job.width == 0 {
+                return Err(Status::failed_precondition(format!("job {job} has no image (its scene did not load)")));
+            }
+            e.job.image()
+        };
+        let bytes = tokio::task::spawn_blocking(move || tracer::output::exr_bytes(&image))
+            .await
+            .map_err(|e| Status::internal(e.to_string()))?
+            .map_err(Status::internal)?;
+        let chunks: Vec<Result<proto::ImageChunk, Status>> =
+            bytes.chunks(proto::ASSET_CHUNK_BYTES).map(|c| Ok(proto::ImageChunk { exr: c.to_vec() })).collect();
+        Ok(Response::new(Box::pin(tokio_stream::iter(chunks))))
+    }
+
+    async fn cancel_job(&self, req: Request<proto::JobRequest>) -> Result<Response<proto::JobStatus>, Status> {
+        let job = req.into_inner().job_id;
+        let mut farm = self.0.farm();
+        farm.cancel(&job).map_err(status_of_error)?;
+        Ok(Response::new(farm.status(&job, Instant::now()).map_err(status_of_error)?))
+    }
+
+    async fn list_jobs(&self, _: Request<proto::ListRequest>) -> Result<Response<proto::ListJobsReply>, Status> {
+        let farm = self.0.farm();
+        let workers = farm.live_workers(Instant::now());
+        let jobs = farm.jobs.iter().map(|e| status_of(&e.job, workers)).collect();
+        Ok(Response::new(proto::ListJobsReply { jobs }))
+    }
+
+    async fn list_workers(&self, _: Request<proto::ListRequest>) -> Result<Response<proto::ListWorkersReply>, Status> {
+        let farm = self.0.farm();
+        let now = Instant::now();
+        let workers = farm
+            .workers
+            .values()
+            .map(|w| proto::WorkerInfo {
+                worker_id: w.id,
+                hostname: w.hostname.clone(),
+                threads: w.threads,
+                units_held: farm.jobs.iter().map(|e| e.job.held_by(w.id) as u32).sum(),
+                units_done: w.units_done,
+                last_seen_s: now.duration_since(w.last_seen).as_secs_f64(),
+            })
+            .collect();
+        Ok(Response::new(proto::ListWorkersReply { workers }))
+    }
+}

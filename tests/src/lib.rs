@@ -1,0 +1,173 @@
+//! Harness for the end-to-end tests: locating the real binaries, running them on
+//! loopback with OS-assigned ports, bounding every wait, and killing every child process
+//! when a test ends — also when it fails.
+
+use std::io::{BufRead, BufReader};
+use std::path::{Path, PathBuf};
+use std::process::{Child, Command, Output, Stdio};
+use std::time::{Duration, Instant};
+
+use tracer::film::Image;
+
+/// The workspace's target folder for this build profile: the test executable lives in
+/// `<target>/<profile>/deps/`, the binaries one level up.
+pub fn bin(name: &str) -> PathBuf {
+    let exe = std::env::current_exe().expect("test executable path");
+    let dir = exe.parent().and_then(Path::parent).expect("target profile folder");
+    let p = dir.join(format!("{name}{}", std::env::consts::EXE_SUFFIX));
+    assert!(p.is_file(), "{} not built: run `cargo build --release` (or the README's test command)", p.display());
+    p
+}
+
+pub fn scenes() -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR")).join("../scenes")
+}
+
+/// A scratch folder, removed on drop.
+pub struct TempDir(pub PathBuf);
+
+impl TempDir {
+    pub fn new(tag: &str) -> Self {
+        let d = std::env::temp_dir().join(format!("tilefarm-e2e-{tag}-{}", std::process::id()));
+        let _ = std::fs::remove_dir_all(&d);
+        std::fs::create_dir_all(&d).expect("temp dir");
+        Self(d)
+    }
+
+    pub fn path(&self, name: &str) -> PathBuf {
+        self.0.join(name)
+    }
+}
+
+impl Drop for TempDir {
+    fn drop(&mut self) {
+        let _ = std::fs::remove_dir_all(&self.0);
+    }
+}
+
+/// A child process killed (and reaped) when dropped.
+pub struct Proc {
+    pub child: Child,
+    pub name: String,
+}
+
+impl Proc {
+    pub fn spawn(name: &str, cmd: &mut Command) -> Self {
+        let child = cmd.spawn().unwrap_or_else(|e| panic!("starting {name}: {e}"));
+        Self { child, name: name.to_string() }
+    }
+
+    /// Waits up to `limit` for the process to exit; panics (killing it) past that.
+    pub fn wait(&mut self, limit: Duration) -> std::process::ExitStatus {
+        let end = Instant::now() + limit;
+        loop {
+            if let Some(s) = self.child.try_wait().expect("try_wait") {
+                return s;
+            }
+            if Instant::now() > end {
+                let _ = self.child.kill();
+                panic!("{} did not finish within {limit:?}", self.name);
+            }
+            std::thread::sleep(Duration::from_millis(20));
+        }
+    }
+
+    pub fn pid(&self) -> u32 {
+        self.child.id()
+    }
+}
+
+impl Drop for Proc {
+    fn drop(&mut self) {
+        let _ = self.child.kill();
+        let _ = self.child.wait();
+    }
+}
+
+/// `coordinator serve` on 127.0.0.1 with an OS-assigned port.
+pub struct Coordinator {
+    pub proc: Proc,
+    pub url: String,
+}
+
+impl Coordinator {
+    pub fn start(store: &Path, extra: &[&str]) -> Self {
+        let mut cmd = Command::new(bin("coordinator"));
+        cmd.args(["serve", "--listen", "127.0.0.1:0", "--store"])
+            .arg(store)
+            .args(extra)
+            .stdout(Stdio::piped())
+            .stderr(Stdio::inherit());
+        let mut proc = Proc::spawn("coordinator serve", &mut cmd);
+        let stdout = proc.child.stdout.take().expect("stdout");
+        let (tx, rx) = std::sync::mpsc::channel();
+        std::thread::spawn(move || {
+            let mut lines = BufReader::new(stdout).lines();
+            if let Some(Ok(line)) = lines.next() {
+                let _ = tx.send(line);
+            }
+            for _ in lines {}
+        });
+        let line = rx.recv_timeout(Duration::from_secs(30)).expect("coordinator printed its address");
+        let url = line.strip_prefix("listening on ").expect("listening line").trim().to_string();
+        assert!(url.starts_with("http://127.0.0.1:"), "{url}");
+        Self { proc, url }
+    }
+
+    pub fn worker(&self, threads: usize, cache: &Path) -> Proc {
+        let mut cmd = Command::new(bin("worker"));
+        cmd.args(["--coordinator", &self.url, "--threads", &threads.to_string(), "--cache"])
+            .arg(cache)
+            .stdin(Stdio::null());
+        Proc::spawn("worker", &mut cmd)
+    }
+
+    /// `coordinator submit SCENE --coordinator URL ARGS…` run to completion (bounded).
+    pub fn submit(&self, scene: &Path, args: &[&str], limit: Duration) -> Output {
+        let mut cmd = Command::new(bin("coordinator"));
+        cmd.arg("submit").arg(scene).args(["--coordinator", &self.url, "-q"]).args(args);
+        run(&mut cmd, limit)
+    }
+}
+
+/// Runs a command to completion within `limit`, capturing its output.
+pub fn run(cmd: &mut Command, limit: Duration) -> Output {
+    let child = cmd.stdout(Stdio::piped()).stderr(Stdio::piped()).spawn().expect("spawn");
+    let pid = child.id();
+    let (tx, rx) = std::sync::mpsc::channel();
+    std::thread::spawn(move || {
+        let _ = tx.send(child.wait_with_output());
+    });
+    match rx.recv_timeout(limit) {
+        Ok(out) => out.expect("wait"),
+        Err(_) => {
+            let _ = Command::new("kill").args(["-9", &pid.to_string()]).status();
+            panic!("command did not finish within {limit:?}");
+        }
+    }
+}
+
+pub fn read_exr(p: &Path) -> Image {
+    tracer::output::read_exr(p).unwrap_or_else(|e| panic!("reading {}: {e}", p.display()))
+}
+
+/// Bit-for-bit equality of two images' pixels and sample counts.
+pub fn assert_same_bits(a: &Image, b: &Image, what: &str) {
+    assert_eq!((a.width, a.height), (b.width, b.height), "{what}: size");
+    assert_eq!(a.counts, b.counts, "{what}: sample counts");
+    for (i, (p, q)) in a.pixels.iter().zip(&b.pixels).enumerate() {
+        assert!(
+            p.x.to_bits() == q.x.to_bits() && p.y.to_bits() == q.y.to_bits() && p.z.to_bits() == q.z.to_bits(),
+            "{what}: pixel {i} differs: {p} vs {q}"
+        );
+    }
+}
+
+/// `coordinator render` of `scene` with extra arguments, to `out` (bounded).
+pub fn render(scene: &Path, out: &Path, args: &[&str], limit: Duration) -> Output {
+    let mut cmd = Command::new(bin("coordinator"));
+    cmd.arg("render").arg(scene).arg("-q").arg("-o").arg(out).args(args);
+    let o = run(&mut cmd, limit);
+    assert!(o.status.success(), "render failed: {}", String::from_utf8_lossy(&o.stderr));
+    o
+}

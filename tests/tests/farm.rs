@@ -1,0 +1,226 @@
+//! The farm end to end: real `coordinator` and `worker` processes on 127.0.0.1, ports
+//! from the OS, every wait bounded, every process killed when a test ends.
+
+use std::path::Path;
+use std::time::{Duration, Instant};
+
+use tilefarm_e2e::*;
+
+const LIMIT: Duration = Duration::from_secs(180);
+
+fn cornell() -> std::path::PathBuf {
+    scenes().join("cornell-box/scene.toml")
+}
+
+/// Settings shared by every render compared in these tests.
+const JOB: [&str; 8] = ["--width", "64", "--spp", "32", "--tile", "16", "--batch-spp", "8"];
+
+fn reference(dir: &TempDir) -> tracer::film::Image {
+    let out = dir.path("reference.exr");
+    render(&cornell(), &out, &[&JOB[..], &["--local-workers", "0"]].concat(), LIMIT);
+    read_exr(&out)
+}
+
+fn runtime() -> tokio::runtime::Runtime {
+    tokio::runtime::Builder::new_current_thread().enable_all().build().unwrap()
+}
+
+async fn jobs_client(url: &str) -> proto::jobs_client::JobsClient<tonic::transport::Channel> {
+    proto::jobs_client::JobsClient::connect(url.to_string()).await.unwrap()
+}
+
+#[test]
+fn any_number_of_workers_gives_the_same_bits_as_in_process() {
+    let dir = TempDir::new("workers");
+    let expected = reference(&dir);
+    assert!(expected.counts.iter().all(|&c| c == 32));
+    for (workers, threads) in [("1", "2"), ("2", "1"), ("4", "1")] {
+        let out = dir.path(&format!("w{workers}.exr"));
+        render(&cornell(), &out, &[&JOB[..], &["--local-workers", workers, "--threads", threads]].concat(), LIMIT);
+        assert_same_bits(&read_exr(&out), &expected, &format!("{workers} local workers"));
+    }
+}
+
+#[test]
+fn a_worker_joining_half_way_contributes_and_the_image_is_unchanged() {
+    let dir = TempDir::new("join");
+    let args = ["--width", "96", "--spp", "64", "--tile", "16", "--batch-spp", "4"];
+    let out_ref = dir.path("ref.exr");
+    render(&cornell(), &out_ref, &[&args[..], &["--local-workers", "0"]].concat(), LIMIT);
+    let coord = Coordinator::start(&dir.path("store"), &[]);
+    let _first = coord.worker(1, &dir.path("cache-a"));
+    let out = dir.path("farm.exr");
+    let mut submit = {
+        let mut cmd = std::process::Command::new(bin("coordinator"));
+        cmd.arg("submit").arg(cornell()).args(["--coordinator", &coord.url, "--wait", "-q", "-o"]).arg(&out).args(args);
+        Proc::spawn("submit --wait", &mut cmd)
+    };
+    let rt = runtime();
+    let mut second = None;
+    let start = Instant::now();
+    rt.block_on(async {
+        let mut jobs = jobs_client(&coord.url).await;
+        loop {
+            assert!(start.elapsed() < LIMIT, "job did not progress");
+            let list = jobs.list_jobs(proto::ListRequest {}).await.unwrap().into_inner().jobs;
+            if let Some(j) = list.first()
+                && j.units_total > 0
+                && j.units_done * 4 >= j.units_total
+            {
+                assert!(j.units_done < j.units_total, "the job finished before the second worker could join");
+                second = Some(coord.worker(1, &dir.path("cache-b")));
+                break;
+            }
+            tokio::time::sleep(Duration::from_millis(20)).await;
+        }
+    });
+    assert!(submit.wait(LIMIT).success());
+    let workers = rt.block_on(async {
+        let mut jobs = jobs_client(&coord.url).await;
+        jobs.list_workers(proto::ListRequest {}).await.unwrap().into_inner().workers
+    });
+    assert_eq!(workers.len(), 2);
+    assert!(workers.iter().all(|w| w.units_done > 0), "both workers contributed: {workers:?}");
+    assert_same_bits(&read_exr(&out), &read_exr(&out_ref), "farm with a late joiner");
+    drop(second);
+}
+
+#[test]
+fn forged_and_malformed_results_are_rejected_and_the_image_is_unaffected() {
+    use proto::farm_client::FarmClient;
+    use tonic::Code;
+
+    let dir = TempDir::new("forged");
+    let expected = reference(&dir);
+    // Short leases, so that the units the forger leased and never returns are re-leased.
+    let coord = Coordinator::start(&dir.path("store"), &["--lease-ms", "1500", "--heartbeat-ms", "500"]);
+    let sub = coord.submit(&cornell(), &JOB, LIMIT);
+    assert!(sub.status.success(), "{}", String::from_utf8_lossy(&sub.stderr));
+    let job = String::from_utf8_lossy(&sub.stdout).trim().to_string();
+    let rt = runtime();
+    rt.block_on(async {
+        let mut farm = FarmClient::connect(coord.url.clone()).await.unwrap();
+        let me = farm
+            .register(proto::RegisterRequest {
+                protocol_version: proto::PROTOCOL_VERSION,
+                threads: 1,
+                hostname: "forger".into(),
+                version: "0".into(),
+            })
+            .await
+            .unwrap()
+            .into_inner()
+            .worker_id;
+        let mut units = Vec::new();
+        let start = Instant::now();
+        while units.len() < 2 {
+            assert!(start.elapsed() < LIMIT);
+            units.extend(
+                farm.lease(proto::LeaseRequest { worker_id: me, max_units: 2 }).await.unwrap().into_inner().units,
+            );
+            tokio::time::sleep(Duration::from_millis(50)).await;
+        }
+        let u = &units[0];
+        let tile = u.tile.unwrap();
+        let n = (tile.width * tile.height) as usize;
+        let samples = u.sample_end - u.sample_start;
+        let good = proto::UnitResult {
+            worker_id: me,
+            job_id: job.clone(),
+            unit_id: u.unit_id,
+            tile: Some(tile),
+            sample_start: u.sample_start,
+            sample_end: u.sample_end,
+            sums: vec![0u8; n * 48],
+            counts: vec![samples; n],
+            nonfinite: 0,
+            rays: 0,
+        };
+        let negative = {
+            let mut s = vec![0u8; n * 48];
+            s[..16].copy_from_slice(&(-1i128).to_le_bytes());
+            s
+        };
+        let cases: Vec<(&str, proto::UnitResult, Code)> = vec![
+            (
+                "a unit it does not hold",
+                proto::UnitResult { unit_id: u.unit_id + 40, ..good.clone() },
+                Code::FailedPrecondition,
+            ),
+            (
+                "a unit that does not exist",
+                proto::UnitResult { unit_id: 1 << 40, ..good.clone() },
+                Code::InvalidArgument,
+            ),
+            (
+                "too few pixels",
+                proto::UnitResult { sums: vec![0u8; (n - 1) * 48], ..good.clone() },
+                Code::InvalidArgument,
+            ),
+            ("a torn pixel", proto::UnitResult { sums: vec![0u8; n * 48 - 1], ..good.clone() }, Code::InvalidArgument),
+            (
+                "wrong sample counts",
+                proto::UnitResult { counts: vec![samples + 1; n], ..good.clone() },
+                Code::InvalidArgument,
+            ),
+            ("negative radiance", proto::UnitResult { sums: negative, ..good.clone() }, Code::InvalidArgument),
+            (
+                "the wrong sample range",
+                proto::UnitResult { sample_end: u.sample_end + 1, ..good.clone() },
+                Code::InvalidArgument,
+            ),
+            (
+                "the wrong tile",
+                proto::UnitResult { tile: Some(proto::Tile { x0: tile.x0 + 1, ..tile }), ..good.clone() },
+                Code::InvalidArgument,
+            ),
+            ("an unknown job", proto::UnitResult { job_id: "job-999".into(), ..good.clone() }, Code::NotFound),
+            ("an unknown worker", proto::UnitResult { worker_id: 9999, ..good.clone() }, Code::NotFound),
+        ];
+        for (what, msg, code) in cases {
+            let err = farm.submit_result(msg).await.expect_err(what);
+            assert_eq!(err.code(), code, "{what}: {}", err.message());
+            assert!(!err.message().is_empty());
+        }
+    });
+    // Real workers finish the job; the forger's leases lapse and are re-leased.
+    let _w = coord.worker(2, &dir.path("cache"));
+    let out = dir.path("farm.exr");
+    rt.block_on(async {
+        let mut jobs = jobs_client(&coord.url).await;
+        let mut watch = jobs.watch_job(proto::JobRequest { job_id: job.clone() }).await.unwrap().into_inner();
+        let mut last = None;
+        while let Some(s) = tokio::time::timeout(LIMIT, watch.message()).await.expect("progress").unwrap() {
+            last = Some(s);
+        }
+        assert_eq!(last.unwrap().state(), proto::JobState::Done);
+        let mut img = jobs.fetch_image(proto::JobRequest { job_id: job.clone() }).await.unwrap().into_inner();
+        let mut bytes = Vec::new();
+        while let Some(c) = img.message().await.unwrap() {
+            bytes.extend_from_slice(&c.exr);
+        }
+        std::fs::write(&out, bytes).unwrap();
+    });
+    assert_same_bits(&read_exr(&out), &expected, "after forged results");
+}
+
+#[test]
+fn a_missing_obj_fails_its_job_by_name_and_the_farm_keeps_serving() {
+    let dir = TempDir::new("missing");
+    let scene = dir.path("broken.toml");
+    std::fs::write(&scene, "[camera]\nposition = [0,0,-5]\nlook_at = [0,0,0]\n[[mesh]]\nobj = \"no-such-mesh.obj\"\n")
+        .unwrap();
+    let coord = Coordinator::start(&dir.path("store"), &[]);
+    let _w = coord.worker(2, &dir.path("cache"));
+    let bad = coord.submit(&scene, &["--wait"], LIMIT);
+    assert!(!bad.status.success());
+    let err = String::from_utf8_lossy(&bad.stderr);
+    assert!(err.contains("no-such-mesh.obj"), "{err}");
+    assert!(!err.contains("panicked"), "{err}");
+    // The coordinator is still up and renders the next job.
+    let out = dir.path("ok.exr");
+    let good = coord.submit(&cornell(), &[&JOB[..], &["--wait", "-o", out.to_str().unwrap()]].concat(), LIMIT);
+    assert!(good.status.success(), "{}", String::from_utf8_lossy(&good.stderr));
+    assert_same_bits(&read_exr(&out), &reference(&dir), "after a failed job");
+    assert!(Path::new(&out).exists());
+}

@@ -1,0 +1,181 @@
+//! kd-tree build time and single-thread ray throughput.
+//!
+//! `cargo bench -p tracer --bench kdtree` runs the criterion benchmarks and prints
+//! Mrays/s. With `KDTREE_TUNE=1` (or a list of Ci/Ct ratios, `KDTREE_TUNE=1,2,4`) it instead sweeps the build parameters (cost ratio, empty
+//! bonus, leaf size) and prints build time, size and throughput for each.
+
+use std::hint::black_box;
+use std::time::Instant;
+
+use criterion::{Criterion, Throughput, criterion_group, criterion_main};
+use glam::Vec3;
+use tracer::accel::{BuildParams, KdTree};
+use tracer::geometry::{Aabb, Ray};
+use tracer::scene::generate::displaced_sphere;
+use tracer::scene::{Geometry, Sphere};
+
+const RAYS: usize = 100_000;
+
+struct Rng(u64);
+
+impl Rng {
+    fn f(&mut self) -> f32 {
+        self.0 = self.0.wrapping_add(0x9E37_79B9_7F4A_7C15);
+        let mut z = self.0;
+        z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
+        z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
+        ((z ^ (z >> 31)) >> 40) as f32 / (1u64 << 24) as f32
+    }
+    fn unit(&mut self) -> Vec3 {
+        loop {
+            let v = Vec3::new(self.f(), self.f(), self.f()) * 2.0 - 1.0;
+            let l = v.length_squared();
+            if l > 1e-4 && l <= 1.0 {
+                return v / l.sqrt();
+            }
+        }
+    }
+}
+
+/// Incoherent rays: origins on the bounding sphere towards uniform points in the box,
+/// with the distance to that point (the shadow-ray length).
+fn random_rays(b: Aabb, n: usize, seed: u64) -> Vec<(Ray, f32)> {
+    let mut r = Rng(seed);
+    let (c, radius) = (b.center(), 0.5 * b.diagonal().length());
+    (0..n)
+        .map(|_| {
+            let o = c + r.unit() * radius;
+            let target = b.min + b.diagonal() * Vec3::new(r.f(), r.f(), r.f());
+            let d = target - o;
+            let len = d.length();
+            (Ray::new(o, d / len), len)
+        })
+        .collect()
+}
+
+fn closest(tree: &KdTree, geo: &Geometry, rays: &[(Ray, f32)]) -> usize {
+    rays.iter().filter(|(r, _)| tree.intersect(geo, r, f32::INFINITY).is_some()).count()
+}
+
+fn any(tree: &KdTree, geo: &Geometry, rays: &[(Ray, f32)]) -> usize {
+    rays.iter().filter(|(r, len)| tree.occluded(geo, r, *len)).count()
+}
+
+/// Best-of-3 Mrays/s of one pass.
+fn mrays(f: impl Fn() -> usize, n: usize) -> f64 {
+    (0..3)
+        .map(|_| {
+            let t = Instant::now();
+            black_box(f());
+            n as f64 / t.elapsed().as_secs_f64() / 1e6
+        })
+        .fold(0.0, f64::max)
+}
+
+fn spheres_scene() -> Geometry {
+    let mut r = Rng(11);
+    let spheres = (0..10_000)
+        .map(|_| Sphere {
+            center: Vec3::new(r.f(), r.f(), r.f()) * 20.0 - 10.0,
+            radius: 0.05 + 0.3 * r.f() * r.f(),
+            material: 0,
+        })
+        .collect();
+    let mut mesh = displaced_sphere(20_000, 1);
+    for p in &mut mesh.positions {
+        *p *= 4.0;
+    }
+    Geometry { mesh, spheres }
+}
+
+fn timed_build(geo: &Geometry, params: &BuildParams) -> (KdTree, f64) {
+    let t = Instant::now();
+    let tree = KdTree::build(geo, params);
+    (tree, t.elapsed().as_secs_f64())
+}
+
+fn tune() {
+    let mid = Geometry { mesh: displaced_sphere(100_000, 0), spheres: vec![] };
+    let scenes = [("100k mesh", &mid), ("spheres", &spheres_scene())];
+    let mut variants = Vec::new();
+    let grid: Vec<f32> = std::env::var("KDTREE_TUNE")
+        .ok()
+        .and_then(|v| v.split(',').map(|x| x.parse().ok()).collect())
+        .unwrap_or(vec![0.75, 1.0, 1.5, 2.0, 3.0, 5.0]);
+    let base = BuildParams { intersection_cost: grid[0], ..Default::default() };
+    for &ci in &grid {
+        variants.push(BuildParams { intersection_cost: ci, ..Default::default() });
+    }
+    for eb in [0.0f32, 0.5, 0.8] {
+        variants.push(BuildParams { empty_bonus: eb, ..base.clone() });
+    }
+    for leaf in [0usize, 2, 4] {
+        variants.push(BuildParams { max_leaf_prims: leaf, ..base.clone() });
+    }
+    for (name, geo) in scenes {
+        let tree0 = KdTree::build(geo, &BuildParams::default());
+        let rays = random_rays(tree0.bounds(), RAYS, 5);
+        for p in &variants {
+            let (tree, secs) = timed_build(geo, p);
+            let s = tree.stats();
+            let c = mrays(|| closest(&tree, geo, &rays), rays.len());
+            let a = mrays(|| any(&tree, geo, &rays), rays.len());
+            println!(
+                "tune {name:>9}: Ci/Ct {:.2} eb {:.1} leaf {}: build {:.3} s, {} nodes, {} refs, depth {}, \
+                 closest {c:.2} Mrays/s, any {a:.2} Mrays/s",
+                p.intersection_cost / p.traversal_cost,
+                p.empty_bonus,
+                p.max_leaf_prims,
+                secs,
+                s.nodes,
+                s.prim_refs,
+                s.max_depth,
+            );
+        }
+    }
+}
+
+fn bench(c: &mut Criterion) {
+    if std::env::var_os("KDTREE_TUNE").is_some() {
+        tune();
+        return;
+    }
+    let params = BuildParams::default();
+    let big = Geometry { mesh: displaced_sphere(1_000_000, 0), spheres: vec![] };
+    let mid = Geometry { mesh: displaced_sphere(100_000, 0), spheres: vec![] };
+
+    let (tree, secs) = timed_build(&big, &params);
+    let s = tree.stats();
+    println!(
+        "1M displaced sphere: {} triangles, build {secs:.3} s on {} threads; {s:?}",
+        big.mesh.tris.len(),
+        rayon::current_num_threads()
+    );
+
+    let mut g = c.benchmark_group("kdtree_build");
+    g.sample_size(10);
+    g.bench_function("displaced_sphere_1m", |b| b.iter(|| KdTree::build(black_box(&big), &params)));
+    g.bench_function("displaced_sphere_100k", |b| b.iter(|| KdTree::build(black_box(&mid), &params)));
+    g.finish();
+
+    let rays = random_rays(tree.bounds(), RAYS, 1);
+    let mut g = c.benchmark_group("kdtree_trace_1m");
+    g.throughput(Throughput::Elements(rays.len() as u64));
+    g.sample_size(20);
+    g.bench_function("closest_hit", |b| b.iter(|| closest(&tree, &big, &rays)));
+    g.bench_function("any_hit", |b| b.iter(|| any(&tree, &big, &rays)));
+    g.finish();
+
+    let hits = closest(&tree, &big, &rays);
+    let occl = any(&tree, &big, &rays);
+    println!(
+        "1M displaced sphere, {} incoherent rays ({hits} hit, {occl} occluded), single thread: \
+         closest-hit {:.2} Mrays/s, any-hit {:.2} Mrays/s",
+        rays.len(),
+        mrays(|| closest(&tree, &big, &rays), rays.len()),
+        mrays(|| any(&tree, &big, &rays), rays.len()),
+    );
+}
+
+criterion_group!(benches, bench);
+criterion_main!(benches);

@@ -1,0 +1,358 @@
+use glam::Vec3;
+use proptest::prelude::*;
+
+use super::*;
+use crate::accel::{brute_force_intersect, brute_force_occluded};
+use crate::scene::generate::displaced_sphere;
+use crate::scene::{Geometry, NONE, Sphere, Tri, TriangleMesh};
+
+/// Small deterministic generator so that one proptest seed describes a whole scene.
+struct Rng(u64);
+
+impl Rng {
+    fn next(&mut self) -> u64 {
+        self.0 = self.0.wrapping_add(0x9E37_79B9_7F4A_7C15);
+        let mut z = self.0;
+        z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
+        z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
+        z ^ (z >> 31)
+    }
+    fn f(&mut self) -> f32 {
+        (self.next() >> 40) as f32 / (1u64 << 24) as f32
+    }
+    fn range(&mut self, lo: f32, hi: f32) -> f32 {
+        lo + (hi - lo) * self.f()
+    }
+    fn below(&mut self, n: u64) -> u64 {
+        self.next() % n
+    }
+    fn v(&mut self, lo: f32, hi: f32) -> Vec3 {
+        Vec3::new(self.range(lo, hi), self.range(lo, hi), self.range(lo, hi))
+    }
+    /// A point on the grid of quarters in [-1, 1]: exact split positions and ties.
+    fn grid(&mut self) -> Vec3 {
+        let mut g = || (self.below(9) as f32 - 4.0) * 0.25;
+        Vec3::new(g(), g(), g())
+    }
+    fn dir(&mut self) -> Vec3 {
+        loop {
+            let d = self.v(-1.0, 1.0);
+            if d.length_squared() > 1e-4 && d.length_squared() <= 1.0 {
+                return d.normalize();
+            }
+        }
+    }
+}
+
+fn geometry(tris: &[[Vec3; 3]], spheres: Vec<Sphere>) -> Geometry {
+    let mut mesh = TriangleMesh::default();
+    for t in tris {
+        let base = mesh.positions.len() as u32;
+        mesh.positions.extend_from_slice(t);
+        mesh.tris.push(Tri { v: [base, base + 1, base + 2], n: [NONE; 3], uv: [NONE; 3], material: 0 });
+    }
+    Geometry { mesh, spheres }
+}
+
+/// A random scene mixing the cases that stress exactness: overlapping and duplicated
+/// triangles, axis-aligned and coplanar ones on a grid, degenerate ones, clusters,
+/// shared-edge fans, and spheres (some duplicated, some tiny).
+fn random_scene(seed: u64, n: usize) -> Geometry {
+    let mut r = Rng(seed);
+    let mut tris: Vec<[Vec3; 3]> = Vec::with_capacity(n);
+    let mut spheres = Vec::new();
+    let cluster = r.v(-0.8, 0.8);
+    let plane_z = (r.below(9) as f32 - 4.0) * 0.25;
+    let mut i = 0;
+    while i < n {
+        i += 1;
+        match r.below(12) {
+            0 | 1 => {
+                let c = r.v(-1.0, 1.0);
+                let s = r.range(0.01, 0.4);
+                tris.push([c + r.v(-s, s), c + r.v(-s, s), c + r.v(-s, s)]);
+            }
+            2 => tris.push([r.v(-1.0, 1.0), r.v(-1.0, 1.0), r.v(-1.0, 1.0)]),
+            3 => {
+                // Axis-aligned on the grid.
+                let a = r.below(3) as usize;
+                let (mut p, mut q, mut s) = (r.grid(), r.grid(), r.grid());
+                q[a] = p[a];
+                s[a] = p[a];
+                if r.below(2) == 0 {
+                    p[a] = s[a];
+                }
+                tris.push([p, q, s]);
+            }
+            4 => {
+                // Coplanar in one shared plane, overlapping each other.
+                let mut t = [r.v(-1.0, 1.0), r.v(-1.0, 1.0), r.v(-1.0, 1.0)];
+                for p in &mut t {
+                    p.z = plane_z;
+                }
+                tris.push(t);
+            }
+            5 => {
+                // Degenerate: a segment, a point, or two equal vertices.
+                let (p, q) = (r.v(-1.0, 1.0), r.v(-1.0, 1.0));
+                tris.push(match r.below(3) {
+                    0 => [p, q, p + (q - p) * 0.5],
+                    1 => [p, p, p],
+                    _ => [p, q, q],
+                });
+            }
+            6 => {
+                let s = 0.02;
+                tris.push([cluster + r.v(-s, s), cluster + r.v(-s, s), cluster + r.v(-s, s)]);
+            }
+            7 if !tris.is_empty() => {
+                // An exact duplicate (or a vertex rotation) of an earlier triangle.
+                let t = tris[r.below(tris.len() as u64) as usize];
+                tris.push(if r.below(2) == 0 { t } else { [t[1], t[2], t[0]] });
+            }
+            8 => {
+                // A fan around a grid vertex: shared edges and a shared vertex.
+                let c = r.grid();
+                let k = 3 + r.below(5) as usize;
+                let a = r.below(3) as usize;
+                let ring: Vec<Vec3> = (0..k)
+                    .map(|j| {
+                        let ang = j as f32 / k as f32 * std::f32::consts::TAU;
+                        let mut p = c;
+                        p[(a + 1) % 3] += 0.25 * ang.cos();
+                        p[(a + 2) % 3] += 0.25 * ang.sin();
+                        p
+                    })
+                    .collect();
+                for j in 0..k {
+                    tris.push([c, ring[j], ring[(j + 1) % k]]);
+                }
+                i += k - 1;
+            }
+            9 => {
+                let radius = if r.below(4) == 0 { r.range(1e-3, 0.01) } else { r.range(0.02, 0.4) };
+                spheres.push(Sphere { center: r.v(-1.0, 1.0), radius, material: 0 });
+            }
+            10 if !spheres.is_empty() => spheres.push(spheres[r.below(spheres.len() as u64) as usize]),
+            _ => {
+                let c = r.v(-1.0, 1.0);
+                let s = r.range(0.001, 0.05);
+                tris.push([c + r.v(-s, s), c + r.v(-s, s), c + r.v(-s, s)]);
+            }
+        }
+    }
+    geometry(&tris, spheres)
+}
+
+fn random_ray(r: &mut Rng) -> Ray {
+    let origin = match r.below(5) {
+        0 | 1 => r.v(-1.2, 1.2),
+        2 => r.v(-4.0, 4.0),
+        3 => r.grid(),
+        _ => r.dir() * 3.0,
+    };
+    let dir = match r.below(6) {
+        0 => {
+            // Axis-parallel, with signed zeros in the other components.
+            let mut d = Vec3::new(if r.below(2) == 0 { 0.0 } else { -0.0 }, 0.0, -0.0);
+            d[r.below(3) as usize] = if r.below(2) == 0 { 1.0 } else { -1.0 };
+            d
+        }
+        1 => {
+            // Parallel to a coordinate plane.
+            let mut d = r.dir();
+            d[r.below(3) as usize] = 0.0;
+            if d.length_squared() == 0.0 { Vec3::X } else { d.normalize() }
+        }
+        2 => (r.grid() - origin).normalize_or(Vec3::Y),
+        3 => {
+            // Towards the origin, not normalised.
+            let d = -origin + r.v(-0.3, 0.3);
+            if d.length_squared() == 0.0 { Vec3::Z } else { d }
+        }
+        _ => r.dir(),
+    };
+    Ray::new(origin, dir)
+}
+
+fn key(h: Option<Hit>) -> Option<(u32, u32, u32, u32)> {
+    h.map(|h| (h.t.to_bits(), h.prim, h.u.to_bits(), h.v.to_bits()))
+}
+
+fn check<P: Primitives>(prims: &P, tree: &KdTree, ray: &Ray, tmax: f32) -> Result<(), TestCaseError> {
+    let expect = brute_force_intersect(prims, ray, tmax);
+    let got = tree.intersect(prims, ray, tmax);
+    prop_assert_eq!(key(got), key(expect), "intersect, ray {:?} tmax {}", ray, tmax);
+    let expect_occ = brute_force_occluded(prims, ray, tmax);
+    prop_assert_eq!(tree.occluded(prims, ray, tmax), expect_occ, "occluded, ray {:?} tmax {}", ray, tmax);
+    Ok(())
+}
+
+/// Checks a batch of rays, each with infinite, random finite, and hit-distance tmax
+/// (the brute-force hit's own t, and just above it: ties with the limit).
+fn check_rays<P: Primitives>(prims: &P, tree: &KdTree, r: &mut Rng, rays: usize) -> Result<(), TestCaseError> {
+    for _ in 0..rays {
+        let ray = random_ray(r);
+        check(prims, tree, &ray, f32::INFINITY)?;
+        check(prims, tree, &ray, r.range(0.0, 4.0))?;
+        if let Some(h) = brute_force_intersect(prims, &ray, f32::INFINITY) {
+            check(prims, tree, &ray, h.t)?;
+            check(prims, tree, &ray, f32::from_bits(h.t.to_bits() + 1))?;
+        }
+    }
+    Ok(())
+}
+
+fn random_params(r: &mut Rng) -> BuildParams {
+    match r.below(4) {
+        0 => BuildParams::default(),
+        1 => BuildParams { max_depth: Some(r.below(6) as u32), ..Default::default() },
+        2 => BuildParams { max_leaf_prims: r.below(6) as usize, empty_bonus: r.f(), ..Default::default() },
+        _ => BuildParams {
+            traversal_cost: r.range(0.1, 4.0),
+            intersection_cost: r.range(0.2, 4.0),
+            ..Default::default()
+        },
+    }
+}
+
+proptest! {
+    #![proptest_config(ProptestConfig { cases: 160, failure_persistence: None, ..ProptestConfig::default() })]
+
+    #[test]
+    fn agrees_with_brute_force_on_random_scenes(seed in any::<u64>(), size in 0usize..4, rays_seed in any::<u64>()) {
+        let n = [0, 1 + (seed % 16) as usize, 50 + (seed % 200) as usize, 500 + (seed % 2500) as usize][size];
+        let geo = random_scene(seed, n);
+        let mut r = Rng(rays_seed);
+        let tree = KdTree::build(&geo, &random_params(&mut r));
+        let rays = if n > 1000 { 60 } else { 150 };
+        check_rays(&geo, &tree, &mut r, rays)?;
+    }
+}
+
+/// Boxes on the quarter grid with rays from grid points along the axes and grid
+/// diagonals: rays in split planes, through shared edges and vertices, starting on
+/// faces.
+#[test]
+fn agrees_with_brute_force_on_grid_boxes() {
+    let mut r = Rng(42);
+    let mut tris = Vec::new();
+    for _ in 0..60 {
+        let (a, b) = (r.grid(), r.grid());
+        let (lo, hi) = (a.min(b), a.max(b) + 0.25);
+        let c = |x: usize, y: usize, z: usize| Vec3::new([lo.x, hi.x][x], [lo.y, hi.y][y], [lo.z, hi.z][z]);
+        for axis in 0..3 {
+            for side in 0..2 {
+                let q = |u: usize, v: usize| {
+                    let mut i = [0; 3];
+                    i[axis] = side;
+                    i[(axis + 1) % 3] = u;
+                    i[(axis + 2) % 3] = v;
+                    c(i[0], i[1], i[2])
+                };
+                tris.push([q(0, 0), q(1, 0), q(1, 1)]);
+                tris.push([q(0, 0), q(1, 1), q(0, 1)]);
+            }
+        }
+    }
+    let geo = geometry(&tris, vec![Sphere { center: Vec3::ZERO, radius: 0.5, material: 0 }]);
+    let tree = KdTree::build(&geo, &BuildParams::default());
+    for _ in 0..4000 {
+        let o = r.grid() + Vec3::new(0.0, 0.125 * r.below(2) as f32, 0.0);
+        let mut d = Vec3::ZERO;
+        d[r.below(3) as usize] = if r.below(2) == 0 { 1.0 } else { -1.0 };
+        if r.below(3) == 0 {
+            d[r.below(3) as usize] += 1.0;
+        }
+        let ray = Ray::new(o, d);
+        check(&geo, &tree, &ray, f32::INFINITY).unwrap();
+        check(&geo, &tree, &ray, 0.5).unwrap();
+    }
+    check_rays(&geo, &tree, &mut r, 500).unwrap();
+}
+
+/// A closed mesh (every ray crossing an edge hits one of its two triangles) with spheres.
+#[test]
+fn agrees_with_brute_force_on_displaced_sphere_with_spheres() {
+    let mesh = displaced_sphere(20_000, 3);
+    let mut r = Rng(7);
+    let spheres =
+        (0..300).map(|_| Sphere { center: r.v(-1.5, 1.5), radius: r.range(0.01, 0.15), material: 0 }).collect();
+    let geo = Geometry { mesh, spheres };
+    let tree = KdTree::build(&geo, &BuildParams::default());
+    let s = tree.stats();
+    assert!(s.leaves > 1000 && s.max_depth <= s.depth_limit, "{s:?}");
+    for _ in 0..600 {
+        let ray = random_ray(&mut r);
+        check(&geo, &tree, &ray, f32::INFINITY).unwrap();
+        check(&geo, &tree, &ray, r.range(0.0, 3.0)).unwrap();
+    }
+}
+
+#[test]
+fn empty_and_invalid_sets_never_hit() {
+    let geo = Geometry::default();
+    let tree = KdTree::build(&geo, &BuildParams::default());
+    assert!(tree.bounds().is_empty());
+    assert_eq!(tree.stats().prim_refs, 0);
+    let ray = Ray::new(Vec3::ZERO, Vec3::X);
+    assert_eq!(tree.intersect(&geo, &ray, f32::INFINITY), None);
+    assert!(!tree.occluded(&geo, &ray, f32::INFINITY));
+    // NaN coordinates are left out of the tree (they cannot be hit).
+    let geo = geometry(&[[Vec3::NAN, Vec3::X, Vec3::Y]], vec![]);
+    let tree = KdTree::build(&geo, &BuildParams::default());
+    assert_eq!(tree.intersect(&geo, &Ray::new(Vec3::new(0.1, 0.1, 1.0), -Vec3::Z), f32::INFINITY), None);
+}
+
+#[test]
+fn nodes_are_compact_and_tree_is_shareable() {
+    fn send_sync<T: Send + Sync>() {}
+    send_sync::<KdTree>();
+    assert_eq!(size_of::<Node>(), 8);
+    let geo = random_scene(5, 3000);
+    let tree = KdTree::build(&geo, &BuildParams::default());
+    let s = tree.stats();
+    assert_eq!(s.nodes, 2 * s.leaves - 1);
+    assert!(s.prim_refs >= geo.mesh.tris.len() / 2, "{s:?}");
+    assert_eq!(s.bytes, 8 * s.nodes + 4 * tree.ids.len());
+    // Depth-first: an interior node's below child is the next node.
+    for (i, n) in tree.nodes.iter().enumerate() {
+        if !n.is_leaf() {
+            assert!(n.above() > 1 && i + n.above() < tree.nodes.len());
+        }
+    }
+    // A depth limit of 0 gives one leaf with everything.
+    let one = KdTree::build(&geo, &BuildParams { max_depth: Some(0), ..Default::default() });
+    assert_eq!((one.stats().nodes, one.stats().prim_refs), (1, geo.mesh.tris.len() + geo.spheres.len()));
+}
+
+#[test]
+fn flat_primitives_in_split_planes() {
+    // A stack of axis-aligned squares: the SAH splits at their planes, and they must be
+    // found from both sides and by rays lying in their plane.
+    let mut tris = Vec::new();
+    for k in 0..8 {
+        let z = k as f32 * 0.25;
+        let (a, b, c, d) =
+            (Vec3::new(0.0, 0.0, z), Vec3::new(1.0, 0.0, z), Vec3::new(1.0, 1.0, z), Vec3::new(0.0, 1.0, z));
+        tris.push([a, b, c]);
+        tris.push([a, c, d]);
+    }
+    let geo = geometry(&tris, vec![]);
+    // Expensive intersections make the SAH split at the planes.
+    let tree = KdTree::build(&geo, &BuildParams { intersection_cost: 4.0, ..Default::default() });
+    assert!(tree.stats().leaves > 4);
+    for (o, d) in [
+        (Vec3::new(0.5, 0.5, -1.0), Vec3::Z),
+        (Vec3::new(0.5, 0.5, 3.0), -Vec3::Z),
+        (Vec3::new(0.5, 0.5, 0.5), Vec3::Z),
+        (Vec3::new(0.5, 0.5, 0.5), -Vec3::Z),
+        (Vec3::new(0.5, 0.25, 0.5), Vec3::new(0.0, 1.0, 1.0)),
+        (Vec3::new(-1.0, 0.5, 0.5), Vec3::X),
+        (Vec3::new(0.25, 0.25, 0.25), Vec3::new(1.0, 1.0, 0.0)),
+    ] {
+        let ray = Ray::new(o, d);
+        let h = tree.intersect(&geo, &ray, f32::INFINITY);
+        assert_eq!(key(h), key(brute_force_intersect(&geo, &ray, f32::INFINITY)), "{ray:?}");
+    }
+}

@@ -1,0 +1,312 @@
+//! Front-to-back traversal (pbrt-style, fixed-size stack) with the bookkeeping that makes
+//! the answers bit-identical to [`brute_force_intersect`] / [`brute_force_occluded`].
+//!
+//! Exactness. The brute-force loop visits primitives in index order and accepts a hit
+//! when the primitive's test passes with the current `tmax`. The tree visits them in
+//! another order, so it must not simply keep "the smallest t":
+//! * Ties and near-ties. Two primitives can be hit at the same or nearly the same `t`
+//!   (shared edges and vertices, coplanar overlaps). The watertight test's acceptance of
+//!   `t < tmax` is decided on `t·det`, so a hit with a smaller `t` can still be rejected
+//!   when `tmax` is only an ulp or two above it. The tree therefore collects every hit
+//!   within a small margin of the nearest one (`bound`), and when more than one is that
+//!   close it replays the brute-force loop over just those, in index order, from the
+//!   query's `tmax`. Hits farther away than the margin cannot change that replay (each
+//!   close primitive accepts any `tmax` that far above its own `t`), and once a close
+//!   hit is accepted no far one can be. A hit is only final once traversal has passed
+//!   `bound`.
+//! * A primitive is listed in every leaf its (clipped) extent overlaps and its hit may lie
+//!   outside the leaf being visited; candidates are deduplicated by index, and traversal
+//!   continues until no unvisited node can hold a hit below `bound`.
+//! * Rounding in the split-plane distances and in the hit distances is covered by an
+//!   absolute slack (in units of t) derived from the ray's distance to the scene, by
+//!   which node intervals are widened; together with the build's padding of primitive
+//!   extents, every leaf that could hold a reported hit is visited.
+//!
+//! [`brute_force_intersect`]: crate::accel::brute_force_intersect
+//! [`brute_force_occluded`]: crate::accel::brute_force_occluded
+
+use glam::Vec3;
+
+use super::{KdTree, MAX_DEPTH, Node};
+use crate::accel::{Hit, PrimHit, Primitives, RayPrecomp, brute_force_intersect};
+use crate::geometry::Ray;
+
+/// Stack depth: one entry per level at most.
+const STACK: usize = MAX_DEPTH as usize + 4;
+
+/// Slack relative to the ray's reach across the scene (128 ulps): covers the relative
+/// error of the split distances (3 roundings) and the watertight test's `t` error
+/// (about 20 ulps of the largest vertex depth).
+const SLACK_REL: f32 = 1.0 / 65536.0;
+
+/// Relative margin above the nearest hit within which hits are collected (512 ulps).
+const NEAR_REL: f32 = 1.0 / 16384.0;
+
+/// A primitive accepts any `tmax >= t · (1 + ACCEPT_REL)` (+ `TINY`): for the
+/// watertight triangle test `t·det` vs `tmax·det` differ by a few roundings.
+const ACCEPT_REL: f32 = 16.0 * f32::EPSILON;
+const TINY: f32 = 1e-30;
+
+/// Most close hits kept; more (a ray through a vertex of very high valence) falls back
+/// to the brute-force loop.
+const CANDIDATES: usize = 16;
+
+#[derive(Clone, Copy, Default)]
+struct Entry {
+    node: u32,
+    lo: f32,
+    hi: f32,
+}
+
+struct Setup {
+    lo: f32,
+    hi: f32,
+    slack: f32,
+}
+
+impl KdTree {
+    /// Clips the ray to the root cell, widened by the slack.
+    #[inline]
+    fn setup(&self, ray: &Ray, inv: Vec3, tmax: f32) -> Option<Setup> {
+        if self.nodes.is_empty() {
+            return None;
+        }
+        let b = &self.cell;
+        let t0 = (b.min - ray.origin) * inv;
+        let t1 = (b.max - ray.origin) * inv;
+        let (mut near, mut far) = (f32::NEG_INFINITY, f32::INFINITY);
+        for a in 0..3 {
+            // NaN (0 · inf): the ray lies in a face's plane and never leaves the slab.
+            let (n, f) = if t0[a] <= t1[a] {
+                (t0[a], t1[a])
+            } else if t1[a] < t0[a] {
+                (t1[a], t0[a])
+            } else {
+                continue;
+            };
+            near = near.max(n);
+            far = far.min(f);
+        }
+        let reach = (b.min - ray.origin).abs().max((b.max - ray.origin).abs()).max_element();
+        let slack = SLACK_REL * reach / ray.dir.abs().max_element();
+        let lo = (near - slack).max(0.0);
+        let hi = far.min(tmax) + slack;
+        (lo <= hi).then_some(Setup { lo, hi, slack })
+    }
+
+    /// Walks the nodes front to back, calling `leaf` with each leaf's primitives; `leaf`
+    /// returns the new bound (nodes starting beyond `bound + slack` are skipped) or NaN
+    /// to stop.
+    #[inline(always)]
+    fn walk(&self, ray: &Ray, inv: Vec3, s: &Setup, mut bound: f32, mut leaf: impl FnMut(&[u32]) -> f32) {
+        let slack = s.slack;
+        let mut stack = [Entry::default(); STACK];
+        let mut sp = 0;
+        let (mut node, mut lo, mut hi) = (0usize, s.lo, s.hi);
+        let o = ray.origin.to_array();
+        let d = ray.dir.to_array();
+        let inv = inv.to_array();
+        loop {
+            if lo <= bound + slack {
+                let n: Node = self.nodes[node];
+                if !n.is_leaf() {
+                    let axis = n.axis();
+                    let split = n.split();
+                    let tp = (split - o[axis]) * inv[axis];
+                    let below_first = o[axis] < split || (o[axis] == split && d[axis] <= 0.0);
+                    let (first, second) =
+                        if below_first { (node + 1, node + n.above()) } else { (node + n.above(), node + 1) };
+                    let hi_b = hi.min(bound + slack);
+                    if tp.is_nan() {
+                        // The ray lies in the split plane: both sides, whole interval.
+                        stack[sp] = Entry { node: second as u32, lo, hi };
+                        sp += 1;
+                        node = first;
+                    } else if tp > 0.0 {
+                        let visit_first = tp + slack >= lo;
+                        let visit_second = tp - slack <= hi_b;
+                        if visit_second {
+                            if visit_first {
+                                stack[sp] = Entry { node: second as u32, lo: lo.max(tp - slack), hi };
+                                sp += 1;
+                                hi = hi.min(tp + slack);
+                                node = first;
+                            } else {
+                                lo = lo.max(tp - slack);
+                                node = second;
+                            }
+                        } else {
+                            hi = hi.min(tp + slack);
+                            node = first;
+                        }
+                    } else {
+                        // Moving away from the plane (or starting on it): the ray stays
+                        // on the first side, except for rounding right at the origin.
+                        if tp > -slack && lo <= slack {
+                            stack[sp] = Entry { node: second as u32, lo, hi: hi.min(slack) };
+                            sp += 1;
+                        }
+                        node = first;
+                    }
+                    continue;
+                }
+                let one = [n.data];
+                let ids = match n.prim_count() {
+                    0 => &[][..],
+                    1 => &one[..],
+                    c => &self.ids[n.data as usize..n.data as usize + c],
+                };
+                if !ids.is_empty() {
+                    bound = leaf(ids);
+                    if bound.is_nan() {
+                        return;
+                    }
+                }
+            }
+            if sp == 0 {
+                return;
+            }
+            sp -= 1;
+            let e = stack[sp];
+            (node, lo, hi) = (e.node as usize, e.lo, e.hi);
+        }
+    }
+
+    pub(super) fn intersect_impl<P: Primitives>(&self, prims: &P, ray: &Ray, tmax: f32) -> Option<Hit> {
+        let pre = RayPrecomp::new(ray);
+        let s = self.setup(ray, pre.inv_dir, tmax)?;
+        let mut c = Candidates::new(tmax, s.slack);
+        self.walk(ray, pre.inv_dir, &s, tmax, |ids| {
+            for &g in ids {
+                if let Some(h) = prims.intersect(g, ray, &pre, c.bound) {
+                    c.record(g, h);
+                }
+            }
+            if c.overflow { f32::NAN } else { c.bound }
+        });
+        if c.overflow {
+            return brute_force_intersect(prims, ray, tmax);
+        }
+        c.resolve(prims, ray, &pre, tmax)
+    }
+
+    pub(super) fn occluded_impl<P: Primitives>(&self, prims: &P, ray: &Ray, tmax: f32) -> bool {
+        let pre = RayPrecomp::new(ray);
+        let Some(s) = self.setup(ray, pre.inv_dir, tmax) else { return false };
+        let mut hit = false;
+        self.walk(ray, pre.inv_dir, &s, tmax, |ids| {
+            if ids.iter().any(|&g| prims.intersect(g, ray, &pre, tmax).is_some()) {
+                hit = true;
+                f32::NAN
+            } else {
+                tmax
+            }
+        });
+        hit
+    }
+}
+
+/// The hits collected so far within `bound` of the nearest.
+struct Candidates {
+    n: usize,
+    prim: [u32; CANDIDATES],
+    hit: [PrimHit; CANDIDATES],
+    tmin: f32,
+    /// Hits are collected below this: `tmax`, or the nearest hit plus the margin.
+    bound: f32,
+    tmax: f32,
+    slack: f32,
+    overflow: bool,
+}
+
+impl Candidates {
+    #[inline]
+    fn new(tmax: f32, slack: f32) -> Self {
+        let none = PrimHit { t: 0.0, u: 0.0, v: 0.0 };
+        Self {
+            n: 0,
+            prim: [0; CANDIDATES],
+            hit: [none; CANDIDATES],
+            tmin: f32::INFINITY,
+            bound: tmax,
+            tmax,
+            slack,
+            overflow: false,
+        }
+    }
+
+    #[inline]
+    fn record(&mut self, g: u32, h: PrimHit) {
+        // The same primitive listed in several leaves gives the same hit again.
+        if !(h.t < self.bound) || self.prim[..self.n].contains(&g) {
+            return;
+        }
+        if self.n == CANDIDATES {
+            let mut k = 0;
+            for i in 0..self.n {
+                if self.hit[i].t < self.bound {
+                    self.prim[k] = self.prim[i];
+                    self.hit[k] = self.hit[i];
+                    k += 1;
+                }
+            }
+            self.n = k;
+            if k == CANDIDATES {
+                self.overflow = true;
+                return;
+            }
+        }
+        self.prim[self.n] = g;
+        self.hit[self.n] = h;
+        self.n += 1;
+        if h.t < self.tmin {
+            self.tmin = h.t;
+            self.bound = self.tmax.min(h.t + self.slack + h.t * NEAR_REL);
+        }
+    }
+
+    /// The brute-force answer from the collected hits (see the module comment).
+    fn resolve<P: Primitives>(mut self, prims: &P, ray: &Ray, pre: &RayPrecomp, tmax: f32) -> Option<Hit> {
+        let n = self.n;
+        if n == 0 {
+            return None;
+        }
+        // Insertion sort by t: n is tiny.
+        for i in 1..n {
+            let mut j = i;
+            while j > 0 && self.hit[j].t < self.hit[j - 1].t {
+                self.hit.swap(j, j - 1);
+                self.prim.swap(j, j - 1);
+                j -= 1;
+            }
+        }
+        // The close group: hits chained to the nearest by gaps within the acceptance
+        // margin; the first larger gap separates it from hits that cannot matter.
+        let mut near_max = self.hit[0].t;
+        let mut k = 1;
+        while k < n && self.hit[k].t <= near_max * (1.0 + ACCEPT_REL) + TINY {
+            near_max = self.hit[k].t;
+            k += 1;
+        }
+        // Hits not collected lie at or just below `bound`; they are harmless only if the
+        // group accepts them as tmax, i.e. the group ends well below `bound`.
+        if self.bound < tmax && near_max * (1.0 + 3.0 * ACCEPT_REL) + TINY >= self.bound {
+            return brute_force_intersect(prims, ray, tmax);
+        }
+        if k == 1 {
+            let h = self.hit[0];
+            return Some(Hit { t: h.t, prim: self.prim[0], u: h.u, v: h.v });
+        }
+        let group = &mut self.prim[..k];
+        group.sort_unstable();
+        let mut best = None;
+        let mut t = tmax;
+        for &g in group.iter() {
+            if let Some(h) = prims.intersect(g, ray, pre, t) {
+                t = h.t;
+                best = Some(Hit { t: h.t, prim: g, u: h.u, v: h.v });
+            }
+        }
+        best
+    }
+}

@@ -1,0 +1,47 @@
+//! Command-line and job overrides of a scene's own camera and render settings, applied
+//! identically by every process that renders the scene.
+
+use super::Scene;
+
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct Overrides {
+    pub spp: Option<u32>,
+    /// Width alone keeps the aspect ratio; so does height alone.
+    pub width: Option<u32>,
+    pub height: Option<u32>,
+    pub max_depth: Option<i32>,
+    pub seed: Option<u64>,
+}
+
+impl Overrides {
+    pub fn apply(&self, scene: &mut Scene) -> Result<(), String> {
+        let cam = &mut scene.camera;
+        let aspect = cam.width as f64 / cam.height as f64;
+        let (w, h) = match (self.width, self.height) {
+            (Some(w), Some(h)) => (w, h),
+            (Some(w), None) => (w, ((w as f64 / aspect).round() as u32).max(1)),
+            (None, Some(h)) => (((h as f64 * aspect).round() as u32).max(1), h),
+            (None, None) => (cam.width, cam.height),
+        };
+        if w == 0 || h == 0 || w > 65536 || h > 65536 {
+            return Err(format!("image size {w}×{h} must be between 1 and 65536 on each side"));
+        }
+        (cam.width, cam.height) = (w, h);
+        if let Some(spp) = self.spp {
+            if spp == 0 {
+                return Err("spp must be at least 1".into());
+            }
+            scene.settings.spp = spp;
+        }
+        if let Some(d) = self.max_depth {
+            if d != -1 && d < 1 {
+                return Err("max_depth must be -1 (unlimited) or ≥ 1".into());
+            }
+            scene.settings.max_depth = d;
+        }
+        if let Some(s) = self.seed {
+            scene.settings.seed = s;
+        }
+        Ok(())
+    }
+}

@@ -1,0 +1,573 @@
+//! Scene files by content digest, job folders, and the loaded scenes.
+//!
+//! ```text
+//! <cache>/blobs/<sha256>           verified content, written once (temp file, fsync, rename)
+//! <cache>/tmp/                     downloads in progress
+//! <cache>/jobs/<job_id>/<path>     a job's files under their own names (hard links to blobs)
+//! ```
+//!
+//! Several worker processes may share one cache folder (local workers do): every file
+//! appears by an atomic rename, so they never see each other's partial files.
+
+use std::collections::{HashMap, VecDeque};
+use std::fs::{self, File};
+use std::io::Write;
+use std::path::{Component, Path, PathBuf};
+use std::sync::Arc;
+use std::sync::atomic::{AtomicU64, Ordering};
+use std::time::{Duration, Instant};
+
+use anyhow::{Context, anyhow, bail, ensure};
+use sha2::{Digest, Sha256};
+use tracer::integrator::Integrator;
+use tracer::scene::Scene;
+
+use crate::convert::{AssetRef, JobSpec};
+use crate::rpc::{self, Client, RpcFailure};
+
+/// The default cache folder: `tilefarm-worker-cache` in the system's temp folder.
+pub fn default_cache_dir() -> PathBuf {
+    std::env::temp_dir().join("tilefarm-worker-cache")
+}
+
+/// A unique suffix for temp files, across threads and processes.
+fn temp_suffix() -> String {
+    static COUNTER: AtomicU64 = AtomicU64::new(0);
+    format!("{}.{}", std::process::id(), COUNTER.fetch_add(1, Ordering::Relaxed))
+}
+
+/// Checks a digest from the wire: 64 lowercase hex digits (it becomes a file name).
+pub fn check_digest(sha256: &str) -> anyhow::Result<()> {
+    ensure!(
+        sha256.len() == 64 && sha256.bytes().all(|b| matches!(b, b'0'..=b'9' | b'a'..=b'f')),
+        "'{sha256}' is not a SHA-256 digest (64 lowercase hex digits)"
+    );
+    Ok(())
+}
+
+/// Checks a job id from the wire: it becomes one folder name.
+pub fn check_job_id(job_id: &str) -> anyhow::Result<()> {
+    ensure!(
+        !job_id.is_empty()
+            && job_id.len() <= 128
+            && !job_id.starts_with('.')
+            && job_id.bytes().all(|b| b.is_ascii_alphanumeric() || matches!(b, b'-' | b'_' | b'.')),
+        "job id '{job_id}' is not a safe folder name (1 to 128 of A-Z a-z 0-9 - _ ., not starting with '.')"
+    );
+    Ok(())
+}
+
+/// Turns an asset path from the wire into a relative path that stays inside the job
+/// folder: no absolute paths, no `..`, no backslashes, no drive prefixes. `.` components
+/// are dropped.
+pub fn sanitize_asset_path(path: &str) -> anyhow::Result<PathBuf> {
+    let bad = |why: &str| anyhow!("asset path '{path}' is refused: {why}");
+    if path.is_empty() {
+        return Err(bad("it is empty"));
+    }
+    if path.contains('\\') {
+        return Err(bad("it contains a backslash (use '/')"));
+    }
+    if path.contains('\0') {
+        return Err(bad("it contains a NUL character"));
+    }
+    if path.starts_with('/') || Path::new(path).is_absolute() {
+        return Err(bad("it is absolute"));
+    }
+    let mut out = PathBuf::new();
+    for c in Path::new(path).components() {
+        match c {
+            Component::Normal(part) => {
+                // "C:" would be a drive prefix on Windows.
+                if part.to_str().is_some_and(|s| s.contains(':')) {
+                    return Err(bad("it contains a ':'"));
+                }
+                out.push(part);
+            }
+            Component::CurDir => {}
+            Component::ParentDir => return Err(bad("it has a '..' component")),
+            Component::RootDir | Component::Prefix(_) => return Err(bad("it is absolute")),
+        }
+    }
+    if out.as_os_str().is_empty() {
+        return Err(bad("it names no file"));
+    }
+    Ok(out)
+}
+
+/// The on-disk cache.
+#[derive(Debug)]
+pub struct AssetCache {
+    root: PathBuf,
+}
+
+impl AssetCache {
+    pub fn open(root: &Path) -> anyhow::Result<Self> {
+        for sub in ["blobs", "jobs", "tmp"] {
+            let dir = root.join(sub);
+            fs::create_dir_all(&dir).with_context(|| format!("cannot create cache folder {}", dir.display()))?;
+        }
+        Ok(Self { root: root.to_path_buf() })
+    }
+
+    pub fn root(&self) -> &Path {
+        &self.root
+    }
+
+    pub fn blob_path(&self, sha256: &str) -> PathBuf {
+        self.root.join("blobs").join(sha256)
+    }
+
+    pub fn job_dir(&self, job_id: &str) -> anyhow::Result<PathBuf> {
+        check_job_id(job_id)?;
+        Ok(self.root.join("jobs").join(job_id))
+    }
+
+    /// Is this asset's content in the cache? (Blobs only appear after verification, so
+    /// the size is checked as a guard against outside tampering, not re-hashed.)
+    pub fn has_blob(&self, asset: &AssetRef) -> bool {
+        check_digest(&asset.sha256).is_ok()
+            && fs::metadata(self.blob_path(&asset.sha256)).is_ok_and(|m| m.is_file() && m.len() == asset.size)
+    }
+
+    /// Starts writing `asset`'s content; [`BlobWriter::finish`] verifies it.
+    pub fn blob_writer(&self, asset: &AssetRef) -> anyhow::Result<BlobWriter> {
+        check_digest(&asset.sha256).with_context(|| format!("asset '{}'", asset.path))?;
+        let temp = self.root.join("tmp").join(format!("{}.{}.part", asset.sha256, temp_suffix()));
+        let file = File::create(&temp).with_context(|| format!("cannot create {}", temp.display()))?;
+        Ok(BlobWriter {
+            file: Some(file),
+            temp,
+            dest: self.blob_path(&asset.sha256),
+            asset: asset.clone(),
+            hasher: Sha256::new(),
+            written: 0,
+        })
+    }
+
+    /// Lays the job's files out under `<cache>/jobs/<job_id>/` (hard links to the blobs,
+    /// or copies) and returns the scene file's path there. All blobs must be present.
+    pub fn lay_out_job(&self, job: &JobSpec) -> anyhow::Result<PathBuf> {
+        let dir = self.job_dir(&job.job_id)?;
+        let mut seen: HashMap<PathBuf, &str> = HashMap::new();
+        let mut scene_path = None;
+        for (i, asset) in std::iter::once(&job.scene).chain(&job.assets).enumerate() {
+            let rel = sanitize_asset_path(&asset.path)?;
+            check_digest(&asset.sha256).with_context(|| format!("asset '{}'", asset.path))?;
+            if i == 0 {
+                scene_path = Some(dir.join(&rel));
+            }
+            match seen.get(&rel) {
+                Some(&sha) if sha == asset.sha256 => continue,
+                Some(_) => bail!("asset path '{}' appears twice with different contents", asset.path),
+                None => {
+                    seen.insert(rel.clone(), &asset.sha256);
+                }
+            }
+            let dest = dir.join(&rel);
+            if fs::metadata(&dest).is_ok_and(|m| m.is_file() && m.len() == asset.size) && same_file(&dest, asset, self)
+            {
+                continue;
+            }
+            let parent = dest.parent().unwrap_or(&dir);
+            fs::create_dir_all(parent).with_context(|| format!("cannot create {}", parent.display()))?;
+            let blob = self.blob_path(&asset.sha256);
+            let name = rel.file_name().and_then(|n| n.to_str()).unwrap_or("asset");
+            let temp = parent.join(format!(".{name}.{}.tmp", temp_suffix()));
+            if fs::hard_link(&blob, &temp).is_err() {
+                fs::copy(&blob, &temp)
+                    .with_context(|| format!("cannot copy {} to {}", blob.display(), temp.display()))?;
+            }
+            if let Err(e) = fs::rename(&temp, &dest) {
+                let _ = fs::remove_file(&temp);
+                return Err(e).with_context(|| format!("cannot create {}", dest.display()));
+            }
+        }
+        scene_path.ok_or_else(|| anyhow!("job has no scene file"))
+    }
+}
+
+/// Is `dest` the cached blob itself (a hard link to it)? Copies are re-made, cheaply.
+fn same_file(dest: &Path, asset: &AssetRef, cache: &AssetCache) -> bool {
+    #[cfg(unix)]
+    {
+        use std::os::unix::fs::MetadataExt;
+        match (fs::metadata(dest), fs::metadata(cache.blob_path(&asset.sha256))) {
+            (Ok(a), Ok(b)) => a.dev() == b.dev() && a.ino() == b.ino(),
+            _ => false,
+        }
+    }
+    #[cfg(not(unix))]
+    {
+        let _ = (dest, asset, cache);
+        false
+    }
+}
+
+/// A download in progress: hashes as it writes, and publishes the blob only when the
+/// size and digest match. Dropped unfinished, it removes its temp file.
+pub struct BlobWriter {
+    file: Option<File>,
+    temp: PathBuf,
+    dest: PathBuf,
+    asset: AssetRef,
+    hasher: Sha256,
+    written: u64,
+}
+
+impl BlobWriter {
+    pub fn write(&mut self, chunk: &[u8]) -> anyhow::Result<()> {
+        let len = chunk.len() as u64;
+        ensure!(
+            self.written + len <= self.asset.size,
+            "asset '{}' ({}): the coordinator sent more than the expected {} bytes",
+            self.asset.path,
+            self.asset.sha256,
+            self.asset.size
+        );
+        let file = self.file.as_mut().ok_or_else(|| anyhow!("blob writer already finished"))?;
+        file.write_all(chunk).with_context(|| format!("cannot write {}", self.temp.display()))?;
+        self.hasher.update(chunk);
+        self.written += len;
+        Ok(())
+    }
+
+    /// Verifies size and digest, syncs, and renames the blob into place.
+    pub fn finish(mut self) -> anyhow::Result<PathBuf> {
+        let a = self.asset.clone();
+        ensure!(
+            self.written == a.size,
+            "asset '{}' ({}): received {} bytes, expected {}",
+            a.path,
+            a.sha256,
+            self.written,
+            a.size
+        );
+        let digest = hex::encode(std::mem::take(&mut self.hasher).finalize());
+        ensure!(digest == a.sha256, "asset '{}': content digest is {digest}, expected {} (refused)", a.path, a.sha256);
+        let file = self.file.take().ok_or_else(|| anyhow!("blob writer already finished"))?;
+        file.sync_all().with_context(|| format!("cannot sync {}", self.temp.display()))?;
+        drop(file);
+        fs::rename(&self.temp, &self.dest).with_context(|| format!("cannot create {}", self.dest.display()))?;
+        if let Some(dir) = self.dest.parent().and_then(|d| File::open(d).ok()) {
+            let _ = dir.sync_all();
+        }
+        Ok(self.dest.clone())
+    }
+}
+
+impl Drop for BlobWriter {
+    fn drop(&mut self) {
+        // After a successful finish the temp file has been renamed away; otherwise this
+        // removes a partial or refused download.
+        let _ = fs::remove_file(&self.temp);
+    }
+}
+
+/// Downloads one asset into the cache, verifying it.
+pub async fn fetch_blob(client: &mut Client, cache: &AssetCache, asset: &AssetRef) -> Result<(), FetchError> {
+    const CHUNK_WAIT: Duration = Duration::from_secs(30);
+    let mut writer = cache.blob_writer(asset).map_err(FetchError::Fatal)?;
+    let request = proto::AssetRequest { sha256: asset.sha256.clone() };
+    let mut stream = rpc::call(CHUNK_WAIT, client.fetch_asset(request)).await.map_err(FetchError::Rpc)?;
+    loop {
+        let next = tokio::time::timeout(CHUNK_WAIT, stream.message()).await;
+        match next {
+            Ok(Ok(Some(chunk))) => writer.write(&chunk.data).map_err(FetchError::Fatal)?,
+            Ok(Ok(None)) => break,
+            Ok(Err(status)) => return Err(FetchError::Rpc(rpc::classify(status))),
+            Err(_) => return Err(FetchError::Rpc(RpcFailure::Transport(format!("no data within {CHUNK_WAIT:?}")))),
+        }
+    }
+    tokio::task::spawn_blocking(move || writer.finish())
+        .await
+        .map_err(|e| FetchError::Fatal(anyhow!("blob writer task failed: {e}")))?
+        .map_err(FetchError::Fatal)?;
+    Ok(())
+}
+
+#[derive(Debug)]
+pub enum FetchError {
+    Rpc(RpcFailure),
+    Fatal(anyhow::Error),
+}
+
+/// A job's scene, loaded and with the job's overrides applied.
+pub struct LoadedJob {
+    pub job_id: String,
+    pub scene: Scene,
+    pub integrator: Integrator,
+}
+
+/// Makes a job's scene available: fetches missing blobs, lays out the job folder, loads
+/// the scene (in a blocking thread) and applies the overrides. The error names the job
+/// and the file concerned.
+pub async fn prepare_job(
+    mut client: Client,
+    cache: Arc<AssetCache>,
+    job: Arc<JobSpec>,
+    max_backoff: Duration,
+) -> anyhow::Result<LoadedJob> {
+    let start = Instant::now();
+    check_job_id(&job.job_id)?;
+    let mut fetched = 0usize;
+    let mut done = std::collections::HashSet::new();
+    for asset in std::iter::once(&job.scene).chain(&job.assets) {
+        sanitize_asset_path(&asset.path)?;
+        check_digest(&asset.sha256).with_context(|| format!("asset '{}'", asset.path))?;
+        if !done.insert(asset.sha256.clone()) || cache.has_blob(asset) {
+            continue;
+        }
+        // A few tries on transport trouble; a wrong digest or a refusal is final.
+        let mut backoff = rpc::Backoff::new(max_backoff);
+        let mut attempt = 0;
+        loop {
+            attempt += 1;
+            match fetch_blob(&mut client, &cache, asset).await {
+                Ok(()) => break,
+                Err(FetchError::Rpc(RpcFailure::Transport(m))) if attempt < 4 => {
+                    let d = backoff.next_delay();
+                    tracing::warn!("fetching asset '{}' failed ({m}); retrying in {d:?}", asset.path);
+                    tokio::time::sleep(d).await;
+                }
+                Err(FetchError::Rpc(f)) => bail!("cannot fetch asset '{}' ({}): {f}", asset.path, asset.sha256),
+                Err(FetchError::Fatal(e)) => return Err(e),
+            }
+        }
+        fetched += 1;
+    }
+    let blocking_job = job.clone();
+    let loaded = tokio::task::spawn_blocking(move || load_job(&cache, &blocking_job))
+        .await
+        .map_err(|e| anyhow!("scene loading thread failed: {e}"))??;
+    tracing::info!(
+        "job {}: scene '{}' ready ({}×{}, {} file(s), {fetched} downloaded) in {:.2?}",
+        job.job_id,
+        job.scene.path,
+        loaded.scene.camera.width,
+        loaded.scene.camera.height,
+        1 + job.assets.len(),
+        start.elapsed()
+    );
+    for w in &loaded.scene.warnings {
+        tracing::warn!("job {}: {w}", job.job_id);
+    }
+    Ok(loaded)
+}
+
+/// Lays out a job whose blobs are all cached, loads its scene and applies the job's
+/// overrides. Blocking.
+pub fn load_job(cache: &AssetCache, job: &JobSpec) -> anyhow::Result<LoadedJob> {
+    let scene_path = cache.lay_out_job(job)?;
+    let mut scene = tracer::scene::load_scene(&scene_path).map_err(|e| anyhow!("{e}"))?;
+    job.overrides.apply(&mut scene).map_err(|e| anyhow!("{}: settings: {e}", job.scene.path))?;
+    Ok(LoadedJob { job_id: job.job_id.clone(), scene, integrator: job.integrator })
+}
+
+/// The most recently used loaded scenes, by job id.
+pub struct SceneCache {
+    capacity: usize,
+    entries: VecDeque<Arc<LoadedJob>>,
+}
+
+impl SceneCache {
+    pub fn new(capacity: usize) -> Self {
+        Self { capacity: capacity.max(1), entries: VecDeque::new() }
+    }
+
+    pub fn get(&mut self, job_id: &str) -> Option<Arc<LoadedJob>> {
+        let i = self.entries.iter().position(|j| j.job_id == job_id)?;
+        let job = self.entries.remove(i)?;
+        self.entries.push_front(job.clone());
+        Some(job)
+    }
+
+    pub fn insert(&mut self, job: Arc<LoadedJob>) {
+        self.entries.retain(|j| j.job_id != job.job_id);
+        self.entries.push_front(job);
+        self.entries.truncate(self.capacity);
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn temp_root(name: &str) -> PathBuf {
+        let dir = std::env::temp_dir().join(format!("tilefarm-worker-test-{name}-{}", temp_suffix()));
+        let _ = fs::remove_dir_all(&dir);
+        dir
+    }
+
+    fn asset_of(path: &str, content: &[u8]) -> AssetRef {
+        AssetRef { path: path.into(), sha256: hex::encode(Sha256::digest(content)), size: content.len() as u64 }
+    }
+
+    #[test]
+    fn asset_paths_are_sanitised() {
+        assert_eq!(sanitize_asset_path("scene.toml").unwrap(), PathBuf::from("scene.toml"));
+        assert_eq!(sanitize_asset_path("./meshes/./a.obj").unwrap(), PathBuf::from("meshes/a.obj"));
+        assert_eq!(sanitize_asset_path("tex/wood grain.png").unwrap(), PathBuf::from("tex/wood grain.png"));
+        for bad in ["", ".", "/etc/passwd", "../x.obj", "a/../../x", "a/..", "meshes\\a.obj", "C:/x.obj", "a\0b"] {
+            let e = sanitize_asset_path(bad).unwrap_err().to_string();
+            assert!(e.contains("refused"), "{bad:?}: {e}");
+        }
+        assert!(sanitize_asset_path("../x").unwrap_err().to_string().contains(".."));
+        assert!(sanitize_asset_path("/x").unwrap_err().to_string().contains("absolute"));
+        assert!(sanitize_asset_path("a\\b").unwrap_err().to_string().contains("backslash"));
+    }
+
+    #[test]
+    fn job_ids_and_digests_are_checked() {
+        assert!(check_job_id("0123abcd-ef").is_ok());
+        for bad in ["", "..", ".hidden", "a/b", "a\\b", &"x".repeat(129)] {
+            assert!(check_job_id(bad).is_err(), "{bad}");
+        }
+        assert!(check_digest(&"0f".repeat(32)).is_ok());
+        assert!(check_digest(&"0F".repeat(32)).is_err());
+        assert!(check_digest("../../etc/passwd").is_err());
+        assert!(check_digest(&"0f".repeat(31)).is_err());
+    }
+
+    #[test]
+    fn a_verified_blob_is_published_and_a_corrupted_one_refused() {
+        let root = temp_root("digest");
+        let cache = AssetCache::open(&root).unwrap();
+        let content = b"[camera]\nfov = 40\n".repeat(100);
+        let good = asset_of("scene.toml", &content);
+
+        // Same size, one byte flipped: the digest check refuses it and leaves nothing.
+        let mut corrupted = content.clone();
+        corrupted[17] ^= 1;
+        let mut w = cache.blob_writer(&good).unwrap();
+        w.write(&corrupted[..500]).unwrap();
+        w.write(&corrupted[500..]).unwrap();
+        let e = w.finish().unwrap_err().to_string();
+        assert!(e.contains("digest") && e.contains("scene.toml"), "{e}");
+        assert!(!cache.has_blob(&good));
+        assert!(!cache.blob_path(&good.sha256).exists());
+
+        // Truncated: refused.
+        let mut w = cache.blob_writer(&good).unwrap();
+        w.write(&content[..content.len() - 1]).unwrap();
+        assert!(w.finish().unwrap_err().to_string().contains("expected"));
+        assert!(!cache.has_blob(&good));
+
+        // Too long: refused as soon as it overflows.
+        let mut w = cache.blob_writer(&good).unwrap();
+        w.write(&content).unwrap();
+        assert!(w.write(b"x").is_err());
+        drop(w);
+        assert!(!cache.has_blob(&good));
+
+        // Intact: published.
+        let mut w = cache.blob_writer(&good).unwrap();
+        for c in content.chunks(333) {
+            w.write(c).unwrap();
+        }
+        let path = w.finish().unwrap();
+        assert_eq!(fs::read(&path).unwrap(), content);
+        assert!(cache.has_blob(&good));
+
+        // No temp files are left behind.
+        assert_eq!(fs::read_dir(root.join("tmp")).unwrap().count(), 0);
+        let _ = fs::remove_dir_all(&root);
+    }
+
+    #[test]
+    fn jobs_are_laid_out_and_bad_paths_refused() {
+        let root = temp_root("layout");
+        let cache = AssetCache::open(&root).unwrap();
+        let scene = asset_of("scene.toml", b"scene");
+        let mesh = asset_of("meshes/box.obj", b"v 0 0 0\n");
+        for a in [(&scene, &b"scene"[..]), (&mesh, &b"v 0 0 0\n"[..])] {
+            let mut w = cache.blob_writer(a.0).unwrap();
+            w.write(a.1).unwrap();
+            w.finish().unwrap();
+        }
+        let job = JobSpec {
+            job_id: "job1".into(),
+            scene: scene.clone(),
+            assets: vec![mesh.clone()],
+            overrides: Default::default(),
+            integrator: Integrator::Path,
+        };
+        let scene_path = cache.lay_out_job(&job).unwrap();
+        assert_eq!(scene_path, root.join("jobs/job1/scene.toml"));
+        assert_eq!(fs::read(root.join("jobs/job1/meshes/box.obj")).unwrap(), b"v 0 0 0\n");
+        // Laying out again is harmless.
+        assert_eq!(cache.lay_out_job(&job).unwrap(), scene_path);
+
+        let mut evil = job.clone();
+        evil.assets[0].path = "../../outside.obj".into();
+        let e = cache.lay_out_job(&evil).unwrap_err().to_string();
+        assert!(e.contains("outside.obj") && e.contains(".."), "{e}");
+        assert!(!root.join("outside.obj").exists());
+
+        let mut clash = job.clone();
+        clash.assets.push(AssetRef { path: "meshes/box.obj".into(), ..scene.clone() });
+        assert!(cache.lay_out_job(&clash).unwrap_err().to_string().contains("twice"));
+
+        let mut bad_id = job.clone();
+        bad_id.job_id = "../x".into();
+        assert!(cache.lay_out_job(&bad_id).is_err());
+        let _ = fs::remove_dir_all(&root);
+    }
+
+    const TINY_SCENE: &str = "[camera]\nposition = [0, 0, -5]\nlook_at = [0, 0, 0]\nwidth = 64\nheight = 32\n\n\
+        [[sphere]]\ncenter = [0, 0, 0]\nradius = 1\nkd = [0.5, 0.5, 0.5]\n";
+
+    fn put_blob(cache: &AssetCache, asset: &AssetRef, content: &[u8]) {
+        let mut w = cache.blob_writer(asset).unwrap();
+        w.write(content).unwrap();
+        w.finish().unwrap();
+    }
+
+    #[test]
+    fn a_job_loads_with_its_overrides_and_a_broken_scene_names_its_file() {
+        let root = temp_root("load");
+        let cache = AssetCache::open(&root).unwrap();
+        let scene = asset_of("sub/scene.toml", TINY_SCENE.as_bytes());
+        put_blob(&cache, &scene, TINY_SCENE.as_bytes());
+        let mut job = JobSpec {
+            job_id: "j".into(),
+            scene,
+            assets: vec![],
+            overrides: tracer::scene::Overrides { width: Some(32), spp: Some(3), ..Default::default() },
+            integrator: Integrator::Normals,
+        };
+        let loaded = load_job(&cache, &job).unwrap();
+        assert_eq!((loaded.scene.camera.width, loaded.scene.camera.height), (32, 16));
+        assert_eq!(loaded.scene.settings.spp, 3);
+        assert_eq!(loaded.integrator, Integrator::Normals);
+
+        let broken = b"[camera]\nposition = [0, 0".as_slice();
+        job.scene = asset_of("broken.toml", broken);
+        put_blob(&cache, &job.scene, broken);
+        let e = format!("{:#}", load_job(&cache, &job).err().unwrap());
+        assert!(e.contains("broken.toml"), "{e}");
+
+        job.scene = asset_of("meshes/missing.obj", b"");
+        assert!(load_job(&cache, &job).is_err(), "blob not cached");
+        let _ = fs::remove_dir_all(&root);
+    }
+
+    #[test]
+    fn the_scene_cache_keeps_the_most_recent() {
+        let mk = |id: &str| {
+            Arc::new(LoadedJob {
+                job_id: id.into(),
+                scene: tracer::scene::scene_from_toml(TINY_SCENE, "test", Path::new(".")).unwrap(),
+                integrator: Integrator::Path,
+            })
+        };
+        let mut c = SceneCache::new(2);
+        c.insert(mk("a"));
+        c.insert(mk("b"));
+        assert!(c.get("a").is_some()); // a is now the most recent
+        c.insert(mk("c"));
+        assert!(c.get("b").is_none());
+        assert!(c.get("a").is_some());
+        assert!(c.get("c").is_some());
+    }
+}

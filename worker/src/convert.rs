@@ -1,0 +1,265 @@
+//! Conversions at the edge between the wire types (`proto`) and the worker's own plain
+//! types. Everything the network sends is checked here, once: a malformed unit becomes
+//! an error message (logged, the unit dropped), never a panic deeper in.
+
+use std::sync::Arc;
+
+use tracer::film::{Accumulation, SampleRange, Tile};
+use tracer::integrator::Integrator;
+use tracer::scene::Overrides;
+
+/// Largest tile side the worker accepts.
+pub const MAX_TILE_SIDE: u32 = 4096;
+/// Largest sample range the worker accepts in one unit.
+pub const MAX_SAMPLES_PER_UNIT: u32 = 1 << 20;
+/// Upper bound of a result's encoded size per pixel: three i128 sums (48 bytes) and one
+/// packed varint count (≤ 5 bytes).
+const RESULT_BYTES_PER_PIXEL: usize = 53;
+/// Room for the result's other fields.
+const RESULT_OVERHEAD_BYTES: usize = 4096;
+
+/// A unit's identity: the coordinator's (job id, unit id).
+#[derive(Clone, Debug, PartialEq, Eq, Hash, PartialOrd, Ord)]
+pub struct UnitKey {
+    pub job_id: String,
+    pub unit_id: u64,
+}
+
+impl std::fmt::Display for UnitKey {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(f, "{}/{}", self.job_id, self.unit_id)
+    }
+}
+
+/// A file of a job: its path relative to the job folder (not yet sanitised: the asset
+/// cache does that, with the error naming the path) and its content digest.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub struct AssetRef {
+    pub path: String,
+    pub sha256: String,
+    pub size: u64,
+}
+
+/// What the worker needs to load a job's scene.
+#[derive(Clone, Debug, PartialEq)]
+pub struct JobSpec {
+    pub job_id: String,
+    pub scene: AssetRef,
+    pub assets: Vec<AssetRef>,
+    pub overrides: Overrides,
+    pub integrator: Integrator,
+}
+
+/// One leased unit of work.
+#[derive(Clone, Debug)]
+pub struct WorkUnit {
+    pub key: UnitKey,
+    pub job: Arc<JobSpec>,
+    pub tile: Tile,
+    pub samples: SampleRange,
+}
+
+fn asset_from_proto(a: Option<proto::AssetRef>, what: &str) -> Result<AssetRef, String> {
+    let a = a.ok_or_else(|| format!("{what} is missing"))?;
+    Ok(AssetRef { path: a.path, sha256: a.sha256, size: a.size })
+}
+
+/// The job-level settings the worker applies: the scene overrides and the integrator.
+/// Zero (or absent) means "as in the scene"; tile size and batch size are the
+/// coordinator's business.
+pub fn settings_from_proto(s: Option<&proto::RenderSettings>) -> Result<(Overrides, Integrator), String> {
+    let Some(s) = s else { return Ok((Overrides::default(), Integrator::Path)) };
+    let nonzero = |v: u32| (v != 0).then_some(v);
+    let overrides = Overrides {
+        spp: nonzero(s.spp),
+        width: nonzero(s.width),
+        height: nonzero(s.height),
+        max_depth: s.max_depth,
+        seed: s.seed,
+    };
+    let integrator = if s.integrator.is_empty() { Integrator::Path } else { s.integrator.parse()? };
+    Ok((overrides, integrator))
+}
+
+pub fn job_from_proto(j: proto::JobSpec) -> Result<JobSpec, String> {
+    if j.job_id.is_empty() {
+        return Err("job id is empty".into());
+    }
+    let (overrides, integrator) =
+        settings_from_proto(j.settings.as_ref()).map_err(|e| format!("job {}: {e}", j.job_id))?;
+    let scene = asset_from_proto(j.scene, "scene file").map_err(|e| format!("job {}: {e}", j.job_id))?;
+    let assets = j.assets.into_iter().map(|a| asset_from_proto(Some(a), "asset")).collect::<Result<Vec<_>, _>>()?;
+    Ok(JobSpec { job_id: j.job_id, scene, assets, overrides, integrator })
+}
+
+/// Checks a tile from the wire: non-empty, at most [`MAX_TILE_SIDE`] on each side, no
+/// coordinate overflow, and a result small enough for one message.
+pub fn tile_from_proto(t: Option<&proto::Tile>) -> Result<Tile, String> {
+    let t = t.ok_or("tile is missing")?;
+    if t.width == 0 || t.height == 0 || t.width > MAX_TILE_SIDE || t.height > MAX_TILE_SIDE {
+        return Err(format!("tile size {}×{} must be between 1 and {MAX_TILE_SIDE} on each side", t.width, t.height));
+    }
+    if t.x0.checked_add(t.width).is_none() || t.y0.checked_add(t.height).is_none() {
+        return Err(format!("tile at ({}, {}) of {}×{} overflows", t.x0, t.y0, t.width, t.height));
+    }
+    let tile = Tile::new(t.x0, t.y0, t.width, t.height);
+    if tile.pixel_count() * RESULT_BYTES_PER_PIXEL + RESULT_OVERHEAD_BYTES > proto::MAX_MESSAGE_BYTES {
+        return Err(format!("tile {}×{}: its result would exceed the message size limit", t.width, t.height));
+    }
+    Ok(tile)
+}
+
+pub fn samples_from_proto(start: u32, end: u32) -> Result<SampleRange, String> {
+    if start >= end {
+        return Err(format!("sample range [{start}, {end}) is empty"));
+    }
+    if end - start > MAX_SAMPLES_PER_UNIT {
+        return Err(format!("sample range [{start}, {end}) is longer than {MAX_SAMPLES_PER_UNIT}"));
+    }
+    Ok(SampleRange::new(start, end))
+}
+
+/// Converts and checks a leased unit. The error names the unit when it can.
+pub fn unit_from_proto(u: proto::Unit) -> Result<WorkUnit, String> {
+    let job = u.job.ok_or_else(|| format!("unit {}: job spec is missing", u.unit_id))?;
+    let job = job_from_proto(job).map_err(|e| format!("unit {}: {e}", u.unit_id))?;
+    let key = UnitKey { job_id: job.job_id.clone(), unit_id: u.unit_id };
+    let tile = tile_from_proto(u.tile.as_ref()).map_err(|e| format!("unit {key}: {e}"))?;
+    let samples = samples_from_proto(u.sample_start, u.sample_end).map_err(|e| format!("unit {key}: {e}"))?;
+    Ok(WorkUnit { key, job: Arc::new(job), tile, samples })
+}
+
+pub fn unit_key_to_proto(k: &UnitKey) -> proto::UnitKey {
+    proto::UnitKey { job_id: k.job_id.clone(), unit_id: k.unit_id }
+}
+
+pub fn unit_key_from_proto(k: proto::UnitKey) -> UnitKey {
+    UnitKey { job_id: k.job_id, unit_id: k.unit_id }
+}
+
+pub fn tile_to_proto(t: Tile) -> proto::Tile {
+    proto::Tile { x0: t.x0, y0: t.y0, width: t.width, height: t.height }
+}
+
+/// A rendered unit as the wire message `SubmitResult` takes.
+pub fn result_to_proto(
+    worker_id: u64,
+    key: &UnitKey,
+    samples: SampleRange,
+    acc: &Accumulation,
+    rays: u64,
+) -> proto::UnitResult {
+    proto::UnitResult {
+        worker_id,
+        job_id: key.job_id.clone(),
+        unit_id: key.unit_id,
+        tile: Some(tile_to_proto(acc.tile)),
+        sample_start: samples.start,
+        sample_end: samples.end,
+        sums: acc.sums_to_bytes(),
+        counts: acc.counts.clone(),
+        nonfinite: acc.nonfinite,
+        rays,
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn unit(tile: Option<proto::Tile>, start: u32, end: u32) -> proto::Unit {
+        proto::Unit {
+            job: Some(proto::JobSpec {
+                job_id: "j1".into(),
+                scene: Some(proto::AssetRef { path: "scene.toml".into(), sha256: "ab".repeat(32), size: 10 }),
+                assets: vec![],
+                settings: Some(proto::RenderSettings {
+                    spp: 16,
+                    width: 0,
+                    height: 120,
+                    max_depth: Some(4),
+                    seed: None,
+                    integrator: "normals".into(),
+                    tile_size: 32,
+                    batch_spp: 4,
+                }),
+            }),
+            unit_id: 7,
+            tile,
+            sample_start: start,
+            sample_end: end,
+        }
+    }
+
+    #[test]
+    fn a_good_unit_converts() {
+        let u = unit_from_proto(unit(Some(proto::Tile { x0: 32, y0: 64, width: 32, height: 16 }), 4, 8)).unwrap();
+        assert_eq!(u.key, UnitKey { job_id: "j1".into(), unit_id: 7 });
+        assert_eq!(u.tile, Tile::new(32, 64, 32, 16));
+        assert_eq!(u.samples, SampleRange::new(4, 8));
+        assert_eq!(u.job.integrator, Integrator::Normals);
+        assert_eq!(
+            u.job.overrides,
+            Overrides { spp: Some(16), width: None, height: Some(120), max_depth: Some(4), seed: None }
+        );
+    }
+
+    #[test]
+    fn malformed_units_are_errors_not_panics() {
+        let t = |x0, y0, width, height| Some(proto::Tile { x0, y0, width, height });
+        for (tile, s, e) in [
+            (None, 0, 1),
+            (t(0, 0, 0, 8), 0, 1),
+            (t(0, 0, 8, 0), 0, 1),
+            (t(0, 0, 5000, 8), 0, 1),
+            (t(0, 0, 4096, 4096), 0, 1), // result too large for one message
+            (t(u32::MAX, 0, 8, 8), 0, 1),
+            (t(0, u32::MAX - 2, 8, 8), 0, 1),
+            (t(0, 0, 8, 8), 5, 5),
+            (t(0, 0, 8, 8), 9, 3),
+            (t(0, 0, 8, 8), 0, (1 << 20) + 1),
+        ] {
+            assert!(unit_from_proto(unit(tile, s, e)).is_err(), "{tile:?} [{s}, {e})");
+        }
+        let mut u = unit(t(0, 0, 8, 8), 0, 1);
+        u.job.as_mut().unwrap().settings.as_mut().unwrap().integrator = "bogus".into();
+        assert!(unit_from_proto(u).unwrap_err().contains("bogus"));
+        let mut u = unit(t(0, 0, 8, 8), 0, 1);
+        u.job = None;
+        assert!(unit_from_proto(u).is_err());
+        let mut u = unit(t(0, 0, 8, 8), 0, 1);
+        u.job.as_mut().unwrap().scene = None;
+        assert!(unit_from_proto(u).is_err());
+    }
+
+    #[test]
+    fn empty_settings_mean_the_scene_as_is() {
+        let (o, i) = settings_from_proto(Some(&proto::RenderSettings::default())).unwrap();
+        assert_eq!(o, Overrides::default());
+        assert_eq!(i, Integrator::Path);
+        assert_eq!(settings_from_proto(None).unwrap(), (Overrides::default(), Integrator::Path));
+    }
+
+    #[test]
+    fn a_result_converts_to_the_wire_message() {
+        let tile = Tile::new(8, 16, 2, 1);
+        let mut acc = Accumulation::new(tile);
+        acc.add_sample(0, glam::Vec3::new(1.0, 0.5, 0.25));
+        acc.add_sample(1, glam::Vec3::new(f32::NAN, 0.0, 0.0));
+        acc.add_sample(1, glam::Vec3::new(2.0, 2.0, 2.0));
+        let key = UnitKey { job_id: "job-9".into(), unit_id: 42 };
+        let m = result_to_proto(3, &key, SampleRange::new(10, 12), &acc, 1234);
+        assert_eq!(m.worker_id, 3);
+        assert_eq!(m.job_id, "job-9");
+        assert_eq!(m.unit_id, 42);
+        assert_eq!(m.tile, Some(proto::Tile { x0: 8, y0: 16, width: 2, height: 1 }));
+        assert_eq!((m.sample_start, m.sample_end), (10, 12));
+        assert_eq!(m.sums.len(), 2 * 48);
+        assert_eq!(Accumulation::sums_from_bytes(&m.sums).unwrap(), acc.sums);
+        assert_eq!(m.counts, vec![1, 2]);
+        assert_eq!(m.nonfinite, 1);
+        assert_eq!(m.rays, 1234);
+        // Radiance 1.0 is 2^32 in fixed point, little-endian.
+        assert_eq!(i128::from_le_bytes(m.sums[0..16].try_into().unwrap()), 1i128 << 32);
+    }
+}

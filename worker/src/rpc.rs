@@ -1,0 +1,162 @@
+//! The client side of the wire: connecting, bounding every call in time, and sorting
+//! failures into the three cases the worker treats differently.
+
+use std::future::Future;
+use std::time::Duration;
+
+use anyhow::Context;
+use proto::farm_client::FarmClient;
+use tonic::transport::{Channel, Endpoint};
+use tonic::{Code, Status};
+
+pub type Client = FarmClient<Channel>;
+
+/// How a call failed.
+#[derive(Debug)]
+pub enum RpcFailure {
+    /// The coordinator could not be reached (or the call timed out or broke off): the
+    /// same call may succeed later, so keep what was being sent and retry.
+    Transport(String),
+    /// The coordinator does not know this worker id (it restarted, or expired us):
+    /// register again.
+    UnknownWorker(String),
+    /// The coordinator understood and refused the call; retrying will not help.
+    Rejected(Status),
+}
+
+impl std::fmt::Display for RpcFailure {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            RpcFailure::Transport(m) => write!(f, "coordinator unreachable: {m}"),
+            RpcFailure::UnknownWorker(m) => write!(f, "unknown worker: {m}"),
+            RpcFailure::Rejected(s) => write!(f, "{:?}: {}", s.code(), s.message()),
+        }
+    }
+}
+
+/// Does this message say that the worker id is unknown (rather than a job or unit)?
+fn says_unknown_worker(message: &str) -> bool {
+    let m = message.to_ascii_lowercase();
+    ["unknown worker", "no such worker", "worker not found", "not registered", "re-register", "register again"]
+        .iter()
+        .any(|p| m.contains(p))
+        || (m.starts_with("worker") && (m.contains("unknown") || m.contains("not found") || m.contains("expired")))
+}
+
+pub fn classify(status: Status) -> RpcFailure {
+    match status.code() {
+        Code::Unauthenticated => RpcFailure::UnknownWorker(status.message().to_string()),
+        Code::NotFound if says_unknown_worker(status.message()) => {
+            RpcFailure::UnknownWorker(status.message().to_string())
+        }
+        Code::InvalidArgument
+        | Code::FailedPrecondition
+        | Code::NotFound
+        | Code::OutOfRange
+        | Code::AlreadyExists
+        | Code::PermissionDenied
+        | Code::Unimplemented => RpcFailure::Rejected(status),
+        // Unavailable, DeadlineExceeded, Cancelled, Unknown, Internal, Aborted,
+        // ResourceExhausted, DataLoss, Ok: connection-level trouble or overload. Keep
+        // the data and try again.
+        _ => {
+            let m = status.message();
+            RpcFailure::Transport(if m.is_empty() { format!("{:?}", status.code()) } else { m.to_string() })
+        }
+    }
+}
+
+/// Runs one call with a time limit; a timeout counts as a transport failure.
+pub async fn call<T>(
+    limit: Duration,
+    fut: impl Future<Output = Result<tonic::Response<T>, Status>>,
+) -> Result<T, RpcFailure> {
+    match tokio::time::timeout(limit, fut).await {
+        Ok(Ok(r)) => Ok(r.into_inner()),
+        Ok(Err(status)) => Err(classify(status)),
+        Err(_) => Err(RpcFailure::Transport(format!("no answer within {limit:?}"))),
+    }
+}
+
+/// A lazily connecting client: it (re)connects on demand, so a coordinator that is not
+/// up yet, or restarts, is just a transport failure of the calls in between.
+pub fn connect(url: &str) -> anyhow::Result<Client> {
+    let url = if url.contains("://") { url.to_string() } else { format!("http://{url}") };
+    let endpoint = Endpoint::from_shared(url.clone())
+        .with_context(|| format!("invalid coordinator address '{url}'"))?
+        .connect_timeout(Duration::from_secs(3))
+        .tcp_nodelay(true)
+        .http2_keep_alive_interval(Duration::from_secs(20))
+        .keep_alive_timeout(Duration::from_secs(20));
+    Ok(FarmClient::new(endpoint.connect_lazy())
+        .max_decoding_message_size(proto::MAX_MESSAGE_BYTES)
+        .max_encoding_message_size(proto::MAX_MESSAGE_BYTES))
+}
+
+/// Exponential backoff: 100 ms, doubling, capped.
+#[derive(Clone, Debug)]
+pub struct Backoff {
+    next: Duration,
+    max: Duration,
+}
+
+impl Backoff {
+    pub const INITIAL: Duration = Duration::from_millis(100);
+
+    pub fn new(max: Duration) -> Self {
+        let max = max.max(Duration::from_millis(1));
+        Self { next: Self::INITIAL.min(max), max }
+    }
+
+    /// The delay before the next attempt; each call doubles the one after.
+    pub fn next_delay(&mut self) -> Duration {
+        let d = self.next;
+        self.next = (self.next * 2).min(self.max);
+        d
+    }
+
+    pub fn reset(&mut self) {
+        self.next = Self::INITIAL.min(self.max);
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn backoff_doubles_up_to_the_cap_and_resets() {
+        let mut b = Backoff::new(Duration::from_millis(1000));
+        let ds: Vec<u64> = (0..7).map(|_| b.next_delay().as_millis() as u64).collect();
+        assert_eq!(ds, [100, 200, 400, 800, 1000, 1000, 1000]);
+        b.reset();
+        assert_eq!(b.next_delay(), Duration::from_millis(100));
+        let mut tiny = Backoff::new(Duration::from_millis(30));
+        assert_eq!(tiny.next_delay(), Duration::from_millis(30));
+    }
+
+    #[test]
+    fn failures_are_classified() {
+        assert!(matches!(classify(Status::unavailable("tcp connect error")), RpcFailure::Transport(_)));
+        assert!(matches!(classify(Status::deadline_exceeded("")), RpcFailure::Transport(_)));
+        assert!(matches!(classify(Status::unknown("h2 protocol error")), RpcFailure::Transport(_)));
+        assert!(matches!(classify(Status::unauthenticated("who are you")), RpcFailure::UnknownWorker(_)));
+        assert!(matches!(classify(Status::not_found("unknown worker 7")), RpcFailure::UnknownWorker(_)));
+        assert!(matches!(classify(Status::not_found("worker 7 is unknown")), RpcFailure::UnknownWorker(_)));
+        assert!(matches!(classify(Status::not_found("unit 5 of job ab12 not found")), RpcFailure::Rejected(_)));
+        assert!(matches!(classify(Status::not_found("unknown job ab12")), RpcFailure::Rejected(_)));
+        assert!(matches!(classify(Status::invalid_argument("bad tile")), RpcFailure::Rejected(_)));
+        assert!(matches!(classify(Status::failed_precondition("lease lapsed")), RpcFailure::Rejected(_)));
+    }
+
+    #[test]
+    fn addresses_without_a_scheme_get_http() {
+        // connect() is lazy: no network is touched here, but it needs a runtime.
+        let rt = tokio::runtime::Builder::new_current_thread().enable_all().build().unwrap();
+        rt.block_on(async {
+            assert!(connect("127.0.0.1:1").is_ok());
+            assert!(connect("http://127.0.0.1:1").is_ok());
+            assert!(connect("http://bad host:1").is_err());
+        });
+    }
+}
