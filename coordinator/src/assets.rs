@@ -98,6 +98,11 @@ impl AssetStore {
     /// Lays out a job's files under `job_dir` by their relative paths and returns the
     /// scene file's path there.
     pub fn materialize(&self, job_dir: &Path, scene: &AssetRef, assets: &[AssetRef]) -> anyhow::Result<PathBuf> {
+        // Start from an empty folder: a stale file of an earlier job with the same id
+        // (a restarted coordinator) must never be loaded in place of this job's.
+        if job_dir.exists() {
+            std::fs::remove_dir_all(job_dir).with_context(|| format!("clearing {}", job_dir.display()))?;
+        }
         for a in std::iter::once(scene).chain(assets) {
             let rel = safe_relative_path(&a.path)?;
             if !self.contains(&a.sha256) {
@@ -107,7 +112,7 @@ impl AssetStore {
             if let Some(parent) = dest.parent() {
                 std::fs::create_dir_all(parent)?;
             }
-            if !dest.exists() && std::fs::hard_link(self.blob_path(&a.sha256), &dest).is_err() {
+            if std::fs::hard_link(self.blob_path(&a.sha256), &dest).is_err() {
                 std::fs::copy(self.blob_path(&a.sha256), &dest)
                     .with_context(|| format!("placing {} in {}", a.path, job_dir.display()))?;
             }

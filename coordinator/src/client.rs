@@ -153,7 +153,7 @@ async fn wait(client: &mut JobsClient<Channel>, job: &str, args: &SubmitArgs) ->
             if let Some(p) = &args.preview {
                 tracer::output::write_png(&image, p)?;
             }
-            println!("{}; wrote {}", summary(&status), args.output.display());
+            println!("{}; wrote {}", summary(&status, 0, 0), args.output.display());
             Ok(())
         }
         proto::JobState::Failed => anyhow::bail!("job {job} failed: {}", status.error),

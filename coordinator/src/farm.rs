@@ -16,11 +16,18 @@ pub struct FarmConfig {
     pub lease: Duration,
     /// How often workers renew their leases.
     pub heartbeat: Duration,
+    /// When the queue is empty, a unit out for longer than this is leased again to an
+    /// idle worker (speculative execution).
+    pub speculate_after: Duration,
 }
 
 impl Default for FarmConfig {
     fn default() -> Self {
-        Self { lease: Duration::from_secs(30), heartbeat: Duration::from_secs(5) }
+        Self {
+            lease: Duration::from_secs(30),
+            heartbeat: Duration::from_secs(5),
+            speculate_after: Duration::from_secs(10),
+        }
     }
 }
 
@@ -124,7 +131,7 @@ impl Farm {
         let mut out = Vec::new();
         for e in &mut self.jobs {
             while out.len() < max {
-                let Some(unit) = e.job.lease_next(worker, deadline) else { break };
+                let Some(unit) = e.job.lease_next(worker, now, deadline, self.config.speculate_after) else { break };
                 let u = &e.job.units[unit as usize];
                 out.push(Leased { spec: e.spec.clone(), unit, tile: u.tile, samples: u.samples });
             }

@@ -31,8 +31,20 @@ impl JobPhase {
 #[derive(Clone, Debug, PartialEq, Eq)]
 pub enum UnitState {
     Pending,
-    Leased { worker: WorkerId, deadline: Instant },
+    /// Out with `worker` since `since`; lapses at `deadline` unless renewed.
+    Leased {
+        worker: WorkerId,
+        deadline: Instant,
+        since: Instant,
+    },
     Done,
+}
+
+/// A speculative second lease of a straggling unit: the first result wins.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct Spare {
+    pub worker: WorkerId,
+    pub deadline: Instant,
 }
 
 #[derive(Clone, Debug)]
@@ -41,6 +53,7 @@ pub struct Unit {
     pub tile: Tile,
     pub samples: SampleRange,
     pub state: UnitState,
+    pub spare: Option<Spare>,
     /// Every worker that ever held a lease on this unit: a late result from any of them is
     /// the same deterministic work, so it is accepted while the unit is not done.
     pub holders: Vec<WorkerId>,
@@ -79,6 +92,29 @@ pub struct UnitResult {
     pub rays: u64,
 }
 
+/// A unit as a checkpoint records it.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct UnitRecord {
+    pub tile_index: u32,
+    pub samples: SampleRange,
+    pub done: bool,
+}
+
+/// Everything [`Job::restore`] needs.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Restored {
+    pub width: u32,
+    pub height: u32,
+    pub spp: u32,
+    pub tile_size: u32,
+    pub batch_spp: u32,
+    pub non_negative: bool,
+    pub units: Vec<UnitRecord>,
+    pub tiles: Vec<Accumulation>,
+    pub rays: u64,
+    pub nonfinite: u64,
+}
+
 pub struct Job {
     pub id: String,
     pub name: String,
@@ -86,6 +122,8 @@ pub struct Job {
     pub width: u32,
     pub height: u32,
     pub spp: u32,
+    pub tile_size: u32,
+    pub batch_spp: u32,
     /// Whether radiance must be non-negative (the path integrators; AOVs like normals
     /// are signed).
     pub non_negative: bool,
@@ -110,6 +148,8 @@ impl Job {
             width: 0,
             height: 0,
             spp: 0,
+            tile_size: 0,
+            batch_spp: 0,
             non_negative: true,
             units: Vec::new(),
             pending: BTreeSet::new(),
@@ -133,17 +173,126 @@ impl Job {
                 tile: tiles[tile_index],
                 samples,
                 state: UnitState::Pending,
+                spare: None,
                 holders: Vec::new(),
             })
             .collect();
         self.pending = (0..self.units.len() as UnitId).collect();
         self.tiles = tiles.into_iter().map(Accumulation::new).collect();
         (self.width, self.height, self.spp, self.non_negative) = (width, height, spp, non_negative);
+        (self.tile_size, self.batch_spp) = (tile_size, batch_spp);
         self.phase = JobPhase::Running;
         self.started = Instant::now();
         if self.units.is_empty() {
             self.finish();
         }
+    }
+
+    /// Continues a job from a checkpoint: its units (with what is done) and its tile
+    /// accumulations. Everything is cross-checked, so an inconsistent checkpoint is
+    /// refused rather than producing a wrong image.
+    pub fn restore(&mut self, r: Restored) -> Result<(), String> {
+        let tiles = Tile::grid(r.width, r.height, r.tile_size);
+        if r.tiles.len() != tiles.len() || r.tiles.iter().zip(&tiles).any(|(a, t)| a.tile != *t) {
+            return Err("its tiles do not match the image size and tile size".into());
+        }
+        let mut per_tile = vec![0u64; tiles.len()];
+        let mut units = Vec::with_capacity(r.units.len());
+        for u in &r.units {
+            let t = u.tile_index as usize;
+            if t >= tiles.len() || u.samples.end > r.spp || u.samples.is_empty() {
+                return Err(format!("a unit ({t}, {}..{}) lies outside the job", u.samples.start, u.samples.end));
+            }
+            if u.done {
+                per_tile[t] += u.samples.len() as u64;
+            }
+            units.push(Unit {
+                tile_index: t,
+                tile: tiles[t],
+                samples: u.samples,
+                state: if u.done { UnitState::Done } else { UnitState::Pending },
+                spare: None,
+                holders: Vec::new(),
+            });
+        }
+        for (t, acc) in r.tiles.iter().enumerate() {
+            if acc.counts.len() != acc.tile.pixel_count() || acc.sums.len() != acc.tile.pixel_count() {
+                return Err(format!("tile {t} has the wrong number of pixels"));
+            }
+            if acc.counts.iter().any(|&c| c as u64 != per_tile[t]) {
+                return Err(format!("tile {t}'s sample counts disagree with its finished units"));
+            }
+        }
+        self.pending =
+            units.iter().enumerate().filter(|(_, u)| u.state == UnitState::Pending).map(|(i, _)| i as UnitId).collect();
+        self.units_done = units.iter().filter(|u| u.state == UnitState::Done).count() as u64;
+        self.samples_done = units
+            .iter()
+            .filter(|u| u.state == UnitState::Done)
+            .map(|u| u.tile.pixel_count() as u64 * u.samples.len() as u64)
+            .sum();
+        self.units = units;
+        self.tiles = r.tiles;
+        (self.width, self.height, self.spp, self.tile_size, self.batch_spp) =
+            (r.width, r.height, r.spp, r.tile_size, r.batch_spp);
+        (self.non_negative, self.rays, self.nonfinite) = (r.non_negative, r.rays, r.nonfinite);
+        self.phase = JobPhase::Running;
+        self.started = Instant::now();
+        self.finished = None;
+        if self.units_done == self.units.len() as u64 {
+            self.finish();
+        }
+        Ok(())
+    }
+
+    /// Raises the job's samples per pixel: appends units for the new samples only, in
+    /// progressive order. The samples already rendered are kept, and since merging is
+    /// exact the result equals a fresh render at the new count.
+    pub fn extend_spp(&mut self, spp: u32) {
+        if spp <= self.spp || !matches!(self.phase, JobPhase::Running | JobPhase::Done) {
+            return;
+        }
+        let tiles: Vec<Tile> = self.tiles.iter().map(|a| a.tile).collect();
+        let base = self.units.len() as UnitId;
+        let mut start = self.spp;
+        let batch = self.batch_spp.max(1);
+        let mut added = 0;
+        while start < spp {
+            // Realign to the batch grid so that extensions look like a fresh job's units.
+            let end = ((start / batch + 1) * batch).min(spp);
+            for (t, tile) in tiles.iter().enumerate() {
+                self.units.push(Unit {
+                    tile_index: t,
+                    tile: *tile,
+                    samples: SampleRange::new(start, end),
+                    state: UnitState::Pending,
+                    spare: None,
+                    holders: Vec::new(),
+                });
+                self.pending.insert(base + added);
+                added += 1;
+            }
+            start = end;
+        }
+        self.spp = spp;
+        self.phase = JobPhase::Running;
+        self.finished = None;
+    }
+
+    /// The units as a checkpoint records them.
+    pub fn records(&self) -> Vec<UnitRecord> {
+        self.units
+            .iter()
+            .map(|u| UnitRecord {
+                tile_index: u.tile_index as u32,
+                samples: u.samples,
+                done: u.state == UnitState::Done,
+            })
+            .collect()
+    }
+
+    pub fn tile_accumulations(&self) -> &[Accumulation] {
+        &self.tiles
     }
 
     pub fn fail(&mut self, error: String) {
@@ -165,17 +314,44 @@ impl Job {
     }
 
     /// Leases the next pending unit (progressive order) to `worker` until `deadline`.
-    pub fn lease_next(&mut self, worker: WorkerId, deadline: Instant) -> Option<UnitId> {
+    /// When none is pending, and a unit has been out with another worker for longer
+    /// than `speculate_after`, the oldest such unit is leased again as a spare
+    /// (speculative execution against stragglers): the first result wins.
+    pub fn lease_next(
+        &mut self,
+        worker: WorkerId,
+        now: Instant,
+        deadline: Instant,
+        speculate_after: Duration,
+    ) -> Option<UnitId> {
         if self.phase != JobPhase::Running {
             return None;
         }
-        let id = self.pending.pop_first()?;
-        let unit = &mut self.units[id as usize];
-        unit.state = UnitState::Leased { worker, deadline };
-        if !unit.holders.contains(&worker) {
-            unit.holders.push(worker);
+        if let Some(id) = self.pending.pop_first() {
+            let unit = &mut self.units[id as usize];
+            unit.state = UnitState::Leased { worker, deadline, since: now };
+            unit.spare = None;
+            if !unit.holders.contains(&worker) {
+                unit.holders.push(worker);
+            }
+            return Some(id);
         }
-        Some(id)
+        let (id, unit) = self
+            .units
+            .iter_mut()
+            .enumerate()
+            .filter(|(_, u)| u.spare.is_none() && !u.holders.contains(&worker))
+            .filter_map(|(i, u)| match u.state {
+                UnitState::Leased { since, .. } if now.saturating_duration_since(since) >= speculate_after => {
+                    Some((since, i, u))
+                }
+                _ => None,
+            })
+            .min_by_key(|(since, i, _)| (*since, *i))
+            .map(|(_, i, u)| (i, u))?;
+        unit.spare = Some(Spare { worker, deadline });
+        unit.holders.push(worker);
+        Some(id as UnitId)
     }
 
     /// Extends the lease of `unit` if `worker` holds it. Returns false when the worker
@@ -184,30 +360,44 @@ impl Job {
         if self.phase != JobPhase::Running {
             return false;
         }
-        match self.units.get_mut(unit as usize) {
-            Some(Unit { state: UnitState::Leased { worker: w, deadline: d }, .. }) if *w == worker => {
+        let Some(u) = self.units.get_mut(unit as usize) else { return false };
+        if let Some(spare) = u.spare.as_mut()
+            && spare.worker == worker
+        {
+            spare.deadline = deadline;
+            return true;
+        }
+        match &mut u.state {
+            UnitState::Leased { worker: w, deadline: d, .. } if *w == worker => {
                 *d = deadline;
                 true
             }
             // Lapsed and re-queued or leased elsewhere: the worker may still finish it
             // (its result is accepted until the unit is done).
-            Some(Unit { state: UnitState::Pending | UnitState::Leased { .. }, holders, .. }) => {
-                holders.contains(&worker)
-            }
-            _ => false,
+            UnitState::Pending | UnitState::Leased { .. } => u.holders.contains(&worker),
+            UnitState::Done => false,
         }
     }
 
-    /// Returns lapsed leases to the queue. Returns how many.
+    /// Returns lapsed leases to the queue (a lapsed primary lease hands over to a live
+    /// spare). Returns how many units went back to the queue.
     pub fn reap_expired(&mut self, now: Instant) -> usize {
         let mut n = 0;
         for (id, unit) in self.units.iter_mut().enumerate() {
+            if unit.spare.is_some_and(|s| s.deadline <= now) {
+                unit.spare = None;
+            }
             if let UnitState::Leased { deadline, .. } = unit.state
                 && deadline <= now
             {
-                unit.state = UnitState::Pending;
-                self.pending.insert(id as UnitId);
-                n += 1;
+                unit.state = match unit.spare.take() {
+                    Some(s) => UnitState::Leased { worker: s.worker, deadline: s.deadline, since: now },
+                    None => {
+                        self.pending.insert(id as UnitId);
+                        n += 1;
+                        UnitState::Pending
+                    }
+                };
             }
         }
         n
@@ -262,6 +452,7 @@ impl Job {
             Accumulation { tile: unit.tile, sums: r.sums.clone(), counts: r.counts.clone(), nonfinite: r.nonfinite };
         self.tiles[tile_index].merge(&acc).map_err(|e| malformed(e.to_string()))?;
         self.units[r.unit as usize].state = UnitState::Done;
+        self.units[r.unit as usize].spare = None;
         self.pending.remove(&r.unit);
         self.units_done += 1;
         self.samples_done += n as u64 * expected as u64;
@@ -293,13 +484,21 @@ impl Job {
 
     /// Units currently leased to `worker`.
     pub fn held_by(&self, worker: WorkerId) -> usize {
-        self.units.iter().filter(|u| matches!(u.state, UnitState::Leased { worker: w, .. } if w == worker)).count()
+        self.units
+            .iter()
+            .filter(|u| {
+                matches!(u.state, UnitState::Leased { worker: w, .. } if w == worker)
+                    || u.spare.is_some_and(|s| s.worker == worker)
+            })
+            .count()
     }
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    const NEVER: Duration = Duration::from_secs(1 << 30);
 
     fn job() -> Job {
         let mut j = Job::loading("j1".into(), "test".into());
@@ -334,11 +533,12 @@ mod tests {
 
     #[test]
     fn results_merge_once_in_any_order_and_duplicates_are_ignored() {
-        let now = Instant::now() + Duration::from_secs(60);
+        let t = Instant::now();
+        let now = t + Duration::from_secs(60);
         let mut a = job();
         let mut b = job();
-        let ids_a: Vec<_> = (0..12).map(|_| a.lease_next(1, now).unwrap()).collect();
-        let ids_b: Vec<_> = (0..12).map(|_| b.lease_next(1, now).unwrap()).collect();
+        let ids_a: Vec<_> = (0..12).map(|_| a.lease_next(1, t, now, NEVER).unwrap()).collect();
+        let ids_b: Vec<_> = (0..12).map(|_| b.lease_next(1, t, now, NEVER).unwrap()).collect();
         for &id in &ids_a {
             let r = result_for(&a, id, 1000 + id as i128);
             assert_eq!(a.apply(1, &r), Ok(Applied::Merged));
@@ -358,7 +558,7 @@ mod tests {
     fn malformed_and_foreign_results_are_rejected_without_touching_state() {
         let deadline = Instant::now() + Duration::from_secs(60);
         let mut j = job();
-        let id = j.lease_next(7, deadline).unwrap();
+        let id = j.lease_next(7, Instant::now(), deadline, NEVER).unwrap();
         let good = result_for(&j, id, 5);
         let before = j.image();
         assert_eq!(j.apply(8, &good), Err(Rejection::NotHolder(id, 8)));
@@ -389,10 +589,10 @@ mod tests {
     fn lapsed_leases_return_to_the_queue_and_late_results_still_count() {
         let t0 = Instant::now();
         let mut j = job();
-        let id = j.lease_next(1, t0 + Duration::from_millis(10)).unwrap();
+        let id = j.lease_next(1, t0, t0 + Duration::from_millis(10), NEVER).unwrap();
         assert_eq!(j.reap_expired(t0 + Duration::from_millis(20)), 1);
         // Re-leased to another worker; the first comes back late with the result.
-        assert_eq!(j.lease_next(2, t0 + Duration::from_secs(60)), Some(id));
+        assert_eq!(j.lease_next(2, t0, t0 + Duration::from_secs(60), NEVER), Some(id));
         let r = result_for(&j, id, 3);
         assert_eq!(j.apply(1, &r), Ok(Applied::Merged));
         assert_eq!(j.apply(2, &r), Ok(Applied::Duplicate));
@@ -400,11 +600,106 @@ mod tests {
     }
 
     #[test]
+    fn stragglers_get_a_spare_and_the_first_result_wins() {
+        let t0 = Instant::now();
+        let later = t0 + Duration::from_secs(100);
+        let mut j = job();
+        // Worker 1 takes everything; worker 2 finds the queue empty.
+        let ids: Vec<_> = (0..12).map(|_| j.lease_next(1, t0, later, NEVER).unwrap()).collect();
+        let wait = Duration::from_secs(5);
+        assert_eq!(j.lease_next(2, t0 + Duration::from_secs(1), later, wait), None, "too early to speculate");
+        let spare = j.lease_next(2, t0 + Duration::from_secs(6), later, wait).unwrap();
+        assert_eq!(spare, ids[0], "the oldest outstanding unit");
+        assert_eq!(j.held_by(2), 1);
+        // One spare per unit, and never to a worker that already holds it.
+        assert_eq!(j.lease_next(1, t0 + Duration::from_secs(6), later, wait), None);
+        assert_eq!(j.apply(2, &result_for(&j, spare, 4)), Ok(Applied::Merged));
+        assert_eq!(j.apply(1, &result_for(&j, spare, 4)), Ok(Applied::Duplicate));
+        assert!(!j.renew(1, spare, later), "the straggler abandons it");
+    }
+
+    #[test]
+    fn a_lapsed_primary_hands_over_to_its_spare() {
+        let t0 = Instant::now();
+        let mut j = job();
+        for _ in 0..12 {
+            j.lease_next(1, t0, t0 + Duration::from_secs(10), NEVER).unwrap();
+        }
+        let id = j.lease_next(2, t0, t0 + Duration::from_secs(60), Duration::ZERO).unwrap();
+        assert_eq!(j.reap_expired(t0 + Duration::from_secs(11)), 11, "the others go back to the queue");
+        assert!(matches!(j.units[id as usize].state, UnitState::Leased { worker: 2, .. }));
+    }
+
+    fn finish_all(j: &mut Job) {
+        let far = Instant::now() + Duration::from_secs(60);
+        while let Some(id) = j.lease_next(1, Instant::now(), far, NEVER) {
+            let r = result_for(j, id, 1 + id as i128);
+            j.apply(1, &r).unwrap();
+        }
+    }
+
+    fn restored_of(j: &Job) -> Restored {
+        Restored {
+            width: j.width,
+            height: j.height,
+            spp: j.spp,
+            tile_size: j.tile_size,
+            batch_spp: j.batch_spp,
+            non_negative: j.non_negative,
+            units: j.records(),
+            tiles: j.tile_accumulations().to_vec(),
+            rays: j.rays,
+            nonfinite: j.nonfinite,
+        }
+    }
+
+    #[test]
+    fn restore_continues_where_it_stopped_and_refuses_inconsistency() {
+        let mut j = job();
+        let far = Instant::now() + Duration::from_secs(60);
+        for _ in 0..5 {
+            let id = j.lease_next(1, Instant::now(), far, NEVER).unwrap();
+            let r = result_for(&j, id, 7);
+            j.apply(1, &r).unwrap();
+        }
+        let mut k = Job::loading("j1".into(), "test".into());
+        k.restore(restored_of(&j)).unwrap();
+        assert_eq!((k.units_done, k.pending.len()), (5, 7));
+        assert_eq!(k.image(), j.image());
+        let mut bad = restored_of(&j);
+        bad.units[0].done = !bad.units[0].done;
+        assert!(Job::loading("x".into(), "x".into()).restore(bad).is_err());
+        let mut bad = restored_of(&j);
+        bad.tile_size += 1;
+        assert!(Job::loading("x".into(), "x".into()).restore(bad).is_err());
+    }
+
+    #[test]
+    fn extending_spp_adds_only_the_new_samples_on_the_batch_grid() {
+        let mut j = Job::loading("j".into(), "t".into());
+        j.start(4, 4, 5, 4, 2, true);
+        finish_all(&mut j);
+        assert_eq!(j.phase, JobPhase::Done);
+        j.extend_spp(9);
+        assert_eq!(j.phase, JobPhase::Running);
+        let new: Vec<_> = j
+            .units
+            .iter()
+            .filter(|u| u.state == UnitState::Pending)
+            .map(|u| (u.samples.start, u.samples.end))
+            .collect();
+        assert_eq!(new, [(5, 6), (6, 8), (8, 9)]);
+        finish_all(&mut j);
+        assert_eq!(j.samples_done, j.samples_total());
+        assert!(j.tile_accumulations()[0].counts.iter().all(|&c| c == 9));
+    }
+
+    #[test]
     fn cancelled_jobs_lease_nothing_and_refuse_results() {
         let mut j = job();
-        let id = j.lease_next(1, Instant::now() + Duration::from_secs(5)).unwrap();
+        let id = j.lease_next(1, Instant::now(), Instant::now() + Duration::from_secs(5), NEVER).unwrap();
         j.cancel();
-        assert_eq!(j.lease_next(1, Instant::now()), None);
+        assert_eq!(j.lease_next(1, Instant::now(), Instant::now(), NEVER), None);
         assert_eq!(j.apply(1, &result_for(&j, id, 1)), Err(Rejection::NotRunning("cancelled")));
     }
 }

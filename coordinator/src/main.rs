@@ -4,6 +4,7 @@
 mod assets;
 mod bench;
 mod builtin;
+mod checkpoint;
 mod client;
 mod farm;
 mod job;
@@ -31,6 +32,8 @@ enum Command {
     /// Render a scene on this machine with local worker processes and write an EXR (or a
     /// PNG preview). Without a scene, renders the built-in Cornell box.
     Render(render_cmd::RenderArgs),
+    /// Continue a render from its checkpoint folder (no scene path needed).
+    Resume(render_cmd::ResumeArgs),
     /// Run a long-lived farm that workers join and users submit jobs to.
     Serve(serve::ServeArgs),
     /// Upload a scene to a farm and start a job (--wait to follow it and get the image).
@@ -76,6 +79,7 @@ fn main() -> std::process::ExitCode {
         .init();
     let result = match cli.command {
         Command::Render(args) => render_cmd::run(args),
+        Command::Resume(args) => render_cmd::resume(args),
         Command::Serve(args) => serve::run(args),
         Command::Submit(args) => client::submit(args),
         Command::Status(args) => client::status(args),

@@ -30,16 +30,17 @@ impl JobBar {
     }
 }
 
-/// The closing line of a finished job.
-pub fn summary(s: &proto::JobStatus) -> String {
+/// The closing line of a finished job; `earlier` are the samples (and rays) that a
+/// checkpoint already held, which this run's speed must not count.
+pub fn summary(s: &proto::JobStatus, earlier_samples: u64, earlier_rays: u64) -> String {
     let secs = s.elapsed_s.max(1e-9);
+    let (samples, rays) = (s.samples_done.saturating_sub(earlier_samples), s.rays.saturating_sub(earlier_rays));
     format!(
-        "rendered {}×{} ({} samples) in {:.2}s: {:.3} M samples/s, {:.3} M rays/s",
+        "rendered {}×{} ({samples} samples) in {:.2}s: {:.3} M samples/s, {:.3} M rays/s",
         s.width,
         s.height,
-        s.samples_done,
         secs,
-        s.samples_done as f64 / secs / 1e6,
-        s.rays as f64 / secs / 1e6
+        samples as f64 / secs / 1e6,
+        rays as f64 / secs / 1e6
     )
 }

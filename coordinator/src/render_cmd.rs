@@ -14,7 +14,8 @@ use tracer::film::SampleRange;
 use tracer::integrator::Integrator;
 
 use crate::assets::{AssetRef, AssetStore, LocalScene};
-use crate::farm::{Farm, FarmConfig};
+use crate::checkpoint;
+use crate::farm::Farm;
 use crate::job::UnitResult;
 use crate::local::LocalWorkers;
 use crate::progress::{JobBar, summary};
@@ -73,6 +74,32 @@ pub struct RenderArgs {
     /// Scene file (.toml), or a bare .obj that is framed automatically. Without one, the
     /// built-in Cornell box is rendered.
     pub scene: Option<PathBuf>,
+    /// Keep a checkpoint in this folder (the scene's files, what is done, the image so
+    /// far), written every few seconds and when stopped. If the folder already holds a
+    /// checkpoint of the same scene and settings, the render resumes from it and renders
+    /// only what is missing; a higher --spp adds samples to a finished render.
+    #[arg(long)]
+    pub checkpoint: Option<PathBuf>,
+    #[command(flatten)]
+    pub run: RunArgs,
+    #[command(flatten)]
+    pub job: JobArgs,
+}
+
+#[derive(Args)]
+pub struct ResumeArgs {
+    /// A checkpoint folder written by `render --checkpoint`.
+    pub dir: PathBuf,
+    /// Raise the samples per pixel: only the new samples are rendered.
+    #[arg(long)]
+    pub spp: Option<u32>,
+    #[command(flatten)]
+    pub run: RunArgs,
+}
+
+/// How a local render runs (shared by `render` and `resume`).
+#[derive(Args)]
+pub struct RunArgs {
     /// Output image: .exr for linear HDR (RGBA float32 + a per-pixel sample count
     /// channel), .png for an sRGB tone-mapped preview.
     #[arg(short, long, default_value = "out.exr")]
@@ -93,8 +120,12 @@ pub struct RenderArgs {
     /// No progress bar.
     #[arg(long, short)]
     pub quiet: bool,
+    /// Shortest time between two checkpoints, in milliseconds (writing is also kept
+    /// under 1% of the time).
+    #[arg(long, default_value_t = 5_000)]
+    pub checkpoint_interval_ms: u64,
     #[command(flatten)]
-    pub job: JobArgs,
+    pub farm: crate::serve::FarmArgs,
 }
 
 /// A temporary folder removed when dropped (on every exit path).
@@ -120,40 +151,137 @@ pub fn store_local_scene(store: &mut AssetStore, local: &LocalScene) -> anyhow::
     Ok((scene, assets))
 }
 
-pub fn run(args: RenderArgs) -> anyhow::Result<()> {
-    let runtime = tokio::runtime::Builder::new_multi_thread()
+/// What to render, resolved from the command line and any checkpoint.
+struct Plan {
+    store: AssetStore,
+    scene: AssetRef,
+    assets: Vec<AssetRef>,
+    settings: proto::RenderSettings,
+    restore: Option<checkpoint::Snapshot>,
+    checkpoint_dir: Option<PathBuf>,
+    _tmp: Option<TempDir>,
+}
+
+fn runtime() -> anyhow::Result<tokio::runtime::Runtime> {
+    tokio::runtime::Builder::new_multi_thread()
         .worker_threads(2)
         .enable_all()
         .build()
-        .context("starting the async runtime")?;
-    runtime.block_on(render(args))
+        .context("starting the async runtime")
 }
 
-async fn render(args: RenderArgs) -> anyhow::Result<()> {
+pub fn run(args: RenderArgs) -> anyhow::Result<()> {
     let builtin = match &args.scene {
         Some(_) => None,
         None => Some(crate::builtin::BuiltinScene::write()?),
     };
     let scene_path = args.scene.clone().or_else(|| builtin.as_ref().map(|b| b.path())).expect("a scene path");
     let local = LocalScene::collect(&scene_path)?;
-    let tmp = TempDir(std::env::temp_dir().join(format!("tilefarm-render-{}", std::process::id())));
-    let mut store = AssetStore::open(&tmp.0)?;
-    let (scene_ref, assets) = store_local_scene(&mut store, &local)?;
+    let (store_dir, tmp) = match &args.checkpoint {
+        Some(d) => (d.clone(), None),
+        None => {
+            let d = std::env::temp_dir().join(format!("tilefarm-render-{}", std::process::id()));
+            (d.clone(), Some(TempDir(d)))
+        }
+    };
+    let mut store = AssetStore::open(&store_dir)?;
+    let (scene, assets) = store_local_scene(&mut store, &local)?;
+    let settings = args.job.settings();
+    let restore = match &args.checkpoint {
+        None => None,
+        Some(dir) => {
+            let found = checkpoint::read(dir)?;
+            if let Some(snap) = &found {
+                let spec = proto::JobSpec {
+                    job_id: String::new(),
+                    scene: Some((&scene).into()),
+                    assets: assets.iter().map(Into::into).collect(),
+                    settings: Some(settings.clone()),
+                };
+                anyhow::ensure!(
+                    checkpoint::scene_key(&snap.spec) == checkpoint::scene_key(&spec),
+                    "{} holds a checkpoint of a different scene or different settings (size, max_depth, seed, \
+                     integrator); refusing to mix them: use another folder, or `coordinator resume {}`",
+                    dir.display(),
+                    dir.display()
+                );
+            }
+            found
+        }
+    };
+    let plan = Plan { store, scene, assets, settings, restore, checkpoint_dir: args.checkpoint.clone(), _tmp: tmp };
+    runtime()?.block_on(execute(plan, &args.run))
+}
 
+pub fn resume(args: ResumeArgs) -> anyhow::Result<()> {
+    let snap = checkpoint::read(&args.dir)?
+        .with_context(|| format!("{} holds no checkpoint", checkpoint::path(&args.dir).display()))?;
+    let store = AssetStore::open(&args.dir)?;
+    let scene = snap.spec.scene.as_ref().map(AssetRef::from).context("the checkpoint names no scene")?;
+    let assets = snap.spec.assets.iter().map(AssetRef::from).collect();
+    let mut settings = snap.spec.settings.clone().unwrap_or_default();
+    settings.spp = match args.spp {
+        Some(spp) => {
+            anyhow::ensure!(
+                spp >= snap.job.spp,
+                "the checkpoint already has {} spp; --spp cannot lower it",
+                snap.job.spp
+            );
+            spp
+        }
+        None => 0,
+    };
+    let plan = Plan {
+        store,
+        scene,
+        assets,
+        settings,
+        restore: Some(snap),
+        checkpoint_dir: Some(args.dir.clone()),
+        _tmp: None,
+    };
+    runtime()?.block_on(execute(plan, &args.run))
+}
+
+/// Writes a checkpoint of `job` if there is one to write (off the async threads).
+async fn save_checkpoint(shared: &Arc<Shared>, job: &str, dir: &Path) -> anyhow::Result<()> {
+    let snap = {
+        let farm = shared.farm();
+        let e = farm.entry(job)?;
+        if e.job.width == 0 {
+            return Ok(()); // the scene never loaded: nothing to keep
+        }
+        checkpoint::Snapshot::of(&e.spec, &e.job)
+    };
+    let dir = dir.to_path_buf();
+    let t = Instant::now();
+    let bytes = tokio::task::spawn_blocking(move || checkpoint::write(&dir, &snap)).await??;
+    tracing::debug!(bytes, seconds = t.elapsed().as_secs_f64(), "checkpoint written");
+    Ok(())
+}
+
+async fn execute(plan: Plan, args: &RunArgs) -> anyhow::Result<()> {
+    let Plan { store, scene, assets, settings, restore, checkpoint_dir, _tmp } = plan;
+    let cache = store.dir().join("cache");
     let cores = std::thread::available_parallelism().map_or(2, |n| n.get());
     let workers = args.local_workers.unwrap_or((cores / 2).max(1));
     let threads = args.threads.unwrap_or_else(|| (cores / workers.max(1)).max(1));
     let shared = Arc::new(Shared {
-        farm: Mutex::new(Farm::new(FarmConfig::default())),
+        farm: Mutex::new(Farm::new(args.farm.config()?)),
         store: Mutex::new(store),
         defaults: JobDefaults::default(),
     });
-    let job =
-        submit_job(&shared, scene_ref, assets, args.job.settings()).map_err(|s| anyhow::anyhow!("{}", s.message()))?;
+    let resumed = restore.as_ref().map_or(0, |s| s.units_done() as u64);
+    let (earlier_samples, earlier_rays) = restore.as_ref().map_or((0, 0), |s| (s.samples_done(), s.job.rays));
+    if let (Some(s), Some(dir)) = (&restore, &checkpoint_dir) {
+        eprintln!("resuming from {}: {} of {} units done", dir.display(), s.units_done(), s.job.units.len());
+    }
+    let job = submit_job(&shared, scene, assets, settings, restore.map(|s| s.job))
+        .map_err(|s| anyhow::anyhow!("{}", s.message()))?;
 
     let (server, mut children) = if workers > 0 {
         let server = Server::start(Arc::clone(&shared), "127.0.0.1:0").await?;
-        let children = LocalWorkers::spawn(workers, threads, &server.url(), &tmp.0.join("cache"))?;
+        let children = LocalWorkers::spawn(workers, threads, &server.url(), &cache)?;
         tracing::info!("serving on {}; {workers} local worker(s) × {threads} thread(s)", server.url());
         (Some(server), Some(children))
     } else {
@@ -165,6 +293,8 @@ async fn render(args: RenderArgs) -> anyhow::Result<()> {
 
     let bar = JobBar::new(args.quiet);
     let mut last_preview = Instant::now();
+    let mut pacer = checkpoint::Pacer::new(Duration::from_millis(args.checkpoint_interval_ms));
+    let mut saved_units = resumed;
     let stop = crate::stop_signal();
     tokio::pin!(stop);
     let outcome = loop {
@@ -184,6 +314,15 @@ async fn render(args: RenderArgs) -> anyhow::Result<()> {
             && c.running() == 0
         {
             break Err(anyhow::anyhow!("all local workers exited before the render finished (see their log above)"));
+        }
+        if let Some(dir) = &checkpoint_dir
+            && status.units_done > saved_units
+            && pacer.due()
+        {
+            let t = Instant::now();
+            save_checkpoint(&shared, &job, dir).await?;
+            pacer.wrote(t.elapsed());
+            saved_units = status.units_done;
         }
         if let Some(p) = &args.preview
             && last_preview.elapsed() > Duration::from_secs(3)
@@ -208,14 +347,29 @@ async fn render(args: RenderArgs) -> anyhow::Result<()> {
     if let Some(s) = server {
         s.stop().await;
     }
+    // Whatever happened, keep what was rendered.
+    if let Some(dir) = &checkpoint_dir {
+        save_checkpoint(&shared, &job, dir).await?;
+        if outcome.is_err() {
+            eprintln!("checkpoint saved in {}; continue with `coordinator resume {}`", dir.display(), dir.display());
+        }
+    }
     let status = outcome?;
-    let image = shared.farm().entry(&job)?.job.image();
+    let (image, nonfinite, total) = {
+        let farm = shared.farm();
+        let j = &farm.entry(&job)?.job;
+        (j.image(), j.nonfinite, j.units.len() as u64)
+    };
     tracer::output::write_image(&image, &args.output)?;
     if let Some(p) = &args.preview {
         tracer::output::write_png(&image, p)?;
     }
-    println!("{}; wrote {}", summary(&status), args.output.display());
-    let nonfinite = shared.farm().entry(&job)?.job.nonfinite;
+    println!(
+        "{}; units: {resumed} from checkpoint + {} rendered = {total}; wrote {}",
+        summary(&status, earlier_samples, earlier_rays),
+        status.units_done - resumed,
+        args.output.display()
+    );
     if nonfinite > 0 {
         eprintln!("warning: {nonfinite} non-finite samples were replaced by zero");
     }

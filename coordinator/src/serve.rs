@@ -21,27 +21,46 @@ pub struct ServeArgs {
     /// Where uploaded scene files are kept (content-addressed).
     #[arg(long)]
     pub store: Option<PathBuf>,
+    #[command(flatten)]
+    pub farm: FarmArgs,
+}
+
+/// How the farm treats leases; shared by `serve` and `render`.
+#[derive(Args, Clone, Debug)]
+pub struct FarmArgs {
     /// A lease lapses this many milliseconds after its last renewal; its unit then goes
-    /// back to the queue.
+    /// back to the queue (this bounds how long a dead worker's units wait).
     #[arg(long, default_value_t = 30_000)]
     pub lease_ms: u64,
     /// How often workers renew their leases, in milliseconds.
     #[arg(long, default_value_t = 5_000)]
     pub heartbeat_ms: u64,
+    /// When no unit is left in the queue, a unit out with one worker for this many
+    /// milliseconds is also given to an idle worker; the first result wins.
+    #[arg(long, default_value_t = 10_000)]
+    pub speculate_after_ms: u64,
+}
+
+impl FarmArgs {
+    pub fn config(&self) -> anyhow::Result<FarmConfig> {
+        anyhow::ensure!(
+            self.heartbeat_ms > 0 && self.lease_ms > self.heartbeat_ms,
+            "--lease-ms must exceed --heartbeat-ms"
+        );
+        Ok(FarmConfig {
+            lease: Duration::from_millis(self.lease_ms),
+            heartbeat: Duration::from_millis(self.heartbeat_ms),
+            speculate_after: Duration::from_millis(self.speculate_after_ms),
+        })
+    }
 }
 
 pub fn run(args: ServeArgs) -> anyhow::Result<()> {
-    anyhow::ensure!(
-        args.heartbeat_ms > 0 && args.lease_ms > args.heartbeat_ms,
-        "--lease-ms must exceed --heartbeat-ms"
-    );
+    let config = args.farm.config()?;
     let store_dir = args.store.clone().unwrap_or_else(|| std::env::temp_dir().join("tilefarm-coordinator-store"));
     let store = AssetStore::open(&store_dir)?;
     let shared = Arc::new(Shared {
-        farm: Mutex::new(Farm::new(FarmConfig {
-            lease: Duration::from_millis(args.lease_ms),
-            heartbeat: Duration::from_millis(args.heartbeat_ms),
-        })),
+        farm: Mutex::new(Farm::new(config)),
         store: Mutex::new(store),
         defaults: JobDefaults::default(),
     });

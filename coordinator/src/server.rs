@@ -7,6 +7,7 @@ use std::time::{Duration, Instant};
 
 use anyhow::Context;
 use tokio::sync::oneshot;
+use tokio_stream::StreamExt;
 use tokio_stream::wrappers::TcpListenerStream;
 
 use crate::service::{FarmService, JobsService, Shared};
@@ -41,7 +42,7 @@ impl Server {
         });
         let task = tokio::spawn(
             tonic::transport::Server::builder().add_service(farm).add_service(jobs).serve_with_incoming_shutdown(
-                TcpListenerStream::new(listener),
+                TcpListenerStream::new(listener).map(no_delay),
                 async {
                     let _ = stopped.await;
                 },
@@ -61,4 +62,12 @@ impl Server {
         }
         let _ = tokio::time::timeout(Duration::from_secs(3), &mut self.task).await;
     }
+}
+
+/// Small request/response messages must not wait for Nagle's algorithm (~40 ms each).
+fn no_delay(s: std::io::Result<tokio::net::TcpStream>) -> std::io::Result<tokio::net::TcpStream> {
+    if let Ok(stream) = &s {
+        let _ = stream.set_nodelay(true);
+    }
+    s
 }

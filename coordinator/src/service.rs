@@ -15,7 +15,7 @@ use tracer::integrator::Integrator;
 
 use crate::assets::{AssetRef, AssetStore};
 use crate::farm::{Farm, FarmError, status_of};
-use crate::job::{Applied, Rejection, UnitResult};
+use crate::job::{Applied, Rejection, Restored, UnitResult};
 
 /// Defaults for jobs that do not set their own tile size and batch.
 #[derive(Clone, Copy, Debug)]
@@ -77,6 +77,7 @@ pub fn submit_job(
     scene: AssetRef,
     assets: Vec<AssetRef>,
     settings: proto::RenderSettings,
+    restore: Option<Restored>,
 ) -> Result<String, Status> {
     {
         let store = shared.store();
@@ -101,7 +102,7 @@ pub fn submit_job(
     let shared = Arc::clone(shared);
     let job = id.clone();
     std::thread::spawn(move || {
-        let result = load_job(&shared, &job, &scene, &assets, &settings);
+        let result = load_job(&shared, &job, &scene, &assets, &settings, restore);
         let mut farm = shared.farm();
         if let Ok(e) = farm.entry_mut(&job) {
             match result {
@@ -133,6 +134,7 @@ fn load_job(
     scene: &AssetRef,
     assets: &[AssetRef],
     settings: &proto::RenderSettings,
+    restore: Option<Restored>,
 ) -> anyhow::Result<()> {
     let scene_path = {
         let store = shared.store();
@@ -155,7 +157,21 @@ fn load_job(
     if e.job.phase.is_final() {
         return Ok(()); // cancelled while loading
     }
-    e.job.start(w, h, spp, tile, batch, non_negative);
+    match restore {
+        None => e.job.start(w, h, spp, tile, batch, non_negative),
+        Some(r) => {
+            anyhow::ensure!(
+                (r.width, r.height) == (w, h),
+                "the checkpoint is of a {}×{} image, the scene renders {w}×{h}",
+                r.width,
+                r.height
+            );
+            e.job.restore(r).map_err(|m| anyhow::anyhow!("the checkpoint is inconsistent: {m}"))?;
+            if settings.spp > e.job.spp {
+                e.job.extend_spp(settings.spp);
+            }
+        }
+    }
     e.scene = Some(Arc::new(loaded));
     tracing::info!(job = %job, width = w, height = h, spp, tile, batch, units = e.job.units.len(), "job started");
     Ok(())
@@ -316,7 +332,7 @@ impl proto::jobs_server::Jobs for JobsService {
         let r = req.into_inner();
         let scene = r.scene.as_ref().map(AssetRef::from).ok_or_else(|| Status::invalid_argument("missing scene"))?;
         let assets = r.assets.iter().map(AssetRef::from).collect();
-        let job_id = submit_job(&self.0, scene, assets, r.settings.unwrap_or_default())?;
+        let job_id = submit_job(&self.0, scene, assets, r.settings.unwrap_or_default(), None)?;
         Ok(Response::new(proto::SubmitJobReply { job_id }))
     }
 

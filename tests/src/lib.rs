@@ -45,6 +45,13 @@ impl Drop for TempDir {
     }
 }
 
+/// Our processes log at warn level in tests unless RUST_LOG says otherwise.
+fn quiet(cmd: &mut Command) {
+    if std::env::var_os("RUST_LOG").is_none() {
+        cmd.env("RUST_LOG", "warn");
+    }
+}
+
 /// A child process killed (and reaped) when dropped.
 pub struct Proc {
     pub child: Child,
@@ -53,6 +60,7 @@ pub struct Proc {
 
 impl Proc {
     pub fn spawn(name: &str, cmd: &mut Command) -> Self {
+        quiet(cmd);
         let child = cmd.spawn().unwrap_or_else(|e| panic!("starting {name}: {e}"));
         Self { child, name: name.to_string() }
     }
@@ -132,6 +140,7 @@ impl Coordinator {
 
 /// Runs a command to completion within `limit`, capturing its output.
 pub fn run(cmd: &mut Command, limit: Duration) -> Output {
+    quiet(cmd);
     let child = cmd.stdout(Stdio::piped()).stderr(Stdio::piped()).spawn().expect("spawn");
     let pid = child.id();
     let (tx, rx) = std::sync::mpsc::channel();

@@ -294,7 +294,9 @@ pub enum FetchError {
 
 /// A job's scene, loaded and with the job's overrides applied.
 pub struct LoadedJob {
-    pub job_id: String,
+    /// The spec it was loaded from. Lookups compare the whole spec, not only the job id:
+    /// a restarted coordinator may reuse an id for a different scene.
+    pub spec: JobSpec,
     pub scene: Scene,
     pub integrator: Integrator,
 }
@@ -361,10 +363,10 @@ pub fn load_job(cache: &AssetCache, job: &JobSpec) -> anyhow::Result<LoadedJob> 
     let scene_path = cache.lay_out_job(job)?;
     let mut scene = tracer::scene::load_scene(&scene_path).map_err(|e| anyhow!("{e}"))?;
     job.overrides.apply(&mut scene).map_err(|e| anyhow!("{}: settings: {e}", job.scene.path))?;
-    Ok(LoadedJob { job_id: job.job_id.clone(), scene, integrator: job.integrator })
+    Ok(LoadedJob { spec: job.clone(), scene, integrator: job.integrator })
 }
 
-/// The most recently used loaded scenes, by job id.
+/// The most recently used loaded scenes, by job spec.
 pub struct SceneCache {
     capacity: usize,
     entries: VecDeque<Arc<LoadedJob>>,
@@ -375,15 +377,15 @@ impl SceneCache {
         Self { capacity: capacity.max(1), entries: VecDeque::new() }
     }
 
-    pub fn get(&mut self, job_id: &str) -> Option<Arc<LoadedJob>> {
-        let i = self.entries.iter().position(|j| j.job_id == job_id)?;
+    pub fn get(&mut self, job: &JobSpec) -> Option<Arc<LoadedJob>> {
+        let i = self.entries.iter().position(|j| j.spec == *job)?;
         let job = self.entries.remove(i)?;
         self.entries.push_front(job.clone());
         Some(job)
     }
 
     pub fn insert(&mut self, job: Arc<LoadedJob>) {
-        self.entries.retain(|j| j.job_id != job.job_id);
+        self.entries.retain(|j| j.spec != job.spec);
         self.entries.push_front(job);
         self.entries.truncate(self.capacity);
     }
@@ -554,9 +556,16 @@ mod tests {
 
     #[test]
     fn the_scene_cache_keeps_the_most_recent() {
+        let spec = |id: &str| JobSpec {
+            job_id: id.into(),
+            scene: asset_of("scene.toml", TINY_SCENE.as_bytes()),
+            assets: vec![],
+            overrides: Default::default(),
+            integrator: Integrator::Path,
+        };
         let mk = |id: &str| {
             Arc::new(LoadedJob {
-                job_id: id.into(),
+                spec: spec(id),
                 scene: tracer::scene::scene_from_toml(TINY_SCENE, "test", Path::new(".")).unwrap(),
                 integrator: Integrator::Path,
             })
@@ -564,10 +573,17 @@ mod tests {
         let mut c = SceneCache::new(2);
         c.insert(mk("a"));
         c.insert(mk("b"));
-        assert!(c.get("a").is_some()); // a is now the most recent
+        assert!(c.get(&spec("a")).is_some()); // a is now the most recent
         c.insert(mk("c"));
-        assert!(c.get("b").is_none());
-        assert!(c.get("a").is_some());
-        assert!(c.get("c").is_some());
+        assert!(c.get(&spec("b")).is_none());
+        assert!(c.get(&spec("a")).is_some());
+        assert!(c.get(&spec("c")).is_some());
+        // Same id, other content (a restarted coordinator reusing ids): not the same job.
+        let mut other = spec("c");
+        other.scene = asset_of("scene.toml", b"another scene");
+        assert!(c.get(&other).is_none());
+        other = spec("c");
+        other.overrides.spp = Some(7);
+        assert!(c.get(&other).is_none());
     }
 }

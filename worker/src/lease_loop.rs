@@ -72,7 +72,7 @@ enum Event {
     Leased { worker_id: u64, result: Result<proto::LeaseReply, RpcFailure> },
     Heartbeat { worker_id: u64, result: Result<proto::HeartbeatReply, RpcFailure> },
     Submitted { serial: u64, worker_id: u64, result: Result<proto::SubmitReply, RpcFailure> },
-    JobReady { job_id: String, result: Result<Arc<LoadedJob>, String> },
+    JobReady { job: Arc<convert::JobSpec>, result: Result<Arc<LoadedJob>, String> },
     Rendered { serial: u64, outcome: RenderOutcome },
 }
 
@@ -174,7 +174,8 @@ struct Worker {
     next_serial: u64,
     loading: HashSet<String>,
     scenes: SceneCache,
-    failed_jobs: VecDeque<(String, Instant)>,
+    /// Jobs whose scene failed to load, and when.
+    failed_jobs: VecDeque<(Arc<convert::JobSpec>, Instant)>,
     drain: Option<Drain>,
     submitted: u64,
 }
@@ -425,20 +426,19 @@ impl Worker {
     }
 
     fn spawn_prepare(&mut self, job: Arc<convert::JobSpec>) {
-        let job_id = job.job_id.clone();
-        self.loading.insert(job_id.clone());
-        info!("job {job_id}: preparing scene '{}'", job.scene.path);
+        self.loading.insert(job.job_id.clone());
+        info!("job {}: preparing scene '{}'", job.job_id, job.scene.path);
         let (client, cache, tx, max_backoff) =
             (self.client.clone(), self.cache.clone(), self.events.clone(), self.max_backoff);
         tokio::spawn(async move {
             // An inner task, so that even a panic is reported and the job not stuck.
-            let task = tokio::spawn(asset_cache::prepare_job(client, cache, job, max_backoff));
+            let task = tokio::spawn(asset_cache::prepare_job(client, cache, job.clone(), max_backoff));
             let result = match task.await {
                 Ok(Ok(loaded)) => Ok(Arc::new(loaded)),
                 Ok(Err(e)) => Err(format!("{e:#}")),
                 Err(e) => Err(format!("scene preparation failed: {e}")),
             };
-            let _ = tx.send(Event::JobReady { job_id, result });
+            let _ = tx.send(Event::JobReady { job, result });
         });
     }
 
@@ -450,7 +450,7 @@ impl Worker {
             Event::Leased { worker_id, result } => self.on_leased(worker_id, result, now),
             Event::Heartbeat { worker_id, result } => self.on_heartbeat(worker_id, result, now),
             Event::Submitted { serial, worker_id, result } => self.on_submitted(serial, worker_id, result, now),
-            Event::JobReady { job_id, result } => self.on_job_ready(job_id, result, now),
+            Event::JobReady { job, result } => self.on_job_ready(job, result, now),
             Event::Rendered { serial, outcome } => self.on_rendered(serial, outcome),
         }
         Ok(())
@@ -556,7 +556,7 @@ impl Worker {
             }
         };
         self.failed_jobs.retain(|(_, at)| now.duration_since(*at) < FAILED_JOB_MEMORY);
-        if self.failed_jobs.iter().any(|(j, _)| *j == unit.key.job_id) {
+        if self.failed_jobs.iter().any(|(j, _)| *j == unit.job) {
             debug!("unit {}: its scene failed to load; dropping it", unit.key);
             return false;
         }
@@ -571,7 +571,7 @@ impl Worker {
             serial,
             Slot { unit, cancel: Arc::new(AtomicBool::new(false)), state: SlotState::WaitingScene, loaded: None },
         );
-        if let Some(loaded) = self.loaded_job(&job.job_id) {
+        if let Some(loaded) = self.loaded_job(&job) {
             self.dispatch(serial, loaded)
         } else {
             if !self.loading.contains(&job.job_id) {
@@ -582,11 +582,11 @@ impl Worker {
     }
 
     /// A job's loaded scene: from the cache, or from a unit that is using it.
-    fn loaded_job(&mut self, job_id: &str) -> Option<Arc<LoadedJob>> {
-        if let Some(j) = self.scenes.get(job_id) {
+    fn loaded_job(&mut self, job: &convert::JobSpec) -> Option<Arc<LoadedJob>> {
+        if let Some(j) = self.scenes.get(job) {
             return Some(j);
         }
-        let j = self.slots.values().find_map(|s| s.loaded.as_ref().filter(|l| l.job_id == job_id))?.clone();
+        let j = self.slots.values().find_map(|s| s.loaded.as_ref().filter(|l| l.spec == *job))?.clone();
         self.scenes.insert(j.clone());
         Some(j)
     }
@@ -614,7 +614,8 @@ impl Worker {
         true
     }
 
-    fn on_job_ready(&mut self, job_id: String, result: Result<Arc<LoadedJob>, String>, now: Instant) {
+    fn on_job_ready(&mut self, job: Arc<convert::JobSpec>, result: Result<Arc<LoadedJob>, String>, now: Instant) {
+        let job_id = job.job_id.clone();
         self.loading.remove(&job_id);
         let waiting: Vec<u64> = self
             .slots
@@ -625,16 +626,29 @@ impl Worker {
         match result {
             Ok(loaded) => {
                 self.scenes.insert(loaded.clone());
+                let mut other_spec = None;
                 for serial in waiting {
-                    self.dispatch(serial, loaded.clone());
+                    let Some(slot) = self.slots.get(&serial) else { continue };
+                    if *slot.unit.job == loaded.spec {
+                        self.dispatch(serial, loaded.clone());
+                    } else {
+                        // The same job id with another spec (a restarted coordinator
+                        // reusing ids while this load ran): load that one too.
+                        other_spec = Some(slot.unit.job.clone());
+                    }
+                }
+                if let Some(spec) = other_spec {
+                    self.spawn_prepare(spec);
                 }
             }
             Err(e) => {
+                let waiting: Vec<u64> =
+                    waiting.into_iter().filter(|s| self.slots.get(s).is_some_and(|s| s.unit.job == job)).collect();
                 error!("job {job_id}: {e}; dropping its {} unit(s)", waiting.len());
                 for serial in waiting {
                     self.slots.remove(&serial);
                 }
-                self.failed_jobs.push_back((job_id, now));
+                self.failed_jobs.push_back((job, now));
                 while self.failed_jobs.len() > 64 {
                     self.failed_jobs.pop_front();
                 }
