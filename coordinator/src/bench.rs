@@ -30,9 +30,45 @@ pub struct BenchArgs {
     /// Samples per pixel of the full-render measurement.
     #[arg(long, default_value_t = 4)]
     pub spp: u32,
+    /// Write the generated mesh (binary, see bench/embree_compare.py) and exit.
+    #[arg(long)]
+    pub export_mesh: Option<PathBuf>,
+    /// Write `--rays` incoherent rays over the generated mesh (binary) and exit.
+    #[arg(long)]
+    pub export_rays: Option<PathBuf>,
+}
+
+/// `--export-mesh` / `--export-rays`: little-endian `TFMESH01 nverts ntris f32×3·nverts
+/// u32×3·ntris` and `TFRAYS01 n (f32 ox oy oz dx dy dz tmax)×n`, the displaced sphere of
+/// `--mesh-triangles` and `tracer::accel::incoherent_rays(bounds, --rays, 1)`: the data
+/// of `KDTREE_QUICK=all,N,R,7,RAYS cargo bench -p tracer --bench kdtree`.
+fn export(args: &BenchArgs) -> anyhow::Result<()> {
+    let mesh = tracer::scene::generate::displaced_sphere(args.mesh_triangles, 7);
+    if let Some(path) = &args.export_mesh {
+        let mut b = b"TFMESH01".to_vec();
+        b.extend((mesh.positions.len() as u32).to_le_bytes());
+        b.extend((mesh.tris.len() as u32).to_le_bytes());
+        b.extend(mesh.positions.iter().flat_map(|p| p.to_array()).flat_map(f32::to_le_bytes));
+        b.extend(mesh.tris.iter().flat_map(|t| t.v).flat_map(u32::to_le_bytes));
+        std::fs::write(path, b)?;
+    }
+    if let Some(path) = &args.export_rays {
+        let bounds = tracer::geometry::Aabb::from_points(&mesh.positions);
+        let mut b = b"TFRAYS01".to_vec();
+        b.extend((args.rays as u32).to_le_bytes());
+        for (r, tmax) in tracer::accel::incoherent_rays(bounds, args.rays, 1) {
+            let v = [r.origin.to_array(), r.dir.to_array(), [tmax, 0.0, 0.0]].concat();
+            b.extend(v[..7].iter().flat_map(|x| x.to_le_bytes()));
+        }
+        std::fs::write(path, b)?;
+    }
+    Ok(())
 }
 
 pub fn run(args: BenchArgs) -> anyhow::Result<()> {
+    if args.export_mesh.is_some() || args.export_rays.is_some() {
+        return export(&args);
+    }
     let mut scenes: Vec<(String, Scene)> = Vec::new();
     if args.scenes.is_empty() {
         scenes.push(("cornell-box (built-in)".into(), crate::builtin::load(None)?));

@@ -37,6 +37,23 @@ pub struct SubmitArgs {
 }
 
 #[derive(Args)]
+pub struct FetchArgs {
+    /// The job id that `submit` printed.
+    pub job: String,
+    #[arg(long)]
+    pub coordinator: String,
+    /// Where to write the image (.exr, or .png for a tone-mapped preview).
+    #[arg(short, long, default_value = "out.exr")]
+    pub output: PathBuf,
+    /// Rewrite a PNG preview of the image so far every few seconds.
+    #[arg(long)]
+    pub preview: Option<PathBuf>,
+    /// No progress bar.
+    #[arg(long, short)]
+    pub quiet: bool,
+}
+
+#[derive(Args)]
 pub struct StatusArgs {
     #[arg(long)]
     pub coordinator: String,
@@ -99,7 +116,7 @@ pub fn submit(args: SubmitArgs) -> anyhow::Result<()> {
         let job = reply.into_inner().job_id;
         println!("{job}");
         if args.wait {
-            wait(&mut client, &job, &args).await?;
+            wait(&mut client, &job, args.quiet, &args.output, args.preview.as_deref()).await?;
         }
         Ok(())
     })
@@ -118,9 +135,27 @@ async fn fetch_image(client: &mut JobsClient<Channel>, job: &str) -> anyhow::Res
     Ok(image?)
 }
 
-async fn wait(client: &mut JobsClient<Channel>, job: &str, args: &SubmitArgs) -> anyhow::Result<()> {
-    let bar = JobBar::new(args.quiet);
-    let mut stream = client.watch_job(proto::JobRequest { job_id: job.to_string() }).await?.into_inner();
+/// `coordinator fetch`: follows a job to its end and writes its image.
+pub fn fetch(args: FetchArgs) -> anyhow::Result<()> {
+    runtime()?.block_on(async move {
+        let mut client = connect(&args.coordinator).await?;
+        wait(&mut client, &args.job, args.quiet, &args.output, args.preview.as_deref()).await
+    })
+}
+
+async fn wait(
+    client: &mut JobsClient<Channel>,
+    job: &str,
+    quiet: bool,
+    output: &std::path::Path,
+    preview: Option<&std::path::Path>,
+) -> anyhow::Result<()> {
+    let bar = JobBar::new(quiet);
+    let mut stream = client
+        .watch_job(proto::JobRequest { job_id: job.to_string() })
+        .await
+        .map_err(|s| anyhow::anyhow!("{}", s.message()))?
+        .into_inner();
     let mut last_preview = Instant::now();
     let mut last = None;
     let stop = crate::stop_signal();
@@ -135,7 +170,7 @@ async fn wait(client: &mut JobsClient<Channel>, job: &str, args: &SubmitArgs) ->
         };
         let Some(status) = msg else { break };
         bar.update(&status);
-        if let Some(p) = &args.preview
+        if let Some(p) = preview
             && status.state() == proto::JobState::Running
             && last_preview.elapsed() > Duration::from_secs(3)
         {
@@ -149,11 +184,11 @@ async fn wait(client: &mut JobsClient<Channel>, job: &str, args: &SubmitArgs) ->
     match status.state() {
         proto::JobState::Done => {
             let image = fetch_image(client, job).await?;
-            tracer::output::write_image(&image, &args.output)?;
-            if let Some(p) = &args.preview {
+            tracer::output::write_image(&image, output)?;
+            if let Some(p) = preview {
                 tracer::output::write_png(&image, p)?;
             }
-            println!("{}; wrote {}", summary(&status, 0, 0), args.output.display());
+            println!("{}; wrote {}", summary(&status, 0, 0), output.display());
             Ok(())
         }
         proto::JobState::Failed => anyhow::bail!("job {job} failed: {}", status.error),

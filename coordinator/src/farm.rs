@@ -102,10 +102,21 @@ impl Farm {
         self.workers.values().filter(|w| now.duration_since(w.last_seen) < 3 * self.config.lease).count()
     }
 
-    /// Creates a job in the loading phase; returns its id.
+    /// Creates a job in the loading phase; returns its id. A job restored from a
+    /// checkpoint keeps its id (`spec.job_id`) when it is free.
     pub fn add_job(&mut self, name: String, mut spec: proto::JobSpec) -> String {
-        let id = format!("job-{}", self.next_job);
-        self.next_job += 1;
+        let wanted = spec.job_id.strip_prefix("job-").and_then(|n| n.parse::<u64>().ok());
+        let id = match wanted {
+            Some(n) if !self.index.contains_key(&spec.job_id) => {
+                self.next_job = self.next_job.max(n + 1);
+                spec.job_id.clone()
+            }
+            _ => {
+                let id = format!("job-{}", self.next_job);
+                self.next_job += 1;
+                id
+            }
+        };
         spec.job_id = id.clone();
         self.index.insert(id.clone(), self.jobs.len());
         self.jobs.push(JobEntry { job: Job::loading(id.clone(), name), spec, scene: None });

@@ -38,6 +38,8 @@ enum Command {
     Serve(serve::ServeArgs),
     /// Upload a scene to a farm and start a job (--wait to follow it and get the image).
     Submit(client::SubmitArgs),
+    /// Follow a submitted job to its end and write its image.
+    Fetch(client::FetchArgs),
     /// List a farm's jobs and workers.
     Status(client::StatusArgs),
     /// Cancel a job.
@@ -82,6 +84,7 @@ fn main() -> std::process::ExitCode {
         Command::Resume(args) => render_cmd::resume(args),
         Command::Serve(args) => serve::run(args),
         Command::Submit(args) => client::submit(args),
+        Command::Fetch(args) => client::fetch(args),
         Command::Status(args) => client::status(args),
         Command::Cancel(args) => client::cancel(args),
         Command::Bench(args) => bench::run(args),

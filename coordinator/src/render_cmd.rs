@@ -276,7 +276,7 @@ async fn execute(plan: Plan, args: &RunArgs) -> anyhow::Result<()> {
     if let (Some(s), Some(dir)) = (&restore, &checkpoint_dir) {
         eprintln!("resuming from {}: {} of {} units done", dir.display(), s.units_done(), s.job.units.len());
     }
-    let job = submit_job(&shared, scene, assets, settings, restore.map(|s| s.job))
+    let job = submit_job(&shared, scene, assets, settings, restore.map(|s| (String::new(), s.job)))
         .map_err(|s| anyhow::anyhow!("{}", s.message()))?;
 
     let (server, mut children) = if workers > 0 {

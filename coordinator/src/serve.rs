@@ -1,13 +1,15 @@
 //! `coordinator serve`: a long-running farm.
 
-use std::path::PathBuf;
+use std::collections::HashMap;
+use std::path::{Path, PathBuf};
 use std::sync::{Arc, Mutex};
 use std::time::Duration;
 
 use anyhow::Context;
 use clap::Args;
 
-use crate::assets::AssetStore;
+use crate::assets::{AssetRef, AssetStore};
+use crate::checkpoint;
 use crate::farm::{Farm, FarmConfig};
 use crate::server::Server;
 use crate::service::{JobDefaults, Shared};
@@ -21,6 +23,14 @@ pub struct ServeArgs {
     /// Where uploaded scene files are kept (content-addressed).
     #[arg(long)]
     pub store: Option<PathBuf>,
+    /// Persist every job (what is done, the image so far) in this folder, every few
+    /// seconds and on Ctrl-C/SIGTERM, and restore the jobs found there at start: a
+    /// restarted coordinator continues where it stopped. Scene files are kept there too.
+    #[arg(long, conflicts_with = "store")]
+    pub checkpoint: Option<PathBuf>,
+    /// Shortest time between two checkpoints of a job, in milliseconds.
+    #[arg(long, default_value_t = 5_000)]
+    pub checkpoint_interval_ms: u64,
     #[command(flatten)]
     pub farm: FarmArgs,
 }
@@ -57,23 +67,104 @@ impl FarmArgs {
 
 pub fn run(args: ServeArgs) -> anyhow::Result<()> {
     let config = args.farm.config()?;
-    let store_dir = args.store.clone().unwrap_or_else(|| std::env::temp_dir().join("tilefarm-coordinator-store"));
+    let store_dir = args
+        .checkpoint
+        .clone()
+        .or_else(|| args.store.clone())
+        .unwrap_or_else(|| std::env::temp_dir().join("tilefarm-coordinator-store"));
     let store = AssetStore::open(&store_dir)?;
     let shared = Arc::new(Shared {
         farm: Mutex::new(Farm::new(config)),
         store: Mutex::new(store),
         defaults: JobDefaults::default(),
     });
+    let ckpt_root = args.checkpoint.as_ref().map(|d| d.join("job-checkpoints"));
+    if let Some(root) = &ckpt_root {
+        restore_jobs(&shared, root)?;
+    }
     let runtime =
         tokio::runtime::Builder::new_multi_thread().worker_threads(2).enable_all().build().context("async runtime")?;
     runtime.block_on(async move {
-        let server = Server::start(shared, &args.listen).await?;
+        let server = Server::start(Arc::clone(&shared), &args.listen).await?;
         // The first line of output is the URL, for scripts and tests.
         println!("listening on {}", server.url());
         tracing::info!(store = %store_dir.display(), "coordinator serving");
-        let _ = crate::stop_signal().await;
+        let stop = crate::stop_signal();
+        tokio::pin!(stop);
+        let mut pacer = checkpoint::Pacer::new(Duration::from_millis(args.checkpoint_interval_ms));
+        let mut saved: HashMap<String, u64> = HashMap::new();
+        loop {
+            tokio::select! {
+                _ = &mut stop => break,
+                _ = tokio::time::sleep(Duration::from_millis(250)) => {}
+            }
+            if let Some(root) = &ckpt_root
+                && pacer.due()
+            {
+                let t = std::time::Instant::now();
+                save_jobs(&shared, root, &mut saved).await?;
+                pacer.wrote(t.elapsed());
+            }
+        }
         tracing::info!("stopping");
         server.stop().await;
+        if let Some(root) = &ckpt_root {
+            save_jobs(&shared, root, &mut saved).await?;
+            tracing::info!(folder = %root.display(), "jobs checkpointed");
+        }
         Ok(())
     })
+}
+
+/// Writes the checkpoint of every job whose progress changed since its last one.
+async fn save_jobs(shared: &Arc<Shared>, root: &Path, saved: &mut HashMap<String, u64>) -> anyhow::Result<()> {
+    let snaps: Vec<(String, checkpoint::Snapshot)> = {
+        let farm = shared.farm();
+        farm.jobs
+            .iter()
+            .filter(|e| e.job.width > 0 && saved.get(&e.job.id) != Some(&e.job.units_done))
+            .map(|e| (e.job.id.clone(), checkpoint::Snapshot::of(&e.spec, &e.job)))
+            .collect()
+    };
+    for (id, snap) in snaps {
+        let dir = root.join(&id);
+        let done = snap.units_done() as u64;
+        tokio::task::spawn_blocking(move || -> anyhow::Result<()> {
+            std::fs::create_dir_all(&dir)?;
+            checkpoint::write(&dir, &snap)?;
+            Ok(())
+        })
+        .await??;
+        saved.insert(id, done);
+    }
+    Ok(())
+}
+
+/// Restores the jobs checkpointed under `root`. A damaged checkpoint is reported and
+/// left alone (never used); the farm serves the others.
+fn restore_jobs(shared: &Arc<Shared>, root: &Path) -> anyhow::Result<()> {
+    let Ok(entries) = std::fs::read_dir(root) else { return Ok(()) };
+    let mut dirs: Vec<PathBuf> = entries.flatten().map(|e| e.path()).filter(|p| p.is_dir()).collect();
+    dirs.sort();
+    for dir in dirs {
+        let snap = match checkpoint::read(&dir) {
+            Ok(Some(s)) => s,
+            Ok(None) => continue,
+            Err(e) => {
+                tracing::error!("{e:#}");
+                eprintln!("error: {e:#}");
+                continue;
+            }
+        };
+        let scene = snap.spec.scene.as_ref().map(AssetRef::from).context("a checkpoint names no scene")?;
+        let assets = snap.spec.assets.iter().map(AssetRef::from).collect();
+        let mut settings = snap.spec.settings.clone().unwrap_or_default();
+        settings.spp = 0;
+        let (done, total) = (snap.units_done(), snap.job.units.len());
+        let id =
+            crate::service::submit_job(shared, scene, assets, settings, Some((snap.spec.job_id.clone(), snap.job)))
+                .map_err(|s| anyhow::anyhow!("restoring {}: {}", dir.display(), s.message()))?;
+        tracing::info!(job = %id, done, total, "job restored from its checkpoint");
+    }
+    Ok(())
 }

@@ -77,7 +77,7 @@ pub fn submit_job(
     scene: AssetRef,
     assets: Vec<AssetRef>,
     settings: proto::RenderSettings,
-    restore: Option<Restored>,
+    restore: Option<(String, Restored)>,
 ) -> Result<String, Status> {
     {
         let store = shared.store();
@@ -91,8 +91,12 @@ pub fn submit_job(
     if !settings.integrator.is_empty() {
         settings.integrator.parse::<Integrator>().map_err(Status::invalid_argument)?;
     }
+    let (wanted_id, restore) = match restore {
+        Some((id, r)) => (id, Some(r)),
+        None => (String::new(), None),
+    };
     let spec = proto::JobSpec {
-        job_id: String::new(),
+        job_id: wanted_id,
         scene: Some((&scene).into()),
         assets: assets.iter().map(Into::into).collect(),
         settings: Some(settings.clone()),

@@ -98,14 +98,22 @@ pub struct Coordinator {
     pub url: String,
 }
 
+/// A free loopback port, for a coordinator that must come back on the same address.
+pub fn free_port() -> u16 {
+    std::net::TcpListener::bind("127.0.0.1:0").expect("bind").local_addr().expect("addr").port()
+}
+
 impl Coordinator {
     pub fn start(store: &Path, extra: &[&str]) -> Self {
+        let mut args = vec!["--listen", "127.0.0.1:0", "--store", store.to_str().expect("utf-8 path")];
+        args.extend_from_slice(extra);
+        Self::serve(&args)
+    }
+
+    /// `coordinator serve ARGS…`, waiting for its address.
+    pub fn serve(args: &[&str]) -> Self {
         let mut cmd = Command::new(bin("coordinator"));
-        cmd.args(["serve", "--listen", "127.0.0.1:0", "--store"])
-            .arg(store)
-            .args(extra)
-            .stdout(Stdio::piped())
-            .stderr(Stdio::inherit());
+        cmd.arg("serve").args(args).stdout(Stdio::piped()).stderr(Stdio::inherit());
         let mut proc = Proc::spawn("coordinator serve", &mut cmd);
         let stdout = proc.child.stdout.take().expect("stdout");
         let (tx, rx) = std::sync::mpsc::channel();

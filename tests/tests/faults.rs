@@ -244,3 +244,47 @@ fn more_samples_later_equal_a_fresh_render() {
     render(&cornell(), &fresh, &[&base[..], &["--spp", "64"]].concat(), LIMIT);
     assert_same_bits(&read_exr(&dir.path("64.exr")), &read_exr(&fresh), "16 spp extended to 64");
 }
+
+#[test]
+fn a_farm_stopped_with_ctrl_c_checkpoints_and_continues_after_restart() {
+    let dir = TempDir::new("serve-restart");
+    let expected = reference(&dir, &JOB);
+    let ckpt = dir.path("ckpt");
+    let listen = format!("127.0.0.1:{}", free_port());
+    let serve_args =
+        ["--listen", listen.as_str(), "--checkpoint", ckpt.to_str().unwrap(), "--checkpoint-interval-ms", "200"];
+    let mut first = Coordinator::serve(&serve_args);
+    let mut cmd = Command::new(bin("worker"));
+    cmd.args(["--coordinator", &first.url, "--threads", "1", "--max-backoff-ms", "200", "--cache"])
+        .arg(dir.path("cache"));
+    let _worker = Proc::spawn("worker", &mut cmd);
+    let sub = first.submit(&cornell(), &JOB, LIMIT);
+    assert!(sub.status.success(), "{}", String::from_utf8_lossy(&sub.stderr));
+    let job = String::from_utf8_lossy(&sub.stdout).trim().to_string();
+    let at_stop = wait_for_progress(&first.url, 0.3);
+    assert!(at_stop.units_done < at_stop.units_total, "finished before the stop");
+    signal(first.proc.pid(), "-INT");
+    assert!(first.proc.wait(Duration::from_secs(30)).success(), "a clean stop");
+    // Back on the same address: the job is restored with at least what was done, and
+    // the worker that kept retrying finishes it.
+    let second = Coordinator::serve(&serve_args);
+    let start = Instant::now();
+    let restored = loop {
+        let j = list_jobs(&second.url).into_iter().find(|j| j.job_id == job).expect("job restored");
+        if j.state() != proto::JobState::Loading {
+            break j;
+        }
+        assert!(start.elapsed() < LIMIT);
+        std::thread::sleep(Duration::from_millis(20));
+    };
+    assert!(restored.units_done >= at_stop.units_done, "{} < {}", restored.units_done, at_stop.units_done);
+    let out = dir.path("out.exr");
+    let fetch = run(
+        Command::new(bin("coordinator")).args(["fetch", &job, "--coordinator", &second.url, "-q", "-o"]).arg(&out),
+        LIMIT,
+    );
+    assert!(fetch.status.success(), "{}", String::from_utf8_lossy(&fetch.stderr));
+    let j = list_jobs(&second.url).into_iter().find(|j| j.job_id == job).unwrap();
+    assert_eq!((j.units_done, j.samples_done), (j.units_total, j.samples_total));
+    assert_same_bits(&read_exr(&out), &expected, "across a coordinator restart");
+}
