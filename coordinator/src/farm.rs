@@ -24,8 +24,8 @@ pub struct FarmConfig {
 impl Default for FarmConfig {
     fn default() -> Self {
         Self {
-            lease: Duration::from_secs(30),
-            heartbeat: Duration::from_secs(5),
+            lease: Duration::from_secs(10),
+            heartbeat: Duration::from_secs(2),
             speculate_after: Duration::from_secs(10),
         }
     }

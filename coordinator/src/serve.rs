@@ -40,10 +40,10 @@ pub struct ServeArgs {
 pub struct FarmArgs {
     /// A lease lapses this many milliseconds after its last renewal; its unit then goes
     /// back to the queue (this bounds how long a dead worker's units wait).
-    #[arg(long, default_value_t = 30_000)]
+    #[arg(long, default_value_t = 10_000)]
     pub lease_ms: u64,
     /// How often workers renew their leases, in milliseconds.
-    #[arg(long, default_value_t = 5_000)]
+    #[arg(long, default_value_t = 2_000)]
     pub heartbeat_ms: u64,
     /// When no unit is left in the queue, a unit out with one worker for this many
     /// milliseconds is also given to an idle worker; the first result wins.
