@@ -57,6 +57,9 @@ pub struct Config {
     pub threads: usize,
     pub cache_dir: PathBuf,
     pub max_backoff: Duration,
+    /// Stop (exit 0) once the coordinator has been unreachable this long; `None` waits
+    /// for it forever.
+    pub give_up_after: Option<Duration>,
 }
 
 /// Why the worker was asked to stop from outside.
@@ -178,6 +181,9 @@ struct Worker {
     failed_jobs: VecDeque<(Arc<convert::JobSpec>, Instant)>,
     drain: Option<Drain>,
     submitted: u64,
+    /// The last time the coordinator answered at all, and how long to wait for it.
+    last_contact: Instant,
+    give_up_after: Option<Duration>,
 }
 
 /// Runs the worker until it is asked to stop (by the coordinator or `stop`). An error
@@ -212,6 +218,8 @@ pub async fn run(config: Config, mut stop: watch::Receiver<Option<Stop>>) -> any
         failed_jobs: VecDeque::new(),
         drain: None,
         submitted: 0,
+        last_contact: now,
+        give_up_after: config.give_up_after,
     };
     info!(
         "worker {} starting: {} render threads, cache {}, coordinator {}",
@@ -226,6 +234,13 @@ pub async fn run(config: Config, mut stop: watch::Receiver<Option<Stop>>) -> any
     let mut stop_open = true;
     loop {
         let now = Instant::now();
+        if let Some(limit) = w.give_up_after
+            && now.duration_since(w.last_contact) > limit
+            && w.drain.is_none()
+        {
+            warn!("the coordinator has been unreachable for {limit:?}: giving up as --give-up-after-ms asks");
+            w.begin_drain("coordinator gone", SIGNAL_GRACE, now);
+        }
         w.start_due(now);
         if w.done(now) {
             break;
@@ -445,6 +460,16 @@ impl Worker {
     // ------------------------------------------------------------ events
 
     fn handle(&mut self, event: Event, now: Instant) -> anyhow::Result<()> {
+        let answered = match &event {
+            Event::Registered(r) => !matches!(r, Err(RpcFailure::Transport(_))),
+            Event::Leased { result, .. } => !matches!(result, Err(RpcFailure::Transport(_))),
+            Event::Heartbeat { result, .. } => !matches!(result, Err(RpcFailure::Transport(_))),
+            Event::Submitted { result, .. } => !matches!(result, Err(RpcFailure::Transport(_))),
+            Event::JobReady { .. } | Event::Rendered { .. } => false,
+        };
+        if answered {
+            self.last_contact = now;
+        }
         match event {
             Event::Registered(result) => self.on_registered(result, now)?,
             Event::Leased { worker_id, result } => self.on_leased(worker_id, result, now),

@@ -56,6 +56,12 @@ struct Args {
     /// starts at 100 ms and doubles up to this).
     #[arg(long, value_name = "MS", default_value_t = 5000, value_parser = clap::value_parser!(u64).range(1..=3_600_000))]
     max_backoff_ms: u64,
+
+    /// Exit (code 0) once the coordinator has been unreachable for this many
+    /// milliseconds. By default the worker waits for it forever, retrying with backoff,
+    /// so a farm survives a coordinator restart.
+    #[arg(long, value_name = "MS")]
+    give_up_after_ms: Option<u64>,
 }
 
 fn main() -> ExitCode {
@@ -82,6 +88,7 @@ fn main() -> ExitCode {
         threads,
         cache_dir: args.cache.unwrap_or_else(asset_cache::default_cache_dir),
         max_backoff: Duration::from_millis(args.max_backoff_ms),
+        give_up_after: args.give_up_after_ms.map(Duration::from_millis),
     };
     let code = runtime.block_on(async move {
         let (stop_tx, stop_rx) = watch::channel(None);

@@ -65,6 +65,27 @@ fn exits_when_stdin_closes_without_a_coordinator() {
 }
 
 #[test]
+fn gives_up_on_an_unreachable_coordinator_when_asked() {
+    let cache = std::env::temp_dir().join(format!("tilefarm-worker-cli-giveup-{}", std::process::id()));
+    let mut child = Command::new(WORKER)
+        .args(["--coordinator", "http://127.0.0.1:1", "--threads", "1", "--give-up-after-ms", "600", "--cache"])
+        .arg(&cache)
+        .stdin(Stdio::null())
+        .stdout(Stdio::null())
+        .stderr(Stdio::piped())
+        .spawn()
+        .expect("start worker");
+    let start = Instant::now();
+    let status = wait_bounded(&mut child, Duration::from_secs(10));
+    assert!(status.success(), "{status:?}");
+    assert!(start.elapsed() >= Duration::from_millis(600), "gave up too early: {:?}", start.elapsed());
+    let mut stderr = String::new();
+    std::io::Read::read_to_string(&mut child.stderr.take().unwrap(), &mut stderr).unwrap();
+    assert!(stderr.contains("giving up"), "{stderr}");
+    let _ = std::fs::remove_dir_all(&cache);
+}
+
+#[test]
 fn exits_at_once_with_stdin_already_closed() {
     let cache = std::env::temp_dir().join(format!("tilefarm-worker-cli-test2-{}", std::process::id()));
     let mut child = Command::new(WORKER)
