@@ -164,7 +164,9 @@ mod tests {
     fn thin_lens_keeps_focus_plane_sharp() {
         let c = cam().with_lens(0.5, 5.0).unwrap();
         let f = Vec2::new(60.0, 20.0);
-        let pinhole = c.generate_ray(f, Vec2::ZERO);
+        // The lens sample (0.5, 0.5) is the centre of the lens: the pinhole ray.
+        let pinhole = c.generate_ray(f, Vec2::splat(0.5));
+        assert_eq!(pinhole.origin, c.position);
         let target = c.position + pinhole.dir * (5.0 / pinhole.dir.dot(c.forward));
         for lens in [Vec2::new(0.1, 0.9), Vec2::new(0.7, 0.3)] {
             let r = c.generate_ray(f, lens);
