@@ -1,4 +1,5 @@
-//! Lights: one enum for every kind, and the set that picks one in proportion to power.
+//! Lights: one enum for every kind, and the set that picks one per shading point in
+//! proportion to power / distance² (or to power alone in scenes with many lights).
 //!
 //! Area lights (emissive triangles and spheres) and the environment are sampled with a
 //! solid-angle pdf so that the path integrator can weight them against BSDF sampling by
@@ -10,6 +11,7 @@ use std::f32::consts::PI;
 use glam::{Vec2, Vec3};
 
 use crate::geometry::{Frame, offset_origin};
+use crate::sampler::ONE_MINUS_EPSILON;
 use crate::sampling::{sample_uniform_sphere, sample_uniform_triangle, uniform_sphere_pdf};
 
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -194,12 +196,88 @@ fn sample_sphere_cone(p: Vec3, center: Vec3, radius: f32, u: Vec2) -> Option<(Ve
     Some((wi, q, 1.0 / (2.0 * PI * one_minus_cos_max)))
 }
 
-/// The scene's lights with a power-proportional selection distribution (a CDF).
+/// Scenes with at most this many lights choose one per shading point, in proportion to
+/// an estimate of the irradiance each delivers there ([`LightSet::select_at`]); larger
+/// scenes choose by power alone (a CDF), which costs O(log N) instead of O(N).
+pub const LOCAL_SELECTION_MAX: usize = 16;
+
+/// What [`LightSet::select_at`] needs of a light, flat and small.
+#[derive(Clone, Copy, Debug)]
+struct Importance {
+    /// Centre of a local light (point, spot, sphere, triangle centroid).
+    center: Vec3,
+    /// Emitted power (luminance); for infinite lights, power / scene radius².
+    power: f32,
+    /// Squared distances are clamped below by this; 0 marks an infinite light (no falloff).
+    min_d2: f32,
+    /// One-sided planar emitters emit only to points with `p · normal > plane`;
+    /// `normal` is zero for the others.
+    normal: Vec3,
+    plane: f32,
+    /// Spheres: nothing reaches points within this squared distance of the centre.
+    inside_r2: f32,
+}
+
+impl Importance {
+    fn new(light: &Light, scene_radius: f32) -> Self {
+        let r2 = (scene_radius * scene_radius).max(f32::MIN_POSITIVE);
+        let power = light.power(scene_radius);
+        let mut imp =
+            Importance { center: Vec3::ZERO, power, min_d2: 1e-8 * r2, normal: Vec3::ZERO, plane: 0.0, inside_r2: 0.0 };
+        match *light {
+            Light::Point { position, .. } | Light::Spot { position, .. } => imp.center = position,
+            Light::Triangle { p0, e1, e2, normal, area, .. } => {
+                imp.center = p0 + (e1 + e2) / 3.0;
+                imp.normal = normal;
+                imp.plane = normal.dot(p0);
+                // Close to a large emitter the irradiance saturates (at pi L), and so
+                // does power / area.
+                imp.min_d2 = area.max(imp.min_d2);
+            }
+            Light::Sphere { center, radius, .. } => {
+                imp.center = center;
+                imp.inside_r2 = radius * radius;
+                imp.min_d2 = imp.inside_r2.max(imp.min_d2);
+            }
+            Light::Directional { .. } | Light::Environment { .. } => {
+                imp.power = power / r2;
+                imp.min_d2 = 0.0;
+            }
+        }
+        if !imp.power.is_finite() {
+            imp.power = 0.0;
+        }
+        imp
+    }
+
+    /// Selection weight at `p`: power / distance², zero exactly where the light cannot
+    /// contribute (behind a one-sided emitter, inside an emitting sphere).
+    #[inline]
+    fn weight(&self, p: Vec3) -> f32 {
+        if self.min_d2 == 0.0 {
+            return self.power;
+        }
+        if self.normal != Vec3::ZERO && p.dot(self.normal) <= self.plane {
+            return 0.0;
+        }
+        let d2 = (p - self.center).length_squared();
+        if d2 <= self.inside_r2 {
+            return 0.0;
+        }
+        let w = self.power / d2.max(self.min_d2);
+        if w.is_finite() { w } else { 0.0 }
+    }
+}
+
+/// The scene's lights and the distributions that choose one for light sampling.
 #[derive(Clone, Debug, Default)]
 pub struct LightSet {
     pub lights: Vec<Light>,
     cdf: Vec<f32>,
     pmf: Vec<f32>,
+    /// Per-light data for the per-point selection; empty when there are more than
+    /// [`LOCAL_SELECTION_MAX`] lights (selection by power alone).
+    importance: Vec<Importance>,
     /// For each primitive, the index of its area light, or `u32::MAX`.
     prim_light: Vec<u32>,
     environment: Option<u32>,
@@ -233,7 +311,12 @@ impl LightSet {
                 _ => {}
             }
         }
-        Self { lights, cdf, pmf, prim_light, environment }
+        let importance = if lights.len() <= LOCAL_SELECTION_MAX {
+            lights.iter().map(|l| Importance::new(l, scene_radius)).collect()
+        } else {
+            Vec::new()
+        };
+        Self { lights, cdf, pmf, importance, prim_light, environment }
     }
 
     pub fn is_empty(&self) -> bool {
@@ -251,9 +334,72 @@ impl LightSet {
         (p > 0.0).then_some((i, p))
     }
 
+    /// Probability that [`Self::select`] picks `light`.
     #[inline]
     pub fn pmf(&self, light: usize) -> f32 {
         self.pmf[light]
+    }
+
+    /// Picks a light for shading point `p`: `(index, pmf, u')`, where `u'` is `u`
+    /// rescaled to `[0, 1)` within the chosen light's interval, so that it can serve as
+    /// one coordinate of the light's own 2D sample without losing stratification.
+    ///
+    /// With at most [`LOCAL_SELECTION_MAX`] lights, the probability is proportional to
+    /// power / distance² (zero where a light cannot reach `p`); otherwise to power.
+    /// [`Self::pmf_at`] gives the same probability, bit for bit, for MIS weights.
+    #[inline]
+    pub fn select_at(&self, p: Vec3, u: f32) -> Option<(usize, f32, f32)> {
+        if self.importance.is_empty() {
+            let (i, pmf) = self.select(u)?;
+            let below = if i == 0 { 0.0 } else { self.cdf[i - 1] };
+            return Some((i, pmf, ((u - below) / pmf).clamp(0.0, ONE_MINUS_EPSILON)));
+        }
+        let mut w = [0.0f32; LOCAL_SELECTION_MAX];
+        let total = self.weights_at(p, &mut w);
+        if !(total > 0.0 && total.is_finite()) {
+            return None;
+        }
+        let target = u * total;
+        let mut below = 0.0f32;
+        let mut last = None;
+        for (i, &wi) in w[..self.importance.len()].iter().enumerate() {
+            if wi <= 0.0 {
+                continue;
+            }
+            if target < below + wi {
+                return Some((i, wi / total, ((target - below) / wi).clamp(0.0, ONE_MINUS_EPSILON)));
+            }
+            below += wi;
+            last = Some(i);
+        }
+        // Rounding left `target` past the last sum: the last light with weight takes it.
+        let i = last?;
+        Some((i, w[i] / total, ONE_MINUS_EPSILON))
+    }
+
+    /// Probability that [`Self::select_at`] at `p` picks `light`.
+    #[inline]
+    pub fn pmf_at(&self, p: Vec3, light: usize) -> f32 {
+        if self.importance.is_empty() {
+            return self.pmf[light];
+        }
+        let mut w = [0.0f32; LOCAL_SELECTION_MAX];
+        let total = self.weights_at(p, &mut w);
+        if !(total > 0.0 && total.is_finite()) {
+            return 0.0;
+        }
+        w[light] / total
+    }
+
+    /// Fills `w` with every light's selection weight at `p`; returns their sum.
+    #[inline]
+    fn weights_at(&self, p: Vec3, w: &mut [f32; LOCAL_SELECTION_MAX]) -> f32 {
+        let mut total = 0.0f32;
+        for (wi, imp) in w.iter_mut().zip(&self.importance) {
+            *wi = imp.weight(p);
+            total += *wi;
+        }
+        total
     }
 
     /// The area light that primitive `prim` belongs to.
@@ -287,6 +433,72 @@ mod tests {
         assert_eq!(set.select(0.25).unwrap().0, 2);
         assert_eq!(set.select(0.999_999_9).unwrap().0, 2);
         assert!(LightSet::new(vec![], 0, 1.0).select(0.5).is_none());
+    }
+
+    fn mixed_lights() -> Vec<Light> {
+        vec![
+            Light::Point { position: Vec3::new(0.0, 3.0, 0.0), intensity: Vec3::ONE },
+            Light::Triangle {
+                prim: 0,
+                p0: Vec3::new(-1.0, 2.0, -1.0),
+                e1: Vec3::new(2.0, 0.0, 0.0),
+                e2: Vec3::new(0.0, 0.0, 2.0),
+                normal: -Vec3::Y,
+                area: 2.0,
+                radiance: Vec3::splat(5.0),
+            },
+            Light::Sphere { prim: 1, center: Vec3::new(4.0, 1.0, 0.0), radius: 0.5, radiance: Vec3::splat(20.0) },
+            Light::Directional { direction: -Vec3::Y, irradiance: Vec3::splat(0.5) },
+            Light::Environment { radiance: Vec3::splat(0.1) },
+        ]
+    }
+
+    #[test]
+    fn selection_at_a_point_matches_its_pmf() {
+        let set = LightSet::new(mixed_lights(), 2, 10.0);
+        const N: usize = 1 << 16;
+        for p in [Vec3::ZERO, Vec3::new(3.5, 1.0, 0.2), Vec3::new(0.0, 2.5, 0.0), Vec3::new(4.0, 1.1, 0.0)] {
+            let pmfs: Vec<f32> = (0..set.lights.len()).map(|i| set.pmf_at(p, i)).collect();
+            assert!((pmfs.iter().sum::<f32>() - 1.0).abs() < 1e-5, "{pmfs:?}");
+            let mut counts = vec![0usize; set.lights.len()];
+            let mut remapped_sum = vec![0.0f64; set.lights.len()];
+            for k in 0..N {
+                let u = (k as f32 + 0.5) / N as f32;
+                let (i, pmf, ur) = set.select_at(p, u).unwrap();
+                assert_eq!(pmf, pmfs[i], "the pmf returned is pmf_at's, bit for bit");
+                assert!((0.0..1.0).contains(&ur));
+                counts[i] += 1;
+                remapped_sum[i] += f64::from(ur);
+            }
+            for i in 0..set.lights.len() {
+                let freq = counts[i] as f32 / N as f32;
+                assert!((freq - pmfs[i]).abs() < 1e-3, "light {i} at {p}: {freq} vs {}", pmfs[i]);
+                if counts[i] > 100 {
+                    // The rescaled coordinate is uniform within the light's interval.
+                    assert!((remapped_sum[i] / counts[i] as f64 - 0.5).abs() < 0.01);
+                }
+            }
+        }
+        // Above the downward-facing triangle and inside the sphere nothing is selected.
+        let above = Vec3::new(0.0, 2.5, 0.0);
+        assert_eq!(set.pmf_at(above, 1), 0.0);
+        assert_eq!(set.pmf_at(Vec3::new(4.0, 1.1, 0.0), 2), 0.0);
+        // The closer light is preferred.
+        assert!(set.pmf_at(Vec3::new(3.2, 1.0, 0.0), 2) > set.pmf_at(Vec3::new(-3.0, 1.0, 0.0), 2));
+    }
+
+    #[test]
+    fn many_lights_fall_back_to_power_selection() {
+        let lights: Vec<Light> = (0..LOCAL_SELECTION_MAX + 1)
+            .map(|i| Light::Point { position: Vec3::new(i as f32, 0.0, 0.0), intensity: Vec3::splat(1.0 + i as f32) })
+            .collect();
+        let set = LightSet::new(lights, 0, 20.0);
+        for i in 0..set.lights.len() {
+            assert_eq!(set.pmf_at(Vec3::new(100.0, 3.0, 1.0), i), set.pmf(i));
+        }
+        let (i, pmf, ur) = set.select_at(Vec3::ZERO, 0.5).unwrap();
+        assert_eq!((i, pmf), set.select(0.5).unwrap());
+        assert!((0.0..1.0).contains(&ur));
     }
 
     #[test]

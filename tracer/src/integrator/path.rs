@@ -5,7 +5,7 @@
 //! the camera, so 1 shows only emitters seen directly, 2 adds direct lighting, and -1 is
 //! unlimited (paths end by Russian roulette, which starts at depth 5 and is unbiased).
 
-use glam::Vec3;
+use glam::{Vec2, Vec3};
 
 use super::RayCount;
 use crate::bsdf::Bsdf;
@@ -70,7 +70,7 @@ pub fn li(scene: &Scene, mut ray: Ray, sampler: &mut Sampler, count: &mut RayCou
                 } else if !use_nee {
                     1.0
                 } else {
-                    power_heuristic(1.0, prev_pdf, 1.0, scene.lights.pmf(env) * uniform_sphere_pdf())
+                    power_heuristic(1.0, prev_pdf, 1.0, scene.lights.pmf_at(prev_p, env) * uniform_sphere_pdf())
                 };
                 l += beta * scene.background * w;
             }
@@ -98,7 +98,9 @@ pub fn li(scene: &Scene, mut ray: Ray, sampler: &mut Sampler, count: &mut RayCou
             } else {
                 match scene.lights.light_of_prim(hit.prim) {
                     Some(li) => {
-                        let light_pdf = scene.lights.pmf(li) * scene.lights.lights[li].pdf_li(prev_p, ray.dir, si.p);
+                        // The selection pmf NEE at prev_p would have used for this light.
+                        let light_pdf =
+                            scene.lights.pmf_at(prev_p, li) * scene.lights.lights[li].pdf_li(prev_p, ray.dir, si.p);
                         power_heuristic(1.0, prev_pdf, 1.0, light_pdf)
                     }
                     None => 1.0,
@@ -120,13 +122,14 @@ pub fn li(scene: &Scene, mut ray: Ray, sampler: &mut Sampler, count: &mut RayCou
         let frame = Frame::from_normal(ns);
         let wo_local = frame.to_local(wo);
 
-        // Next-event estimation.
+        // Next-event estimation. One 2D sample both picks the light (x, then rescaled
+        // within the light's interval) and the point on it, so the points stay
+        // stratified across the lights together.
         if use_nee && !bsdf.is_delta() {
-            let u_light = sampler.next_1d();
             let u = sampler.next_2d();
-            if let Some((light_index, pmf)) = scene.lights.select(u_light) {
+            if let Some((light_index, pmf, ux)) = scene.lights.select_at(si.p, u.x) {
                 let light = &scene.lights.lights[light_index];
-                if let Some(ls) = light.sample_li(si.p, u) {
+                if let Some(ls) = light.sample_li(si.p, Vec2::new(ux, u.y)) {
                     let reflects_above = !two_sided || ng.dot(ls.wi) > 0.0;
                     if ls.pdf > 0.0 && ls.li.max_element() > 0.0 && reflects_above {
                         let wi_local = frame.to_local(ls.wi);
@@ -152,9 +155,14 @@ pub fn li(scene: &Scene, mut ray: Ray, sampler: &mut Sampler, count: &mut RayCou
             }
         }
 
-        // BSDF sampling: the next segment of the path.
-        let u_lobe = sampler.next_1d();
-        let u = sampler.next_2d();
+        // BSDF sampling: the next segment of the path. Only the dimensions the BSDF uses
+        // are drawn (Lambert: a direction; mirror: none; glass: a lobe choice).
+        let (u_lobe, u) = match bsdf {
+            Bsdf::Diffuse { .. } => (0.0, sampler.next_2d()),
+            Bsdf::Glossy { .. } => (sampler.next_1d(), sampler.next_2d()),
+            Bsdf::Mirror { .. } => (0.0, Vec2::ZERO),
+            Bsdf::Glass { .. } => (sampler.next_1d(), Vec2::ZERO),
+        };
         let Some(bs) = bsdf.sample(wo_local, u_lobe, u) else {
             break;
         };
