@@ -1,7 +1,9 @@
 //! Renders small scenes end to end through the library and checks them against
 //! analytic answers, orientation and determinism.
 
-use std::path::{Path, PathBuf};
+mod common;
+
+use common::{TempDir, bundled};
 
 use glam::{Vec2, Vec3};
 use tracer::film::{Accumulation, SampleRange, Tile};
@@ -9,34 +11,8 @@ use tracer::integrator::Integrator;
 use tracer::render::{render_image, render_unit};
 use tracer::scene::{Scene, scene_from_toml};
 
-/// A scratch directory removed on drop (also when a test fails).
-struct TempDir(PathBuf);
-
-impl TempDir {
-    fn new(tag: &str) -> Self {
-        let d = std::env::temp_dir().join(format!("tilefarm-test-{tag}-{}", std::process::id()));
-        std::fs::create_dir_all(&d).unwrap();
-        Self(d)
-    }
-
-    fn write(&self, name: &str, text: &str) -> &Path {
-        std::fs::write(self.0.join(name), text).unwrap();
-        &self.0
-    }
-}
-
-impl Drop for TempDir {
-    fn drop(&mut self) {
-        let _ = std::fs::remove_dir_all(&self.0);
-    }
-}
-
 fn scene(dir: &TempDir, toml: &str) -> Scene {
     scene_from_toml(toml, "test.toml", &dir.0).unwrap()
-}
-
-fn bundled(name: &str) -> PathBuf {
-    Path::new(env!("CARGO_MANIFEST_DIR")).join("../scenes").join(name).join("scene.toml")
 }
 
 const PLANE_OBJ: &str = "mtllib plane.mtl\nv -10 0 -10\nv 10 0 -10\nv 10 0 10\nv -10 0 10\nusemtl white\nf 1 4 3 2\n";

@@ -4,33 +4,17 @@
 //! bound comes from the measured spread of independent estimates, so it is stable and
 //! still catches a 1% bias.
 
-use std::path::{Path, PathBuf};
+mod common;
+
+use std::path::Path;
+
+use common::{TempDir, bundled};
 
 use glam::{Vec2, Vec3};
 use tracer::film::{Image, SampleRange};
 use tracer::integrator::Integrator;
 use tracer::render::render_image;
 use tracer::scene::{Scene, scene_from_toml};
-
-struct TempDir(PathBuf);
-
-impl TempDir {
-    fn new(tag: &str) -> Self {
-        let d = std::env::temp_dir().join(format!("tilefarm-transport-{tag}-{}", std::process::id()));
-        std::fs::create_dir_all(&d).unwrap();
-        Self(d)
-    }
-
-    fn write(&self, name: &str, text: &str) {
-        std::fs::write(self.0.join(name), text).unwrap();
-    }
-}
-
-impl Drop for TempDir {
-    fn drop(&mut self) {
-        let _ = std::fs::remove_dir_all(&self.0);
-    }
-}
 
 fn render(s: &Scene, integrator: Integrator, spp: u32) -> Image {
     let (img, stats) = render_image(s, integrator, SampleRange::new(0, spp), 8, &|_| {});
@@ -256,10 +240,6 @@ fn sphere_light_sampling_estimates_irradiance_exactly() {
     let estimate = sum / n as f64;
     let exact = std::f64::consts::PI * l as f64 * (r as f64 / d as f64).powi(2);
     assert!((estimate / exact - 1.0).abs() < 1e-3, "{estimate} vs {exact}");
-}
-
-fn bundled(name: &str) -> PathBuf {
-    Path::new(env!("CARGO_MANIFEST_DIR")).join("../scenes").join(name).join("scene.toml")
 }
 
 /// Per-pixel means over `seeds` independent renders, and their per-pixel variance.

@@ -62,16 +62,9 @@ pub fn li(scene: &Scene, mut ray: Ray, sampler: &mut Sampler, count: &mut RayCou
         count.rays += 1;
         let Some(hit) = scene.intersect(&ray, f32::INFINITY) else {
             if let Some(env) = scene.lights.environment() {
-                let from_camera_or_delta = depth == 0 || prev_delta;
-                let w = if from_camera_or_delta {
-                    1.0
-                } else if !use_bsdf_hits {
-                    0.0
-                } else if !use_nee {
-                    1.0
-                } else {
-                    power_heuristic(1.0, prev_pdf, 1.0, scene.lights.pmf_at(prev_p, env) * uniform_sphere_pdf())
-                };
+                let w = emitter_weight(depth, prev_delta, opt.strategy, prev_pdf, || {
+                    scene.lights.pmf_at(prev_p, env) * uniform_sphere_pdf()
+                });
                 l += beta * scene.background * w;
             }
             break;
@@ -89,23 +82,12 @@ pub fn li(scene: &Scene, mut ray: Ray, sampler: &mut Sampler, count: &mut RayCou
         let wo = -ray.dir;
         // One-sided emission: only the front face emits.
         if material.is_emissive() && si.ng.dot(wo) > 0.0 {
-            let w = if depth == 0 || prev_delta {
-                1.0
-            } else if !use_bsdf_hits {
-                0.0
-            } else if !use_nee {
-                1.0
-            } else {
-                match scene.lights.light_of_prim(hit.prim) {
-                    Some(li) => {
-                        // The selection pmf NEE at prev_p would have used for this light.
-                        let light_pdf =
-                            scene.lights.pmf_at(prev_p, li) * scene.lights.lights[li].pdf_li(prev_p, ray.dir, si.p);
-                        power_heuristic(1.0, prev_pdf, 1.0, light_pdf)
-                    }
-                    None => 1.0,
-                }
-            };
+            let w = emitter_weight(depth, prev_delta, opt.strategy, prev_pdf, || {
+                // What NEE at prev_p would have had for this light (0 if it never could).
+                scene.lights.light_of_prim(hit.prim).map_or(0.0, |li| {
+                    scene.lights.pmf_at(prev_p, li) * scene.lights.lights[li].pdf_li(prev_p, ray.dir, si.p)
+                })
+            });
             l += beta * material.emission * w;
         }
 
@@ -190,6 +172,27 @@ pub fn li(scene: &Scene, mut ray: Ray, sampler: &mut Sampler, count: &mut RayCou
         }
     }
     l
+}
+
+/// The weight of emission found by BSDF sampling (or seen from the camera), given the
+/// pdf with which light sampling would have produced the same direction.
+#[inline]
+fn emitter_weight(
+    depth: u32,
+    prev_delta: bool,
+    strategy: Strategy,
+    bsdf_pdf: f32,
+    light_pdf: impl FnOnce() -> f32,
+) -> f32 {
+    // Seen directly, or through a delta BSDF: light sampling cannot find it.
+    if depth == 0 || prev_delta {
+        return 1.0;
+    }
+    match strategy {
+        Strategy::LightOnly => 0.0,
+        Strategy::BsdfOnly => 1.0,
+        Strategy::Mis => power_heuristic(1.0, bsdf_pdf, 1.0, light_pdf()),
+    }
 }
 
 /// Visibility of a light sample: 1 if unblocked, 0 if blocked; with stochastic-opacity
