@@ -65,17 +65,46 @@ fn box_obj_faces_point_the_requested_way() {
     }
 }
 
+/// A closed UV sphere of radius `r` as OBJ faces wound to face its inside.
+fn inward_sphere_obj(r: f32, material: &str) -> String {
+    let (rings, segments) = (24, 48);
+    let mut s = format!("mtllib m.mtl\nv 0 {r} 0\nv 0 {} 0\n", -r);
+    for i in 1..rings {
+        let theta = std::f32::consts::PI * i as f32 / rings as f32;
+        for j in 0..segments {
+            let phi = std::f32::consts::TAU * j as f32 / segments as f32;
+            let p = r * Vec3::new(theta.sin() * phi.cos(), theta.cos(), theta.sin() * phi.sin());
+            s += &format!("v {} {} {}\n", p.x, p.y, p.z);
+        }
+    }
+    s += &format!("usemtl {material}\n");
+    let v = |i: usize, j: usize| 3 + (i - 1) * segments + j % segments; // ring i in 1..rings
+    for j in 0..segments {
+        // Seen from inside, counter-clockwise.
+        s += &format!("f 1 {} {}\n", v(1, j), v(1, j + 1));
+        s += &format!("f 2 {} {}\n", v(rings - 1, j + 1), v(rings - 1, j));
+        for i in 1..rings - 1 {
+            s += &format!("f {} {} {} {}\n", v(i, j), v(i + 1, j), v(i + 1, j + 1), v(i, j + 1));
+        }
+    }
+    s
+}
+
 #[test]
 fn white_furnace_converges_to_le_over_one_minus_albedo() {
-    // A closed box whose inside is emissive (Le) and diffuse (albedo a): the radiance
-    // everywhere inside is Le / (1 - a), reached only with unlimited depth.
+    // A closed surface whose inside is emissive (Le) and diffuse (albedo a): the radiance
+    // everywhere inside is Le / (1 - a), reached only with unlimited depth. A sphere (as
+    // the textbook furnace) and a box (corners, flat faces, many emitters).
     let (le, a) = (0.5f32, 0.8f32);
     let expected = (le / (1.0 - a)) as f64;
     let dir = TempDir::new("furnace");
     dir.write("m.mtl", &format!("newmtl furnace\nKd {a} {a} {a}\nKe {le} {le} {le}\n"));
     dir.write("box.obj", &box_obj(Vec3::new(-1.0, -1.5, -2.0), Vec3::new(2.0, 1.0, 1.5), "furnace", true));
-    let s = scene_from_toml(
-        r#"
+    dir.write("sphere.obj", &inward_sphere_obj(2.0, "furnace"));
+    for mesh in ["sphere.obj", "box.obj"] {
+        let s = scene_from_toml(
+            &format!(
+                r#"
 [camera]
 position = [0.1, -0.2, 0.3]
 look_at = [1.0, 0.5, 1.0]
@@ -86,24 +115,26 @@ height = 16
 max_depth = -1
 seed = 7
 [[mesh]]
-obj = "box.obj"
-"#,
-        "furnace.toml",
-        &dir.0,
-    )
-    .unwrap();
-    let img = render(&s, Integrator::Path, 512);
-    // Every pixel has the same expectation, so pixel means are independent estimates.
-    let px: Vec<f64> = img.pixels.iter().map(|p| p.x as f64).collect();
-    let (mean, se) = mean_stderr(&px);
-    let sd = se * (px.len() as f64).sqrt();
-    assert!(4.0 * se < 0.01 * expected, "test too weak to see a 1% bias: se {se}");
-    assert!((mean - expected).abs() < 4.0 * se, "furnace mean {mean}, expected {expected} ± {se}");
-    for (i, &p) in px.iter().enumerate() {
-        assert!((p - expected).abs() < 5.0 * sd.max(1e-3 * expected), "pixel {i}: {p} vs {expected}");
+obj = "{mesh}"
+"#
+            ),
+            "furnace.toml",
+            &dir.0,
+        )
+        .unwrap();
+        let img = render(&s, Integrator::Path, 512);
+        // Every pixel has the same expectation, so pixel means are independent estimates.
+        let px: Vec<f64> = img.pixels.iter().map(|p| p.x as f64).collect();
+        let (mean, se) = mean_stderr(&px);
+        let sd = se * (px.len() as f64).sqrt();
+        assert!(4.0 * se < 0.01 * expected, "{mesh}: test too weak to see a 1% bias: se {se}");
+        assert!((mean - expected).abs() < 4.0 * se, "{mesh}: furnace mean {mean}, expected {expected} ± {se}");
+        for (i, &p) in px.iter().enumerate() {
+            assert!((p - expected).abs() < 5.0 * sd.max(1e-3 * expected), "{mesh}: pixel {i}: {p} vs {expected}");
+        }
+        // Channels are identical for a grey furnace.
+        assert!(img.pixels.iter().all(|p| p.x == p.y && p.y == p.z));
     }
-    // Channels are identical for a grey furnace.
-    assert!(img.pixels.iter().all(|p| p.x == p.y && p.y == p.z));
 }
 
 fn slab_scene(dir: &TempDir, max_depth: i32) -> Scene {
