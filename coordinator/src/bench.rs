@@ -38,12 +38,12 @@ pub struct BenchArgs {
     pub export_rays: Option<PathBuf>,
 }
 
-/// `--export-mesh` / `--export-rays`: little-endian `TFMESH01 nverts ntris f32×3·nverts
+/// `--export-mesh` / `--export-rays` (mesh seed 0, the kd-tree bench's): little-endian `TFMESH01 nverts ntris f32×3·nverts
 /// u32×3·ntris` and `TFRAYS01 n (f32 ox oy oz dx dy dz tmax)×n`, the displaced sphere of
 /// `--mesh-triangles` and `tracer::accel::incoherent_rays(bounds, --rays, 1)`: the data
-/// of `KDTREE_QUICK=all,N,R,7,RAYS cargo bench -p tracer --bench kdtree`.
+/// of `KDTREE_QUICK=all,N,R,0,RAYS cargo bench -p tracer --bench kdtree`.
 fn export(args: &BenchArgs) -> anyhow::Result<()> {
-    let mesh = tracer::scene::generate::displaced_sphere(args.mesh_triangles, 7);
+    let mesh = tracer::scene::generate::displaced_sphere(args.mesh_triangles, 0);
     if let Some(path) = &args.export_mesh {
         let mut b = b"TFMESH01".to_vec();
         b.extend((mesh.positions.len() as u32).to_le_bytes());

@@ -2,7 +2,9 @@
 //!
 //! `cargo bench -p tracer --bench kdtree` runs the criterion benchmarks and prints
 //! Mrays/s. With `KDTREE_TUNE=1` (or a list of Ci/Ct ratios, `KDTREE_TUNE=1,2,4`) it instead sweeps the build parameters (cost ratio, empty
-//! bonus, leaf size) and prints build time, size and throughput for each.
+//! bonus, leaf size) and prints build time, size and throughput for each. With
+//! `KDTREE_QUICK=all` (or `build`, `closest`, `any`, optionally `,TRIANGLES`) it prints
+//! medians of the 1M-triangle build and of single-thread throughput, without criterion.
 
 use std::hint::black_box;
 use std::time::Instant;
@@ -26,31 +28,12 @@ impl Rng {
         z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
         ((z ^ (z >> 31)) >> 40) as f32 / (1u64 << 24) as f32
     }
-    fn unit(&mut self) -> Vec3 {
-        loop {
-            let v = Vec3::new(self.f(), self.f(), self.f()) * 2.0 - 1.0;
-            let l = v.length_squared();
-            if l > 1e-4 && l <= 1.0 {
-                return v / l.sqrt();
-            }
-        }
-    }
 }
 
 /// Incoherent rays: origins on the bounding sphere towards uniform points in the box,
 /// with the distance to that point (the shadow-ray length).
 fn random_rays(b: Aabb, n: usize, seed: u64) -> Vec<(Ray, f32)> {
-    let mut r = Rng(seed);
-    let (c, radius) = (b.center(), 0.5 * b.diagonal().length());
-    (0..n)
-        .map(|_| {
-            let o = c + r.unit() * radius;
-            let target = b.min + b.diagonal() * Vec3::new(r.f(), r.f(), r.f());
-            let d = target - o;
-            let len = d.length();
-            (Ray::new(o, d / len), len)
-        })
-        .collect()
+    tracer::accel::incoherent_rays(b, n, seed)
 }
 
 fn closest(tree: &KdTree, geo: &Geometry, rays: &[(Ray, f32)]) -> usize {
@@ -85,7 +68,7 @@ fn spheres_scene() -> Geometry {
     for p in &mut mesh.positions {
         *p *= 4.0;
     }
-    Geometry { mesh, spheres }
+    Geometry::new(mesh, spheres)
 }
 
 fn timed_build(geo: &Geometry, params: &BuildParams) -> (KdTree, f64) {
@@ -95,7 +78,7 @@ fn timed_build(geo: &Geometry, params: &BuildParams) -> (KdTree, f64) {
 }
 
 fn tune() {
-    let mid = Geometry { mesh: displaced_sphere(100_000, 0), spheres: vec![] };
+    let mid = Geometry::new(displaced_sphere(100_000, 0), vec![]);
     let scenes = [("100k mesh", &mid), ("spheres", &spheres_scene())];
     let mut variants = Vec::new();
     let grid: Vec<f32> = std::env::var("KDTREE_TUNE")
@@ -135,14 +118,85 @@ fn tune() {
     }
 }
 
+fn median(mut v: Vec<f64>) -> f64 {
+    v.sort_by(f64::total_cmp);
+    v[v.len() / 2]
+}
+
+/// `KDTREE_QUICK=all|build|closest|any[,triangles[,repeats[,mesh seed[,rays]]]]`: medians without criterion, for
+/// before/after comparisons and for profiling one query kind in isolation.
+fn quick(spec: &str) {
+    let mut parts = spec.split(',');
+    let what = parts.next().unwrap_or("all").to_string();
+    let n: usize = parts.next().and_then(|x| x.parse().ok()).unwrap_or(1_000_000);
+    let reps: usize = parts.next().and_then(|x| x.parse().ok()).unwrap_or(if what == "all" { 5 } else { 3 });
+    let seed: u64 = parts.next().and_then(|x| x.parse().ok()).unwrap_or(0);
+    let nrays: usize = parts.next().and_then(|x| x.parse().ok()).unwrap_or(RAYS);
+    let geo = Geometry::new(displaced_sphere(n, seed), vec![]);
+    let params = BuildParams::default();
+    let mut builds = Vec::new();
+    let mut tree = None;
+    for _ in 0..(if matches!(what.as_str(), "all" | "build") { reps } else { 1 }) {
+        let (t, secs) = timed_build(&geo, &params);
+        builds.push(secs);
+        tree = Some(t);
+    }
+    let tree = tree.unwrap();
+    let s = tree.stats();
+    let ntri = geo.mesh.tris.len();
+    println!(
+        "{ntri} triangles: build median {:.3} s of {:?}; {} nodes, {} refs, depth {}, tree {:.1} B/tri",
+        median(builds.clone()),
+        builds.iter().map(|b| (b * 1000.0).round() / 1000.0).collect::<Vec<_>>(),
+        s.nodes,
+        s.prim_refs,
+        s.max_depth,
+        s.bytes as f64 / ntri as f64
+    );
+    let rays = random_rays(tree.bounds(), nrays, 1);
+    let rate = |f: &dyn Fn() -> usize| {
+        let v: Vec<f64> = (0..reps)
+            .map(|_| {
+                let t = Instant::now();
+                black_box(f());
+                rays.len() as f64 / t.elapsed().as_secs_f64() / 1e6
+            })
+            .collect();
+        median(v)
+    };
+    if what == "check" {
+        // The tree against brute force on the first rays (slow: O(N) per ray).
+        let bad = rays[..nrays.min(300)]
+            .iter()
+            .filter(|(r, len)| {
+                tree.intersect(&geo, r, f32::INFINITY) != tracer::accel::brute_force_intersect(&geo, r, f32::INFINITY)
+                    || tree.occluded(&geo, r, *len) != tracer::accel::brute_force_occluded(&geo, r, *len)
+            })
+            .count();
+        println!("check: {bad} disagreements with brute force");
+    }
+    if matches!(what.as_str(), "all" | "closest") {
+        let hits = closest(&tree, &geo, &rays);
+        println!("closest-hit {:.3} Mrays/s ({hits} hit)", rate(&|| closest(&tree, &geo, &rays)));
+    }
+    if matches!(what.as_str(), "all" | "any") {
+        let occl = any(&tree, &geo, &rays);
+        println!("any-hit {:.3} Mrays/s ({occl} occluded)", rate(&|| any(&tree, &geo, &rays)));
+    }
+}
+
 fn bench(c: &mut Criterion) {
     if std::env::var_os("KDTREE_TUNE").is_some() {
         tune();
         return;
     }
+    if let Ok(spec) = std::env::var("KDTREE_QUICK") {
+        quick(&spec);
+        return;
+    }
     let params = BuildParams::default();
-    let big = Geometry { mesh: displaced_sphere(1_000_000, 0), spheres: vec![] };
-    let mid = Geometry { mesh: displaced_sphere(100_000, 0), spheres: vec![] };
+    let big = Geometry::new(displaced_sphere(1_000_000, 0), vec![]);
+    let mid = Geometry::new(displaced_sphere(100_000, 0), vec![]);
 
     let (tree, secs) = timed_build(&big, &params);
     let s = tree.stats();

@@ -36,7 +36,7 @@ pub struct RayPrecomp {
 impl RayPrecomp {
     #[inline]
     pub fn new(ray: &Ray) -> Self {
-        Self { inv_dir: ray.dir.recip(), shear: crate::geometry::triangle::RayShear::new(ray.dir) }
+        Self { inv_dir: ray.dir.recip(), shear: crate::geometry::triangle::RayShear::for_ray(ray.origin, ray.dir) }
     }
 }
 
@@ -79,4 +79,36 @@ pub fn brute_force_intersect<P: Primitives>(prims: &P, ray: &Ray, tmax: f32) -> 
 pub fn brute_force_occluded<P: Primitives>(prims: &P, ray: &Ray, tmax: f32) -> bool {
     let pre = RayPrecomp::new(ray);
     (0..prims.len() as u32).any(|i| prims.intersect(i, ray, &pre, tmax).is_some())
+}
+
+/// The benchmarks' incoherent rays (`cargo bench --bench kdtree`, `coordinator bench
+/// --export-rays`, `bench/embree_compare.py`): origins uniform on the bounding sphere of
+/// `bounds`, each aimed at a uniform point in the box, with the distance to that point
+/// (the any-hit query's `tmax`). Deterministic in `seed`.
+pub fn incoherent_rays(bounds: Aabb, n: usize, seed: u64) -> Vec<(Ray, f32)> {
+    let mut state = seed;
+    let mut f = move || {
+        state = state.wrapping_add(0x9E37_79B9_7F4A_7C15);
+        let mut z = state;
+        z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
+        z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
+        ((z ^ (z >> 31)) >> 40) as f32 / (1u64 << 24) as f32
+    };
+    let (c, radius) = (bounds.center(), 0.5 * bounds.diagonal().length());
+    (0..n)
+        .map(|_| {
+            let unit = loop {
+                let v = glam::Vec3::new(f(), f(), f()) * 2.0 - 1.0;
+                let l = v.length_squared();
+                if l > 1e-4 && l <= 1.0 {
+                    break v / l.sqrt();
+                }
+            };
+            let o = c + unit * radius;
+            let target = bounds.min + bounds.diagonal() * glam::Vec3::new(f(), f(), f());
+            let d = target - o;
+            let len = d.length();
+            (Ray::new(o, d / len), len)
+        })
+        .collect()
 }

@@ -7,7 +7,9 @@ use glam::Vec3;
 use super::Ray;
 
 /// Ray-specific precomputation for the watertight test: the permutation that makes the
-/// largest direction component z, and the shear that maps the ray onto +z.
+/// largest direction component z, and the shear that maps the ray onto +z. The origin's
+/// components are stored permuted too, so the test reads each corner's coordinates
+/// straight from memory (no per-triangle permutation of vectors).
 #[derive(Clone, Copy, Debug)]
 pub struct RayShear {
     kx: usize,
@@ -16,11 +18,22 @@ pub struct RayShear {
     sx: f32,
     sy: f32,
     sz: f32,
+    /// `origin[kx]`, `origin[ky]`, `origin[kz]`.
+    ox: f32,
+    oy: f32,
+    oz: f32,
 }
 
 impl RayShear {
     #[inline]
     pub fn new(dir: Vec3) -> Self {
+        Self::for_ray(Vec3::ZERO, dir)
+    }
+
+    /// The shear of a ray with its origin (what [`intersect_triangle_corners`] needs;
+    /// [`intersect_triangle`] works with either).
+    #[inline]
+    pub fn for_ray(origin: Vec3, dir: Vec3) -> Self {
         let a = dir.abs();
         let kz = if a.x >= a.y && a.x >= a.z {
             0
@@ -35,7 +48,16 @@ impl RayShear {
             std::mem::swap(&mut kx, &mut ky);
         }
         let sz = 1.0 / dir[kz];
-        Self { kx, ky, kz, sx: dir[kx] * sz, sy: dir[ky] * sz, sz }
+        Self { kx, ky, kz, sx: dir[kx] * sz, sy: dir[ky] * sz, sz, ox: origin[kx], oy: origin[ky], oz: origin[kz] }
+    }
+
+    /// The same shear for another origin.
+    #[inline]
+    fn with_origin(mut self, origin: Vec3) -> Self {
+        self.ox = origin[self.kx];
+        self.oy = origin[self.ky];
+        self.oz = origin[self.kz];
+        self
     }
 }
 
@@ -51,16 +73,25 @@ pub struct TriangleHit {
 /// Intersects the ray with triangle (p0, p1, p2) for `0 < t < tmax`.
 #[inline]
 pub fn intersect_triangle(ray: &Ray, shear: &RayShear, p0: Vec3, p1: Vec3, p2: Vec3, tmax: f32) -> Option<TriangleHit> {
+    intersect_triangle_corners(&shear.with_origin(ray.origin), &[p0, p1, p2], tmax)
+}
+
+/// [`intersect_triangle`] for a shear made with [`RayShear::for_ray`] (which carries the
+/// origin) and corners in memory; bit-identical results.
+#[inline(always)]
+pub fn intersect_triangle_corners(shear: &RayShear, p: &[Vec3; 3], tmax: f32) -> Option<TriangleHit> {
     let (kx, ky, kz) = (shear.kx, shear.ky, shear.kz);
-    let a = p0 - ray.origin;
-    let b = p1 - ray.origin;
-    let c = p2 - ray.origin;
-    let ax = a[kx] - shear.sx * a[kz];
-    let ay = a[ky] - shear.sy * a[kz];
-    let bx = b[kx] - shear.sx * b[kz];
-    let by = b[ky] - shear.sy * b[kz];
-    let cx = c[kx] - shear.sx * c[kz];
-    let cy = c[ky] - shear.sy * c[kz];
+    let (p0, p1, p2): (&[f32; 3], &[f32; 3], &[f32; 3]) = (p[0].as_ref(), p[1].as_ref(), p[2].as_ref());
+    // Corner minus origin, per permuted axis: the same roundings as `(p - o)[k]`.
+    let (a_x, a_y, a_z) = (p0[kx] - shear.ox, p0[ky] - shear.oy, p0[kz] - shear.oz);
+    let (b_x, b_y, b_z) = (p1[kx] - shear.ox, p1[ky] - shear.oy, p1[kz] - shear.oz);
+    let (c_x, c_y, c_z) = (p2[kx] - shear.ox, p2[ky] - shear.oy, p2[kz] - shear.oz);
+    let ax = a_x - shear.sx * a_z;
+    let ay = a_y - shear.sy * a_z;
+    let bx = b_x - shear.sx * b_z;
+    let by = b_y - shear.sy * b_z;
+    let cx = c_x - shear.sx * c_z;
+    let cy = c_y - shear.sy * c_z;
 
     let mut u = cx * by - cy * bx;
     let mut v = ax * cy - ay * cx;
@@ -79,9 +110,9 @@ pub fn intersect_triangle(ray: &Ray, shear: &RayShear, p0: Vec3, p1: Vec3, p2: V
     if det == 0.0 {
         return None;
     }
-    let az = shear.sz * a[kz];
-    let bz = shear.sz * b[kz];
-    let cz = shear.sz * c[kz];
+    let az = shear.sz * a_z;
+    let bz = shear.sz * b_z;
+    let cz = shear.sz * c_z;
     let t_scaled = u * az + v * bz + w * cz;
     // Compare t * det against [0, tmax * det] without dividing; signs follow det.
     if det < 0.0 && (t_scaled >= 0.0 || t_scaled < tmax * det) {

@@ -7,7 +7,7 @@ use super::TriangleMesh;
 use crate::accel::{PrimHit, Primitives, RayPrecomp};
 use crate::geometry::clip::clipped_triangle_bounds;
 use crate::geometry::sphere::intersect_sphere;
-use crate::geometry::triangle::intersect_triangle;
+use crate::geometry::triangle::intersect_triangle_corners;
 use crate::geometry::{Aabb, Ray};
 
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -25,10 +25,15 @@ impl Sphere {
 
 /// All primitives of a scene. Index `i < mesh.tris.len()` is a triangle, the rest are
 /// spheres in order.
+///
+/// Ray queries read each triangle's corners from `corners`, a copy made by
+/// [`Geometry::new`] / [`Geometry::prepare`]: one 36-byte load stream per test instead of
+/// the dependent chain `Tri` → three positions. Call `prepare` after changing `mesh`.
 #[derive(Clone, Debug, Default)]
 pub struct Geometry {
     pub mesh: TriangleMesh,
     pub spheres: Vec<Sphere>,
+    corners: Vec<[Vec3; 3]>,
 }
 
 /// Which primitive an index denotes.
@@ -39,6 +44,28 @@ pub enum PrimRef {
 }
 
 impl Geometry {
+    pub fn new(mesh: TriangleMesh, spheres: Vec<Sphere>) -> Self {
+        let mut g = Self { mesh, spheres, corners: Vec::new() };
+        g.prepare();
+        g
+    }
+
+    /// Rebuilds the intersection data from `mesh` (after it was changed).
+    pub fn prepare(&mut self) {
+        self.corners = (0..self.mesh.tris.len()).map(|i| self.mesh.corners(i)).collect();
+    }
+
+    /// Memory of the intersection data beyond the mesh and spheres.
+    pub fn accel_bytes(&self) -> usize {
+        self.corners.len() * size_of::<[Vec3; 3]>()
+    }
+
+    /// Corners of triangle `i` as the intersection test sees them.
+    #[inline]
+    pub fn triangle(&self, i: usize) -> &[Vec3; 3] {
+        &self.corners[i]
+    }
+
     #[inline]
     pub fn resolve(&self, i: u32) -> PrimRef {
         let n = self.mesh.tris.len();
@@ -48,6 +75,7 @@ impl Geometry {
 
 impl Primitives for Geometry {
     fn len(&self) -> usize {
+        assert_eq!(self.corners.len(), self.mesh.tris.len(), "Geometry: call prepare() after changing the mesh");
         self.mesh.tris.len() + self.spheres.len()
     }
 
@@ -68,10 +96,11 @@ impl Primitives for Geometry {
     #[inline]
     fn intersect(&self, i: u32, ray: &Ray, pre: &RayPrecomp, tmax: f32) -> Option<PrimHit> {
         match self.resolve(i) {
-            PrimRef::Triangle(t) => {
-                let [p0, p1, p2] = self.mesh.corners(t);
-                intersect_triangle(ray, &pre.shear, p0, p1, p2, tmax).map(|h| PrimHit { t: h.t, u: h.b1, v: h.b2 })
-            }
+            PrimRef::Triangle(t) => intersect_triangle_corners(&pre.shear, &self.corners[t], tmax).map(|h| PrimHit {
+                t: h.t,
+                u: h.b1,
+                v: h.b2,
+            }),
             PrimRef::Sphere(s) => {
                 let sp = &self.spheres[s];
                 intersect_sphere(ray, sp.center, sp.radius, 0.0, tmax).map(|t| PrimHit { t, u: 0.0, v: 0.0 })

@@ -276,7 +276,8 @@ fn sphere_material(
 
 /// Collects area lights and builds the kd-tree.
 fn finish(b: Builder, camera: Camera, settings: RenderSettings, mut lights: Vec<Light>, background: Vec3) -> Scene {
-    let Builder { geometry, materials, material_names, textures, warnings } = b;
+    let Builder { mut geometry, materials, material_names, textures, warnings } = b;
+    geometry.prepare();
     for w in &warnings {
         tracing::warn!("{w}");
     }

@@ -209,21 +209,24 @@ impl<P: Primitives> Ctx<'_, P> {
         let mut i = 0;
         while i < events.len() {
             let p = events[i].pos;
+            // Events at one position come ordered end < planar < start.
             let mut count = [0usize; 3];
-            for kind in [END, PLANAR, START] {
-                while i < events.len() && events[i].pos == p && events[i].kind() == kind {
-                    count[kind as usize] += 1;
-                    i += 1;
-                }
+            while i < events.len() && events[i].pos == p {
+                count[events[i].kind() as usize] += 1;
+                i += 1;
             }
             let [ends, planars, starts] = count;
             nr -= ends + planars;
             if p > lo && p < hi {
                 let pl = 2.0 * (cap + (p - lo) * rim) * inv_sa;
                 let pr = 2.0 * (cap + (hi - p) * rim) * inv_sa;
-                let left = cost(pl, pr, nl + planars, nr);
-                let right = cost(pl, pr, nl, nr + planars);
-                let (c, planar_left) = if left <= right { (left, true) } else { (right, false) };
+                let (c, planar_left) = if planars == 0 {
+                    (cost(pl, pr, nl, nr), true)
+                } else {
+                    let left = cost(pl, pr, nl + planars, nr);
+                    let right = cost(pl, pr, nl, nr + planars);
+                    if left <= right { (left, true) } else { (right, false) }
+                };
                 if best.is_none_or(|b| c < b.cost) {
                     best = Some(Split { cost: c, axis, pos: p, planar_left });
                 }

@@ -51,7 +51,7 @@ fn geometry(tris: &[[Vec3; 3]], spheres: Vec<Sphere>) -> Geometry {
         mesh.positions.extend_from_slice(t);
         mesh.tris.push(Tri { v: [base, base + 1, base + 2], n: [NONE; 3], uv: [NONE; 3], material: 0 });
     }
-    Geometry { mesh, spheres }
+    Geometry::new(mesh, spheres)
 }
 
 /// A random scene mixing the cases that stress exactness: overlapping and duplicated
@@ -278,7 +278,7 @@ fn agrees_with_brute_force_on_displaced_sphere_with_spheres() {
     let mut r = Rng(7);
     let spheres =
         (0..300).map(|_| Sphere { center: r.v(-1.5, 1.5), radius: r.range(0.01, 0.15), material: 0 }).collect();
-    let geo = Geometry { mesh, spheres };
+    let geo = Geometry::new(mesh, spheres);
     let tree = KdTree::build(&geo, &BuildParams::default());
     let s = tree.stats();
     assert!(s.leaves > 1000 && s.max_depth <= s.depth_limit, "{s:?}");
