@@ -81,11 +81,15 @@ pub fn intersect_triangle(ray: &Ray, shear: &RayShear, p0: Vec3, p1: Vec3, p2: V
 #[inline(always)]
 pub fn intersect_triangle_corners(shear: &RayShear, p: &[Vec3; 3], tmax: f32) -> Option<TriangleHit> {
     let (kx, ky, kz) = (shear.kx, shear.ky, shear.kz);
+    debug_assert!(kx < 3 && ky < 3 && kz < 3);
     let (p0, p1, p2): (&[f32; 3], &[f32; 3], &[f32; 3]) = (p[0].as_ref(), p[1].as_ref(), p[2].as_ref());
+    // SAFETY: `for_ray` sets kx, ky, kz to a permutation of 0, 1, 2, and they are private.
+    // (Unchecked: nine bounds checks were a fifth of this test's instructions.)
+    let at = |q: &[f32; 3], k: usize| unsafe { *q.get_unchecked(k) };
     // Corner minus origin, per permuted axis: the same roundings as `(p - o)[k]`.
-    let (a_x, a_y, a_z) = (p0[kx] - shear.ox, p0[ky] - shear.oy, p0[kz] - shear.oz);
-    let (b_x, b_y, b_z) = (p1[kx] - shear.ox, p1[ky] - shear.oy, p1[kz] - shear.oz);
-    let (c_x, c_y, c_z) = (p2[kx] - shear.ox, p2[ky] - shear.oy, p2[kz] - shear.oz);
+    let (a_x, a_y, a_z) = (at(p0, kx) - shear.ox, at(p0, ky) - shear.oy, at(p0, kz) - shear.oz);
+    let (b_x, b_y, b_z) = (at(p1, kx) - shear.ox, at(p1, ky) - shear.oy, at(p1, kz) - shear.oz);
+    let (c_x, c_y, c_z) = (at(p2, kx) - shear.ox, at(p2, ky) - shear.oy, at(p2, kz) - shear.oz);
     let ax = a_x - shear.sx * a_z;
     let ay = a_y - shear.sy * a_z;
     let bx = b_x - shear.sx * b_z;

@@ -93,7 +93,10 @@ impl Primitives for Geometry {
         }
     }
 
-    #[inline]
+    // Inlined into the kd-tree's leaf loop (the triangle test then keeps the ray's
+    // shear in registers across a leaf's primitives); the rarer sphere test stays out of
+    // line so the loop stays small.
+    #[inline(always)]
     fn intersect(&self, i: u32, ray: &Ray, pre: &RayPrecomp, tmax: f32) -> Option<PrimHit> {
         match self.resolve(i) {
             PrimRef::Triangle(t) => intersect_triangle_corners(&pre.shear, &self.corners[t], tmax).map(|h| PrimHit {
@@ -101,10 +104,15 @@ impl Primitives for Geometry {
                 u: h.b1,
                 v: h.b2,
             }),
-            PrimRef::Sphere(s) => {
-                let sp = &self.spheres[s];
-                intersect_sphere(ray, sp.center, sp.radius, 0.0, tmax).map(|t| PrimHit { t, u: 0.0, v: 0.0 })
-            }
+            PrimRef::Sphere(s) => self.intersect_sphere(s, ray, tmax),
         }
+    }
+}
+
+impl Geometry {
+    #[inline(never)]
+    fn intersect_sphere(&self, s: usize, ray: &Ray, tmax: f32) -> Option<PrimHit> {
+        let sp = &self.spheres[s];
+        intersect_sphere(ray, sp.center, sp.radius, 0.0, tmax).map(|t| PrimHit { t, u: 0.0, v: 0.0 })
     }
 }

@@ -281,7 +281,7 @@ fn finish(b: Builder, camera: Camera, settings: RenderSettings, mut lights: Vec<
     for w in &warnings {
         tracing::warn!("{w}");
     }
-    let accel = KdTree::build(&geometry, &BuildParams::default());
+    let accel = KdTree::build(&geometry, &BuildParams::for_primitives(geometry.len()));
     let bounds = accel.bounds();
     let (center, radius) = if bounds.is_empty() {
         (Vec3::ZERO, 1.0)
