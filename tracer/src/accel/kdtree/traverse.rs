@@ -114,7 +114,8 @@ impl KdTree {
             far = far.min(f);
         }
         let reach = (b.min - ray.origin).abs().max((b.max - ray.origin).abs()).max_element();
-        let slack = SLACK_REL * reach / ray.dir.abs().max_element();
+        // 1 / max|d| as min|1/d| (the same value: reciprocals are monotone): no division.
+        let slack = SLACK_REL * reach * inv.abs().min_element();
         let lo = (near - slack).max(0.0);
         let hi = far.min(tmax) + slack;
         (lo <= hi).then_some(Setup { lo, hi, slack })
