@@ -82,7 +82,7 @@ fn runtime() -> anyhow::Result<tokio::runtime::Runtime> {
     tokio::runtime::Builder::new_multi_thread().worker_threads(2).enable_all().build().context("async runtime")
 }
 
-async fn upload(
+pub(crate) async fn upload(
     client: &mut JobsClient<Channel>,
     path: &std::path::Path,
     rel: String,

@@ -8,6 +8,7 @@ mod checkpoint;
 mod client;
 mod farm;
 mod job;
+mod loadtest;
 mod local;
 mod progress;
 mod render_cmd;
@@ -46,6 +47,9 @@ enum Command {
     Cancel(client::CancelArgs),
     /// Measure kd-tree build time, ray throughput and render speed.
     Bench(bench::BenchArgs),
+    /// Measure how many unit results a coordinator merges per second: a `serve` child
+    /// and many simulated workers on loopback that return tiny units at once.
+    Loadtest(loadtest::LoadtestArgs),
 }
 
 /// Resolves on Ctrl-C (SIGINT) or SIGTERM.
@@ -88,6 +92,7 @@ fn main() -> std::process::ExitCode {
         Command::Status(args) => client::status(args),
         Command::Cancel(args) => client::cancel(args),
         Command::Bench(args) => bench::run(args),
+        Command::Loadtest(args) => loadtest::run(args),
     };
     let _ = std::io::stdout().flush();
     match result {

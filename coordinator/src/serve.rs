@@ -31,6 +31,10 @@ pub struct ServeArgs {
     /// Shortest time between two checkpoints of a job, in milliseconds.
     #[arg(long, default_value_t = 5_000)]
     pub checkpoint_interval_ms: u64,
+    /// Stop (as on Ctrl-C) when standard input reaches end of file: a parent process
+    /// that spawns `serve` and holds its stdin takes it down even when killed itself.
+    #[arg(long, hide = true)]
+    pub exit_on_stdin_eof: bool,
     #[command(flatten)]
     pub farm: FarmArgs,
 }
@@ -89,7 +93,13 @@ pub fn run(args: ServeArgs) -> anyhow::Result<()> {
         // The first line of output is the URL, for scripts and tests.
         println!("listening on {}", server.url());
         tracing::info!(store = %store_dir.display(), "coordinator serving");
-        let stop = crate::stop_signal();
+        let stdin_eof = stdin_closed(args.exit_on_stdin_eof);
+        let stop = async {
+            tokio::select! {
+                _ = crate::stop_signal() => {}
+                _ = stdin_eof => {}
+            }
+        };
         tokio::pin!(stop);
         let mut pacer = checkpoint::Pacer::new(Duration::from_millis(args.checkpoint_interval_ms));
         let mut saved: HashMap<String, u64> = HashMap::new();
@@ -114,6 +124,38 @@ pub fn run(args: ServeArgs) -> anyhow::Result<()> {
         }
         Ok(())
     })
+}
+
+/// Resolves when standard input reaches end of file (never, unless `watch`). A plain
+/// thread does the blocking read, so the runtime's shutdown never waits for it.
+async fn stdin_closed(watch: bool) {
+    if !watch {
+        return std::future::pending().await;
+    }
+    let (tx, rx) = tokio::sync::oneshot::channel::<()>();
+    let spawned = std::thread::Builder::new().name("stdin-watch".into()).spawn(move || {
+        use std::io::Read;
+        let mut buf = [0u8; 4096];
+        let mut stdin = std::io::stdin().lock();
+        loop {
+            match stdin.read(&mut buf) {
+                Ok(0) => break,
+                Ok(_) => {}
+                Err(e) if e.kind() == std::io::ErrorKind::Interrupted => {}
+                Err(_) => break,
+            }
+        }
+        let _ = tx.send(());
+    });
+    match spawned {
+        Ok(_) => {
+            let _ = rx.await;
+        }
+        Err(e) => {
+            tracing::warn!("cannot watch standard input: {e}");
+            std::future::pending::<()>().await
+        }
+    }
 }
 
 /// Writes the checkpoint of every job whose progress changed since its last one.

@@ -2,6 +2,7 @@
 //! from the OS, every wait bounded, every process killed when a test ends.
 
 use std::path::Path;
+use std::process::Command;
 use std::time::{Duration, Instant};
 
 use tilefarm_e2e::*;
@@ -223,4 +224,17 @@ fn a_missing_obj_fails_its_job_by_name_and_the_farm_keeps_serving() {
     assert!(good.status.success(), "{}", String::from_utf8_lossy(&good.stderr));
     assert_same_bits(&read_exr(&out), &reference(&dir), "after a failed job");
     assert!(Path::new(&out).exists());
+}
+
+#[test]
+fn the_load_test_merges_every_unit_its_simulated_workers_return() {
+    // 64×64 px in 8×8 tiles × 2 spp = 128 units over 16 connections; the command itself
+    // fails unless the job reports every unit done and every result was accepted.
+    let out = run(
+        Command::new(bin("coordinator")).args(["loadtest", "--connections", "16", "--size", "64", "--spp", "2"]),
+        LIMIT,
+    );
+    let text = String::from_utf8_lossy(&out.stdout);
+    assert!(out.status.success(), "{text}\n{}", String::from_utf8_lossy(&out.stderr));
+    assert!(text.contains("merged 128 unit results"), "{text}");
 }
