@@ -161,6 +161,13 @@ fn bench_scene(name: &str, scene: &Scene, args: &BenchArgs) {
         stats.max_depth,
         stats.prim_refs
     );
+    if let Some(p) = &scene.packed {
+        println!(
+            "rays are traced by packed brute force ({} triangles in blocks of 8, {} B), not the kd-tree",
+            p.len(),
+            p.bytes()
+        );
+    }
     println!(
         "memory: mesh {:.1} B/tri + intersection corners {:.1} B/tri + tree {:.1} B/tri = {:.1} B/tri",
         mesh_bytes as f64 / ntri as f64,

@@ -3,6 +3,7 @@
 //! the scene's triangles and spheres.
 
 pub mod kdtree;
+pub mod packed;
 
 pub use kdtree::{BuildParams, KdTree, KdTreeStats};
 

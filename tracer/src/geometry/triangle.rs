@@ -51,6 +51,13 @@ impl RayShear {
         Self { kx, ky, kz, sx: dir[kx] * sz, sy: dir[ky] * sz, sz, ox: origin[kx], oy: origin[ky], oz: origin[kz] }
     }
 
+    /// The axis permutation (kx, ky, kz), the shear (sx, sy, sz) and the permuted origin:
+    /// what a packed test needs to repeat [`intersect_triangle_corners`]'s arithmetic.
+    #[inline]
+    pub(crate) fn parts(&self) -> ([usize; 3], [f32; 3], [f32; 3]) {
+        ([self.kx, self.ky, self.kz], [self.sx, self.sy, self.sz], [self.ox, self.oy, self.oz])
+    }
+
     /// The same shear for another origin.
     #[inline]
     fn with_origin(mut self, origin: Vec3) -> Self {

@@ -8,6 +8,7 @@ use glam::{Mat3, Vec2, Vec3};
 use super::file::{LightDesc, SceneFile, SphereDesc};
 use super::obj::{ObjError, ObjModel, load_obj};
 use super::{Geometry, NONE, Scene, Sphere};
+use crate::accel::packed::PackedTriangles;
 use crate::accel::{BuildParams, KdTree, Primitives};
 use crate::camera::Camera;
 use crate::light::{Light, LightSet};
@@ -330,6 +331,7 @@ fn finish(b: Builder, camera: Camera, settings: RenderSettings, mut lights: Vec<
     Scene {
         camera,
         settings,
+        packed: PackedTriangles::for_small_scene(&geometry),
         geometry,
         accel,
         materials,

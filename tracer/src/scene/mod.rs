@@ -17,6 +17,7 @@ pub use overrides::Overrides;
 
 use glam::{Vec2, Vec3};
 
+use crate::accel::packed::PackedTriangles;
 use crate::accel::{Hit, KdTree};
 use crate::camera::Camera;
 use crate::geometry::Ray;
@@ -30,6 +31,9 @@ pub struct Scene {
     pub settings: RenderSettings,
     pub geometry: Geometry,
     pub accel: KdTree,
+    /// Scenes of a few hundred triangles are traced by brute force in blocks instead of
+    /// the tree ([`PackedTriangles::for_small_scene`]); same answers, bit for bit.
+    pub packed: Option<PackedTriangles>,
     pub materials: Vec<Material>,
     /// The name of each material (from `newmtl`), for messages and tests.
     pub material_names: Vec<String>,
@@ -61,12 +65,18 @@ pub struct SurfaceHit {
 impl Scene {
     #[inline]
     pub fn intersect(&self, ray: &Ray, tmax: f32) -> Option<Hit> {
-        self.accel.intersect(&self.geometry, ray, tmax)
+        match &self.packed {
+            Some(p) => p.intersect(&self.geometry, ray, tmax),
+            None => self.accel.intersect(&self.geometry, ray, tmax),
+        }
     }
 
     #[inline]
     pub fn occluded(&self, ray: &Ray, tmax: f32) -> bool {
-        self.accel.occluded(&self.geometry, ray, tmax)
+        match &self.packed {
+            Some(p) => p.occluded(&self.geometry, ray, tmax),
+            None => self.accel.occluded(&self.geometry, ray, tmax),
+        }
     }
 
     /// Surface data at a hit found by [`Scene::intersect`] for `ray`.
