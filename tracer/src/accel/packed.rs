@@ -120,6 +120,42 @@ impl PackedTriangles {
     /// Nearest hit with `0 < t < tmax` among all of `prims`: exactly
     /// [`super::brute_force_intersect`]`(prims, ray, tmax)`.
     pub fn intersect<P: Primitives>(&self, prims: &P, ray: &Ray, tmax: f32) -> Option<Hit> {
+        match self.simd {
+            Simd::Baseline => self.intersect_impl(prims, ray, tmax),
+            #[cfg(target_arch = "x86_64")]
+            // SAFETY: `Avx2` is only chosen when the CPU reports AVX2.
+            Simd::Avx2 => unsafe { self.intersect_avx2(prims, ray, tmax) },
+        }
+    }
+
+    /// Whether anything in `prims` is hit with `0 < t < tmax`: exactly
+    /// [`super::brute_force_occluded`]`(prims, ray, tmax)`.
+    pub fn occluded<P: Primitives>(&self, prims: &P, ray: &Ray, tmax: f32) -> bool {
+        match self.simd {
+            Simd::Baseline => self.occluded_impl(prims, ray, tmax),
+            #[cfg(target_arch = "x86_64")]
+            // SAFETY: as in `intersect`.
+            Simd::Avx2 => unsafe { self.occluded_avx2(prims, ray, tmax) },
+        }
+    }
+
+    // The whole query is compiled for AVX2, not just the block test, so that the block
+    // test inlines into the loop. Only wider registers, never fused multiply-adds (Rust
+    // does not contract `a * b + c`): the bits are the baseline's.
+    #[cfg(target_arch = "x86_64")]
+    #[target_feature(enable = "avx2")]
+    unsafe fn intersect_avx2<P: Primitives>(&self, prims: &P, ray: &Ray, tmax: f32) -> Option<Hit> {
+        self.intersect_impl(prims, ray, tmax)
+    }
+
+    #[cfg(target_arch = "x86_64")]
+    #[target_feature(enable = "avx2")]
+    unsafe fn occluded_avx2<P: Primitives>(&self, prims: &P, ray: &Ray, tmax: f32) -> bool {
+        self.occluded_impl(prims, ray, tmax)
+    }
+
+    #[inline(always)]
+    fn intersect_impl<P: Primitives>(&self, prims: &P, ray: &Ray, tmax: f32) -> Option<Hit> {
         let pre = RayPrecomp::new(ray);
         if !self.may_hit(ray, &pre, tmax) {
             return None;
@@ -133,7 +169,7 @@ impl PackedTriangles {
             }
         };
         for (bi, block) in self.blocks.iter().enumerate() {
-            let mut keep = self.simd.candidates(block, &pre.shear, tmax) & self.valid(bi);
+            let mut keep = candidates(block, &pre.shear, tmax) & self.valid(bi);
             while keep != 0 {
                 let lane = keep.trailing_zeros() as usize;
                 keep &= keep - 1;
@@ -146,15 +182,14 @@ impl PackedTriangles {
         best
     }
 
-    /// Whether anything in `prims` is hit with `0 < t < tmax`: exactly
-    /// [`super::brute_force_occluded`]`(prims, ray, tmax)`.
-    pub fn occluded<P: Primitives>(&self, prims: &P, ray: &Ray, tmax: f32) -> bool {
+    #[inline(always)]
+    fn occluded_impl<P: Primitives>(&self, prims: &P, ray: &Ray, tmax: f32) -> bool {
         let pre = RayPrecomp::new(ray);
         if !self.may_hit(ray, &pre, tmax) {
             return false;
         }
         for (bi, block) in self.blocks.iter().enumerate() {
-            let mut keep = self.simd.candidates(block, &pre.shear, tmax) & self.valid(bi);
+            let mut keep = candidates(block, &pre.shear, tmax) & self.valid(bi);
             while keep != 0 {
                 let lane = keep.trailing_zeros() as usize;
                 keep &= keep - 1;
@@ -184,25 +219,6 @@ impl Simd {
         }
         Simd::Baseline
     }
-
-    /// [`candidates`] compiled for this instruction set: eight lanes are one AVX2 register
-    /// (two SSE ones in the x86-64 baseline). Only wider registers, never fused
-    /// multiply-adds (Rust does not contract `a * b + c`), so the bits are the same.
-    #[inline(always)]
-    fn candidates(self, b: &Block, shear: &RayShear, tmax: f32) -> u32 {
-        match self {
-            Simd::Baseline => candidates(b, shear, tmax),
-            #[cfg(target_arch = "x86_64")]
-            // SAFETY: `Avx2` is only constructed when the CPU reports AVX2.
-            Simd::Avx2 => unsafe { candidates_avx2(b, shear, tmax) },
-        }
-    }
-}
-
-#[cfg(target_arch = "x86_64")]
-#[target_feature(enable = "avx2")]
-unsafe fn candidates_avx2(b: &Block, shear: &RayShear, tmax: f32) -> u32 {
-    candidates(b, shear, tmax)
 }
 
 /// Bit mask of the lanes whose triangle the watertight test may accept with `tmax` (see
@@ -294,8 +310,10 @@ mod tests {
         let mut r = Rng(3);
         for n in [0, 1, 7, 8, 9, 40] {
             let geo = scene(&mut r, n);
-            let packed = PackedTriangles::for_small_scene(&geo).expect("small");
-            for k in 0..4000 {
+            let detected = PackedTriangles::for_small_scene(&geo).expect("small");
+            // The instruction set found here, and the x86-64 baseline.
+            let baseline = PackedTriangles { simd: Simd::Baseline, ..detected.clone() };
+            for (k, packed) in (0..8000).map(|k| (k / 2, if k % 2 == 0 { &detected } else { &baseline })) {
                 let o = r.v() * 2.0;
                 // Every fourth ray aims exactly at a grid vertex or edge point.
                 let target = if k % 4 == 0 {
