@@ -230,7 +230,9 @@ fn candidates(b: &Block, shear: &RayShear, tmax: f32) -> u32 {
     let (p0x, p0y, p0z) = (&p0[kx], &p0[ky], &p0[kz]);
     let (p1x, p1y, p1z) = (&p1[kx], &p1[ky], &p1[kz]);
     let (p2x, p2y, p2z) = (&p2[kx], &p2[ky], &p2[kz]);
-    let mut keep = [false; LANES];
+    // Lane l's verdict as bit l, combined below by OR: shifts and ORs vectorise, where
+    // packing an array of bools into a mask did not.
+    let mut keep = [0u32; LANES];
     for l in 0..LANES {
         // The same operations, in the same order, as `intersect_triangle_corners`.
         let (a_x, a_y, a_z) = (p0x[l] - ox, p0y[l] - oy, p0z[l] - oz);
@@ -252,9 +254,9 @@ fn candidates(b: &Block, shear: &RayShear, tmax: f32) -> u32 {
         let limit = tmax * det;
         let out_neg = (det < 0.0) & ((t_scaled >= 0.0) | (t_scaled < limit));
         let out_pos = (det > 0.0) & ((t_scaled <= 0.0) | (t_scaled > limit));
-        keep[l] = zero | (!mixed & (det != 0.0) & !out_neg & !out_pos);
+        keep[l] = u32::from(zero | (!mixed & (det != 0.0) & !out_neg & !out_pos)) << l;
     }
-    keep.iter().enumerate().fold(0, |m, (l, &k)| m | (u32::from(k) << l))
+    keep.iter().fold(0, |m, &k| m | k)
 }
 
 #[cfg(test)]
