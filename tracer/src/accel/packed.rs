@@ -31,12 +31,16 @@ const LANES: usize = 8;
 
 /// Largest scene traced by [`PackedTriangles`] instead of the kd-tree. Full renders
 /// (`coordinator render SCENE --local-workers 0 --width 256 --spp 16`, median of 5,
-/// samples/s, kd-tree → packed): Cornell box (32 triangles) 1.00 → 1.61 M, Veach MIS
-/// (12 + 5 spheres) 1.59 → 1.99, glass (12 + 2) 1.09 → 1.69, cube (52) 2.87 → 3.18, room
-/// (74 + 1) 0.63 → 0.68; bumpy spheres over a plane: 66 triangles 7.9 → 8.6, 130: 9.4 →
-/// 7.5, 258: 8.9 → 5.7.
-pub const SMALL_TRIANGLES: usize = 96;
+/// M samples/s, kd-tree → packed with block culling): Cornell box (32 triangles) 1.00 →
+/// 1.57, Veach MIS (12 + 5 spheres) 1.58 → 2.02, glass (12 + 2) 1.13 → 1.63, cube (52)
+/// 2.94 → 3.71, room (74 + 1) 0.62 → 0.85; bumpy spheres over a plane, 66 triangles
+/// 9.1 → 10.5, 130: 8.6 → 10.1, 258: 8.7 → 9.0, 514: 9.3 → 7.8.
+pub const SMALL_TRIANGLES: usize = 256;
 pub const SMALL_SPHERES: usize = 16;
+
+/// Blocks are culled by their boxes only from this many blocks on: with fewer, each box
+/// spans most of the scene and the slab tests cost more than they save.
+const CULL_MIN_BLOCKS: usize = 6;
 
 /// Eight triangles: `p[vertex][axis][lane]`.
 #[derive(Clone, Copy, Debug)]
@@ -54,6 +58,10 @@ pub struct PackedTriangles {
     len: usize,
     /// Bounds of every primitive of the set: rays that miss them skip all tests.
     bounds: Aabb,
+    /// Bounds of each block's triangles: a block the ray cannot reach before the nearest
+    /// hit so far is skipped (index order is kept, so the answer is still brute force's;
+    /// triangles that are neighbours in a file are usually neighbours in space).
+    boxes: Vec<Aabb>,
     simd: Simd,
 }
 
@@ -63,7 +71,9 @@ impl PackedTriangles {
     pub fn new(corners: impl ExactSizeIterator<Item = [Vec3; 3]>, bounds: Aabb) -> Self {
         let len = corners.len();
         let mut blocks = vec![Block { p: [[[0.0; LANES]; 3]; 3] }; len.div_ceil(LANES)];
+        let mut boxes = vec![Aabb::EMPTY; blocks.len()];
         for (i, tri) in corners.enumerate() {
+            boxes[i / LANES] = tri.iter().fold(boxes[i / LANES], |b, &p| b.union(Aabb::new(p, p)));
             let b = &mut blocks[i / LANES];
             for (v, corner) in tri.iter().enumerate() {
                 for a in 0..3 {
@@ -71,7 +81,8 @@ impl PackedTriangles {
                 }
             }
         }
-        Self { blocks, len, bounds, simd: Simd::detect() }
+        let boxes = boxes.into_iter().collect();
+        Self { blocks, len, bounds, boxes, simd: Simd::detect() }
     }
 
     /// The packed triangles of `geo` when brute force beats its kd-tree: at most
@@ -95,13 +106,17 @@ impl PackedTriangles {
         self.blocks.len() * size_of::<Block>()
     }
 
-    /// Whether the ray can reach the bounds within `tmax`: a slab test widened by a
-    /// relative margin far above its rounding, so it never drops a ray a primitive test
-    /// would hit (it only saves the tests of rays that clearly miss everything).
+    /// The margin by which boxes are widened for this ray: far above the rounding of the
+    /// slab test and of the primitives' tests (which can report hits a few ulps outside
+    /// a primitive), so culling by boxes never drops a hit.
     #[inline]
-    fn may_hit(&self, ray: &Ray, pre: &RayPrecomp, tmax: f32) -> bool {
-        let b = &self.bounds;
-        let pad = 1e-3 * (b.diagonal().max_element() + ray.origin.abs().max_element());
+    fn margin(&self, ray: &Ray) -> f32 {
+        1e-3 * (self.bounds.diagonal().max_element() + ray.origin.abs().max_element())
+    }
+
+    /// Whether the ray can reach box `b`, widened by `pad`, within `tmax`.
+    #[inline(always)]
+    fn reaches(b: &Aabb, pad: f32, ray: &Ray, pre: &RayPrecomp, tmax: f32) -> bool {
         let (lo, hi) = (b.min - Vec3::splat(pad), b.max + Vec3::splat(pad));
         let (t0, t1) = ((lo - ray.origin) * pre.inv_dir, (hi - ray.origin) * pre.inv_dir);
         // NaN (0 · inf, a ray in a slab's plane) must not exclude: compare so it passes.
@@ -157,7 +172,8 @@ impl PackedTriangles {
     #[inline(always)]
     fn intersect_impl<P: Primitives>(&self, prims: &P, ray: &Ray, tmax: f32) -> Option<Hit> {
         let pre = RayPrecomp::new(ray);
-        if !self.may_hit(ray, &pre, tmax) {
+        let pad = self.margin(ray);
+        if !Self::reaches(&self.bounds, pad, ray, &pre, tmax) {
             return None;
         }
         let mut best = None;
@@ -168,7 +184,11 @@ impl PackedTriangles {
                 best = Some(Hit { t: h.t, prim: i, u: h.u, v: h.v });
             }
         };
+        let cull = self.blocks.len() >= CULL_MIN_BLOCKS;
         for (bi, block) in self.blocks.iter().enumerate() {
+            if cull && !Self::reaches(&self.boxes[bi], pad, ray, &pre, tmax) {
+                continue;
+            }
             let mut keep = candidates(block, &pre.shear, tmax) & self.valid(bi);
             while keep != 0 {
                 let lane = keep.trailing_zeros() as usize;
@@ -185,10 +205,15 @@ impl PackedTriangles {
     #[inline(always)]
     fn occluded_impl<P: Primitives>(&self, prims: &P, ray: &Ray, tmax: f32) -> bool {
         let pre = RayPrecomp::new(ray);
-        if !self.may_hit(ray, &pre, tmax) {
+        let pad = self.margin(ray);
+        if !Self::reaches(&self.bounds, pad, ray, &pre, tmax) {
             return false;
         }
+        let cull = self.blocks.len() >= CULL_MIN_BLOCKS;
         for (bi, block) in self.blocks.iter().enumerate() {
+            if cull && !Self::reaches(&self.boxes[bi], pad, ray, &pre, tmax) {
+                continue;
+            }
             let mut keep = candidates(block, &pre.shear, tmax) & self.valid(bi);
             while keep != 0 {
                 let lane = keep.trailing_zeros() as usize;
