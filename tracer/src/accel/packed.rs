@@ -81,7 +81,6 @@ impl PackedTriangles {
                 }
             }
         }
-        let boxes = boxes.into_iter().collect();
         Self { blocks, len, bounds, boxes, simd: Simd::detect() }
     }
 
@@ -89,9 +88,10 @@ impl PackedTriangles {
     /// [`SMALL_TRIANGLES`] triangles and [`SMALL_SPHERES`] spheres.
     pub fn for_small_scene(geo: &Geometry) -> Option<Self> {
         let n = geo.mesh.tris.len();
-        let bounds = (0..geo.len() as u32).fold(Aabb::EMPTY, |b, i| b.union(geo.bounds(i)));
-        (n <= SMALL_TRIANGLES && geo.spheres.len() <= SMALL_SPHERES)
-            .then(|| Self::new((0..n).map(|i| *geo.triangle(i)), bounds))
+        (n <= SMALL_TRIANGLES && geo.spheres.len() <= SMALL_SPHERES).then(|| {
+            let bounds = (0..geo.len() as u32).fold(Aabb::EMPTY, |b, i| b.union(geo.bounds(i)));
+            Self::new((0..n).map(|i| *geo.triangle(i)), bounds)
+        })
     }
 
     pub fn len(&self) -> usize {
