@@ -1,15 +1,30 @@
-//! O(N log N) SAH build after Wald & Havran, "On building fast kd-trees for ray tracing,
-//! and on doing that in O(N log N)" (2006): split events are sorted once per axis and
-//! kept sorted while they are partitioned, straddling primitives are re-bounded by
-//! clipping to each child ("perfect splits"), and flat primitives lying in a candidate
-//! plane go to whichever side the SAH prefers.
+//! SAH kd-tree build with perfect (clipped) splits.
+//!
+//! Every node holds its primitives as references: the primitive's index and its extent
+//! in the node's cell. A straddling primitive is re-bounded by clipping it to each child
+//! ("perfect splits", Havran; Wald & Havran 2006), so the SAH sees the geometry as it is.
+//!
+//! Split planes are chosen two ways (after Shevtsov et al. 2007 and Wald 2007):
+//! - Nodes of more than `EXACT_MAX_PRIMS` references use a binned SAH: the cost is
+//!   evaluated at `BINS - 1` equally spaced planes per axis from counts of extents
+//!   starting and ending in each bin. That is O(n) with a small constant and no sorting.
+//! - Smaller nodes evaluate the SAH exactly, at every extent boundary, by sorting their
+//!   events per axis (Wald & Havran's sweep; flat primitives lying in a candidate plane
+//!   go to whichever side the SAH prefers). Sorting a few dozen keys is cheaper than
+//!   keeping global event lists sorted through the partitions, and the bottom of the tree,
+//!   where the exact planes matter most, is where nearly all the nodes are.
+//!
+//! The top levels run on the rayon pool (children by `rayon::join`, binning by chunks
+//! with exact integer sums, so the tree does not depend on the thread count). Below
+//! them each task builds its subtree serially with no allocation per node: references
+//! live in one growing scratch stack, children's lists pushed on top of their parent's.
 //!
 //! Primitive extents are padded by a small absolute margin (`Ctx::pad`) on their
 //! non-flat axes. The intersection routines decide hits on rounded coordinates, so they
 //! can report a hit for a ray that passes a rounding error outside a primitive; padding
 //! makes every cell within that error of a primitive list it, so the tree finds exactly
 //! the hits the brute-force loop finds. Axes on which a primitive is exactly flat need no
-//! padding (its points lie exactly on the plane) and keep Wald–Havran's planar handling.
+//! padding (its points lie exactly on the plane) and keep the planar handling above.
 
 use glam::Vec3;
 use rayon::prelude::*;
@@ -18,11 +33,9 @@ use super::{BuildParams, Node};
 use crate::accel::Primitives;
 use crate::geometry::Aabb;
 
-const END: u32 = 0;
-const PLANAR: u32 = 1;
-const START: u32 = 2;
-const IDX_BITS: u32 = 30;
-const IDX_MASK: u32 = (1 << IDX_BITS) - 1;
+const END: u64 = 0;
+const PLANAR: u64 = 1;
+const START: u64 = 2;
 
 /// Nodes with at least this many primitive references build their children in parallel
 /// (above it the `rayon::join` overhead is negligible against the work).
@@ -30,51 +43,45 @@ const PAR_MIN_PRIMS: usize = 4096;
 /// Parallel recursion stops at this depth: 2^8 tasks keep any thread count busy, and
 /// each parallel level costs one copy of its subtrees' nodes when they are stitched.
 const PAR_MAX_DEPTH: u32 = 8;
-/// Per-node work (sweeps, partitioning) is spread over the three axes above this size.
-const PAR_AXES_MIN_PRIMS: usize = 32 * 1024;
+/// Binning is spread over the rayon pool, in chunks of this many references, above it.
+const PAR_BIN_CHUNK: usize = 32 * 1024;
+/// Nodes of at most this many references get the exact SAH.
+const EXACT_MAX_PRIMS: usize = 64;
+/// Bins per axis of the binned SAH.
+const BINS: usize = 64;
 
 /// Padding relative to the largest coordinate magnitude of the scene: 2^-16 is 128 ulps,
 /// far above the rounding of the triangle and sphere tests for ray origins up to ~30×
 /// the scene's extent away, and far below any primitive size that matters.
 const PAD_REL: f32 = 1.0 / 65536.0;
 
-/// A split event: position and, packed in `code`, the kind (top 2 bits, ordered
-/// end < planar < start as the sweep needs) and the primitive's index in its node.
+/// A primitive and its extent in the current cell.
 #[derive(Clone, Copy, Debug)]
-struct Event {
-    pos: f32,
-    code: u32,
+struct Ref {
+    id: u32,
+    b: Aabb,
 }
 
-impl Event {
-    #[inline]
-    fn new(pos: f32, kind: u32, idx: u32) -> Self {
-        // `+ 0.0` turns -0.0 into +0.0 so equal positions have equal keys.
-        Self { pos: pos + 0.0, code: (kind << IDX_BITS) | idx }
-    }
-    #[inline]
-    fn kind(self) -> u32 {
-        self.code >> IDX_BITS
-    }
-    #[inline]
-    fn idx(self) -> usize {
-        (self.code & IDX_MASK) as usize
-    }
-    /// Total order (position, kind, index): sorting by it is deterministic.
-    #[inline]
-    fn key(self) -> u64 {
-        let b = self.pos.to_bits();
-        let ord = if b >> 31 == 1 { !b } else { b | 0x8000_0000 };
-        ((ord as u64) << 32) | self.code as u64
-    }
+/// A split event as one sortable key: position (as order-preserving bits), kind
+/// (end < planar < start, the order the sweep needs at equal positions) and the
+/// reference's index in its node. Keys are distinct, so sorting them is deterministic.
+#[inline]
+fn event(pos: f32, kind: u64, idx: usize) -> u64 {
+    // `+ 0.0` turns -0.0 into +0.0 so equal positions have equal keys.
+    let b = (pos + 0.0).to_bits();
+    let ord = if b >> 31 == 1 { !b } else { b | 0x8000_0000 };
+    ((ord as u64) << 32) | (kind << 30) | idx as u64
 }
 
-/// A node under construction: its cell, its primitives (global ids; an event's index
-/// refers to this list) and the sorted events of each axis.
-struct Work {
-    cell: Aabb,
-    prims: Vec<u32>,
-    events: [Vec<Event>; 3],
+#[inline]
+fn event_pos(key: u64) -> f32 {
+    let ord = (key >> 32) as u32;
+    f32::from_bits(if ord >> 31 == 1 { ord & 0x7fff_ffff } else { !ord })
+}
+
+#[inline]
+fn event_kind(key: u64) -> u64 {
+    (key >> 30) & 3
 }
 
 #[derive(Clone, Copy, Debug)]
@@ -129,7 +136,7 @@ pub(super) fn default_max_depth(n: usize) -> u32 {
 
 pub(super) fn build<P: Primitives>(prims: &P, params: &BuildParams) -> Built {
     let n = prims.len();
-    assert!(n <= IDX_MASK as usize, "kd-tree: at most 2^30 primitives");
+    assert!(n < 1 << 30, "kd-tree: at most 2^30 primitives");
     let bounds: Vec<Aabb> = (0..n as u32).into_par_iter().map(|i| prims.bounds(i)).collect();
     let valid = |b: &Aabb| !b.is_empty() && b.min.is_finite() && b.max.is_finite();
     let scene = bounds.iter().filter(|b| valid(b)).fold(Aabb::EMPTY, |a, b| a.union(*b));
@@ -149,20 +156,13 @@ pub(super) fn build<P: Primitives>(prims: &P, params: &BuildParams) -> Built {
         pad: magnitude * PAD_REL,
     };
 
-    let ids: Vec<u32> = (0..n as u32).filter(|&i| valid(&bounds[i as usize])).collect();
-    let regions: Vec<Aabb> = ids.iter().map(|&i| ctx.padded(bounds[i as usize])).collect();
+    let refs: Vec<Ref> = (0..n as u32)
+        .filter(|&i| valid(&bounds[i as usize]))
+        .map(|i| Ref { id: i, b: ctx.padded(bounds[i as usize]) })
+        .collect();
     drop(bounds);
-    let cell = regions.iter().fold(Aabb::EMPTY, |a, b| a.union(*b));
-    let events = per_axis(true, |axis| {
-        let mut ev = Vec::with_capacity(2 * regions.len());
-        for (i, r) in regions.iter().enumerate() {
-            push_events_axis(&mut ev, r, axis, i as u32);
-        }
-        ev.par_sort_unstable_by_key(|e| e.key());
-        ev
-    });
-    drop(regions);
-    build_rec(&ctx, Work { cell, prims: ids, events }, 0, &mut out);
+    let cell = refs.iter().fold(Aabb::EMPTY, |a, r| a.union(r.b));
+    build_rec(&ctx, cell, refs, 0, &mut out);
     Built { out, bounds: scene, cell, max_depth }
 }
 
@@ -192,27 +192,56 @@ impl<P: Primitives> Ctx<'_, P> {
         if r.is_empty() { Aabb::EMPTY } else { r }
     }
 
-    fn sah(&self, cell: &Aabb, axis: usize, events: &[Event], n: usize) -> Option<Split> {
+    /// The SAH cost of a split with `nl`, `nr` references and child areas `pl`, `pr`
+    /// relative to the parent's.
+    #[inline]
+    fn cost(&self, pl: f32, pr: f32, nl: usize, nr: usize) -> f32 {
+        let bonus = if nl == 0 || nr == 0 { 1.0 - self.empty_bonus } else { 1.0 };
+        self.traversal_cost + self.intersection_cost * bonus * (pl * nl as f32 + pr * nr as f32)
+    }
+
+    /// Exact SAH over every extent boundary on every axis; `keys` is scratch.
+    fn exact_split(&self, cell: &Aabb, refs: &[Ref], keys: &mut Vec<u64>) -> Option<Split> {
+        let mut best: Option<Split> = None;
+        for axis in 0..3 {
+            keys.clear();
+            for (i, r) in refs.iter().enumerate() {
+                let (lo, hi) = (r.b.min[axis], r.b.max[axis]);
+                if lo == hi {
+                    keys.push(event(lo, PLANAR, i));
+                } else {
+                    keys.push(event(lo, START, i));
+                    keys.push(event(hi, END, i));
+                }
+            }
+            keys.sort_unstable();
+            if let Some(s) = self.sweep(cell, axis, keys, refs.len())
+                && best.is_none_or(|b| s.cost < b.cost)
+            {
+                best = Some(s);
+            }
+        }
+        best
+    }
+
+    /// Wald & Havran's sweep over one axis's sorted events.
+    fn sweep(&self, cell: &Aabb, axis: usize, keys: &[u64], n: usize) -> Option<Split> {
         let d = cell.diagonal();
         let (b, c) = ((axis + 1) % 3, (axis + 2) % 3);
         let cap = d[b] * d[c];
         let rim = d[b] + d[c];
         let inv_sa = 1.0 / cell.surface_area();
         let (lo, hi) = (cell.min[axis], cell.max[axis]);
-        let (ct, ci, eb) = (self.traversal_cost, self.intersection_cost, self.empty_bonus);
-        let cost = |pl: f32, pr: f32, nl: usize, nr: usize| {
-            let bonus = if nl == 0 || nr == 0 { 1.0 - eb } else { 1.0 };
-            ct + ci * bonus * (pl * nl as f32 + pr * nr as f32)
-        };
         let mut best: Option<Split> = None;
         let (mut nl, mut nr) = (0usize, n);
         let mut i = 0;
-        while i < events.len() {
-            let p = events[i].pos;
+        while i < keys.len() {
+            let at = keys[i] >> 32;
+            let p = event_pos(keys[i]);
             // Events at one position come ordered end < planar < start.
             let mut count = [0usize; 3];
-            while i < events.len() && events[i].pos == p {
-                count[events[i].kind() as usize] += 1;
+            while i < keys.len() && keys[i] >> 32 == at {
+                count[event_kind(keys[i]) as usize] += 1;
                 i += 1;
             }
             let [ends, planars, starts] = count;
@@ -221,10 +250,10 @@ impl<P: Primitives> Ctx<'_, P> {
                 let pl = 2.0 * (cap + (p - lo) * rim) * inv_sa;
                 let pr = 2.0 * (cap + (hi - p) * rim) * inv_sa;
                 let (c, planar_left) = if planars == 0 {
-                    (cost(pl, pr, nl, nr), true)
+                    (self.cost(pl, pr, nl, nr), true)
                 } else {
-                    let left = cost(pl, pr, nl + planars, nr);
-                    let right = cost(pl, pr, nl, nr + planars);
+                    let left = self.cost(pl, pr, nl + planars, nr);
+                    let right = self.cost(pl, pr, nl, nr + planars);
                     if left <= right { (left, true) } else { (right, false) }
                 };
                 if best.is_none_or(|b| c < b.cost) {
@@ -236,182 +265,203 @@ impl<P: Primitives> Ctx<'_, P> {
         best
     }
 
-    fn find_split(&self, w: &Work) -> Option<Split> {
-        if !(w.cell.surface_area() > 0.0) {
-            return None;
+    /// SAH evaluated at `BINS - 1` equally spaced planes per axis, from per-bin counts
+    /// of extent starts and ends. The counts only estimate the sides (an extent ending
+    /// exactly on a plane counts on both); the partition then uses the exact rules.
+    fn binned_split(&self, cell: &Aabb, refs: &[Ref]) -> Option<Split> {
+        let d = cell.diagonal();
+        let lo = cell.min;
+        let scale = Vec3::splat(BINS as f32) / d;
+        // counts[2 * axis]: extents starting in each bin; counts[2 * axis + 1]: ending.
+        let count = |chunk: &[Ref]| {
+            let mut c = [[0u32; BINS]; 6];
+            for r in chunk {
+                // Float-to-int casts saturate: below 0 (and NaN on a flat cell) give 0.
+                let s = ((r.b.min - lo) * scale).to_array();
+                let e = ((r.b.max - lo) * scale).to_array();
+                for a in 0..3 {
+                    c[2 * a][(s[a] as usize).min(BINS - 1)] += 1;
+                    c[2 * a + 1][(e[a] as usize).min(BINS - 1)] += 1;
+                }
+            }
+            c
+        };
+        let counts = if refs.len() >= 2 * PAR_BIN_CHUNK {
+            refs.par_chunks(PAR_BIN_CHUNK).map(count).reduce(
+                || [[0u32; BINS]; 6],
+                |mut a, b| {
+                    a.iter_mut().flatten().zip(b.iter().flatten()).for_each(|(x, y)| *x += y);
+                    a
+                },
+            )
+        } else {
+            count(refs)
+        };
+        let n = refs.len();
+        let inv_sa = 1.0 / cell.surface_area();
+        let mut best: Option<Split> = None;
+        for axis in 0..3 {
+            let (b, c) = ((axis + 1) % 3, (axis + 2) % 3);
+            let cap = d[b] * d[c];
+            let rim = d[b] + d[c];
+            let (lo, hi) = (cell.min[axis], cell.max[axis]);
+            let step = d[axis] / BINS as f32;
+            let (mut nl, mut nr) = (0usize, n);
+            for i in 1..BINS {
+                nl += counts[2 * axis][i - 1] as usize;
+                nr -= counts[2 * axis + 1][i - 1] as usize;
+                let p = lo + i as f32 * step;
+                if !(p > lo && p < hi) {
+                    continue;
+                }
+                let pl = 2.0 * (cap + (p - lo) * rim) * inv_sa;
+                let pr = 2.0 * (cap + (hi - p) * rim) * inv_sa;
+                let cost = self.cost(pl, pr, nl, nr);
+                if best.is_none_or(|s| cost < s.cost) {
+                    best = Some(Split { cost, axis, pos: p, planar_left: true });
+                }
+            }
         }
-        let n = w.prims.len();
-        let splits = per_axis(n >= PAR_AXES_MIN_PRIMS, |a| self.sah(&w.cell, a, &w.events[a], n));
-        splits.into_iter().flatten().reduce(|a, b| if b.cost < a.cost { b } else { a })
+        best
     }
 
-    fn split(&self, w: Work, s: Split) -> (Work, Work) {
-        const LEFT: u8 = 1;
-        const RIGHT: u8 = 2;
-        const BOTH: u8 = 3;
-        /// Straddlers re-bounded into one child only; their old events are dropped.
-        const LEFT_NEW: u8 = 4;
-        const RIGHT_NEW: u8 = 5;
-        const NEITHER: u8 = 6;
-        let n = w.prims.len();
-        let mut side = vec![BOTH; n];
-        for e in &w.events[s.axis] {
-            let here = match e.kind() {
-                END if e.pos <= s.pos => LEFT,
-                START if e.pos >= s.pos => RIGHT,
-                PLANAR if e.pos < s.pos || (e.pos == s.pos && s.planar_left) => LEFT,
-                PLANAR => RIGHT,
-                _ => continue,
-            };
-            side[e.idx()] = here;
+    fn find_split(&self, cell: &Aabb, refs: &[Ref], keys: &mut Vec<u64>) -> Option<Split> {
+        if !(cell.surface_area() > 0.0) {
+            return None;
         }
-        let mut lcell = w.cell;
-        lcell.max[s.axis] = s.pos;
-        let mut rcell = w.cell;
-        rcell.min[s.axis] = s.pos;
+        if refs.len() <= EXACT_MAX_PRIMS { self.exact_split(cell, refs, keys) } else { self.binned_split(cell, refs) }
+    }
 
-        let mut lnew = Vec::new();
-        let mut rnew = Vec::new();
-        for (i, sd) in side.iter_mut().enumerate() {
-            if *sd != BOTH {
-                continue;
-            }
-            let g = w.prims[i];
-            let (l, r) = (self.region(g, &lcell), self.region(g, &rcell));
-            *sd = match (l.is_empty(), r.is_empty()) {
-                (false, false) => BOTH,
-                (false, true) => LEFT_NEW,
-                (true, false) => RIGHT_NEW,
-                (true, true) => NEITHER,
-            };
-            if !l.is_empty() {
-                lnew.push((i, l));
-            }
-            if !r.is_empty() {
-                rnew.push((i, r));
-            }
-        }
-
-        let mut lmap = vec![u32::MAX; n];
-        let mut rmap = vec![u32::MAX; n];
-        let mut lprims = Vec::with_capacity(n);
-        let mut rprims = Vec::with_capacity(n);
-        for (i, &sd) in side.iter().enumerate() {
-            if matches!(sd, LEFT | LEFT_NEW | BOTH) {
-                lmap[i] = lprims.len() as u32;
-                lprims.push(w.prims[i]);
-            }
-            if matches!(sd, RIGHT | RIGHT_NEW | BOTH) {
-                rmap[i] = rprims.len() as u32;
-                rprims.push(w.prims[i]);
-            }
-        }
-
-        let parallel = n >= PAR_AXES_MIN_PRIMS;
-        let (side, lmap, rmap, lnew, rnew) = (&side, &lmap, &rmap, &lnew, &rnew);
-        let events = w.events;
-        let per = per_axis(parallel, |a| {
-            let mut l = Vec::with_capacity(events[a].len());
-            let mut r = Vec::with_capacity(events[a].len());
-            for &e in &events[a] {
-                let i = e.idx();
-                match side[i] {
-                    LEFT => l.push(Event { pos: e.pos, code: (e.code & !IDX_MASK) | lmap[i] }),
-                    RIGHT => r.push(Event { pos: e.pos, code: (e.code & !IDX_MASK) | rmap[i] }),
-                    _ => {}
+    /// Sends each reference to the side(s) of the plane its extent reaches, calling
+    /// `left` and `right` in order; straddlers are clipped to each child's cell and go
+    /// only where something is left of them.
+    fn partition(&self, cell: &Aabb, refs: &[Ref], s: Split, mut left: impl FnMut(Ref), mut right: impl FnMut(Ref)) {
+        let a = s.axis;
+        let mut lcell = *cell;
+        lcell.max[a] = s.pos;
+        let mut rcell = *cell;
+        rcell.min[a] = s.pos;
+        for &x in refs {
+            let (min, max) = (x.b.min[a], x.b.max[a]);
+            // The sweep's rules: an extent ending on the plane is left, one starting on
+            // it right, a flat one in it goes to `planar_left`'s side.
+            if min == max {
+                if min < s.pos || (min == s.pos && s.planar_left) { left(x) } else { right(x) }
+            } else if max <= s.pos {
+                left(x);
+            } else if min >= s.pos {
+                right(x);
+            } else {
+                let lb = self.region(x.id, &lcell);
+                if !lb.is_empty() {
+                    left(Ref { id: x.id, b: lb });
+                }
+                let rb = self.region(x.id, &rcell);
+                if !rb.is_empty() {
+                    right(Ref { id: x.id, b: rb });
                 }
             }
-            let fresh = |new: &[(usize, Aabb)], map: &[u32]| {
-                let mut ev = Vec::with_capacity(2 * new.len());
-                for &(i, b) in new {
-                    push_events_axis(&mut ev, &b, a, map[i]);
-                }
-                ev.sort_unstable_by_key(|e| e.key());
-                ev
-            };
-            (merge(l, &fresh(lnew, lmap)), merge(r, &fresh(rnew, rmap)))
-        });
-        let [(lx, rx), (ly, ry), (lz, rz)] = per;
-        (
-            Work { cell: lcell, prims: lprims, events: [lx, ly, lz] },
-            Work { cell: rcell, prims: rprims, events: [rx, ry, rz] },
-        )
+        }
+    }
+
+    fn child_cells(cell: &Aabb, s: Split) -> (Aabb, Aabb) {
+        let mut l = *cell;
+        l.max[s.axis] = s.pos;
+        let mut r = *cell;
+        r.min[s.axis] = s.pos;
+        (l, r)
+    }
+
+    /// The split to make, or `None` for a leaf.
+    fn decide(&self, cell: &Aabb, refs: &[Ref], depth: u32, keys: &mut Vec<u64>) -> Option<Split> {
+        let n = refs.len();
+        if n <= self.max_leaf_prims || depth >= self.max_depth {
+            return None;
+        }
+        // Automatic termination: a leaf costs `intersection_cost · n`; split only if cheaper.
+        self.find_split(cell, refs, keys).filter(|s| s.cost < self.intersection_cost * n as f32)
     }
 }
 
-fn build_rec<P: Primitives>(ctx: &Ctx<'_, P>, w: Work, depth: u32, out: &mut Out) {
-    let n = w.prims.len();
-    let split = if n <= ctx.max_leaf_prims || depth >= ctx.max_depth { None } else { ctx.find_split(&w) };
-    // Automatic termination: a leaf costs `intersection_cost · n`; split only if cheaper.
-    let Some(split) = split.filter(|s| s.cost < ctx.intersection_cost * n as f32) else {
-        out.nodes.push(Node::leaf(&w.prims, &mut out.ids));
+/// Per-task scratch for serial subtree builds.
+#[derive(Default)]
+struct Scratch {
+    /// Stack of reference lists: a node's list on top, its children's pushed above it.
+    refs: Vec<Ref>,
+    /// The children's lists while the node's is partitioned.
+    left: Vec<Ref>,
+    right: Vec<Ref>,
+    keys: Vec<u64>,
+    ids: Vec<u32>,
+}
+
+fn leaf(refs: &[Ref], ids: &mut Vec<u32>, out: &mut Out) {
+    ids.clear();
+    ids.extend(refs.iter().map(|r| r.id));
+    out.nodes.push(Node::leaf(ids, &mut out.ids));
+}
+
+/// Builds the subtree of a node that owns its reference list: in parallel near the
+/// root, serially on a scratch stack below.
+fn build_rec<P: Primitives>(ctx: &Ctx<'_, P>, cell: Aabb, refs: Vec<Ref>, depth: u32, out: &mut Out) {
+    let n = refs.len();
+    if n < PAR_MIN_PRIMS || depth >= PAR_MAX_DEPTH {
+        let mut s = Scratch { refs, ..Default::default() };
+        build_serial(ctx, cell, 0, depth, out, &mut s);
+        return;
+    }
+    let mut keys = Vec::new();
+    let Some(split) = ctx.decide(&cell, &refs, depth, &mut keys) else {
+        leaf(&refs, &mut Vec::new(), out);
         return;
     };
-    let (left, right) = ctx.split(w, split);
+    let (mut l, mut r) = (Vec::with_capacity(n), Vec::with_capacity(n));
+    ctx.partition(&cell, &refs, split, |x| l.push(x), |x| r.push(x));
+    drop(refs);
+    let (lcell, rcell) = Ctx::<P>::child_cells(&cell, split);
     let at = out.nodes.len();
     out.nodes.push(Node::default());
-    let above = if n >= PAR_MIN_PRIMS && depth < PAR_MAX_DEPTH {
-        let (lo, ro) = rayon::join(
-            || {
-                let mut o = Out::default();
-                build_rec(ctx, left, depth + 1, &mut o);
-                o
-            },
-            || {
-                let mut o = Out::default();
-                build_rec(ctx, right, depth + 1, &mut o);
-                o
-            },
-        );
-        out.append(lo);
-        let above = out.nodes.len();
-        out.append(ro);
-        above
-    } else {
-        build_rec(ctx, left, depth + 1, out);
-        let above = out.nodes.len();
-        build_rec(ctx, right, depth + 1, out);
-        above
-    };
+    let (lo, ro) = rayon::join(
+        || {
+            let mut o = Out::default();
+            build_rec(ctx, lcell, l, depth + 1, &mut o);
+            o
+        },
+        || {
+            let mut o = Out::default();
+            build_rec(ctx, rcell, r, depth + 1, &mut o);
+            o
+        },
+    );
+    out.append(lo);
+    let above = out.nodes.len();
+    out.append(ro);
     out.nodes[at] = Node::interior(split.axis, split.pos, (above - at) as u32);
 }
 
-fn push_events_axis(ev: &mut Vec<Event>, b: &Aabb, axis: usize, idx: u32) {
-    if b.min[axis] == b.max[axis] {
-        ev.push(Event::new(b.min[axis], PLANAR, idx));
-    } else {
-        ev.push(Event::new(b.min[axis], START, idx));
-        ev.push(Event::new(b.max[axis], END, idx));
-    }
-}
-
-/// Merges two lists sorted by `Event::key`.
-fn merge(a: Vec<Event>, b: &[Event]) -> Vec<Event> {
-    if b.is_empty() {
-        return a;
-    }
-    let mut out = Vec::with_capacity(a.len() + b.len());
-    let (mut i, mut j) = (0, 0);
-    while i < a.len() && j < b.len() {
-        if a[i].key() <= b[j].key() {
-            out.push(a[i]);
-            i += 1;
-        } else {
-            out.push(b[j]);
-            j += 1;
-        }
-    }
-    out.extend_from_slice(&a[i..]);
-    out.extend_from_slice(&b[j..]);
-    out
-}
-
-/// Runs `f` for the three axes, on the rayon pool when `parallel`.
-fn per_axis<T: Send>(parallel: bool, f: impl Fn(usize) -> T + Sync) -> [T; 3] {
-    if parallel {
-        let (x, (y, z)) = rayon::join(|| f(0), || rayon::join(|| f(1), || f(2)));
-        [x, y, z]
-    } else {
-        [f(0), f(1), f(2)]
-    }
+/// Builds the subtree of the node whose references are the top of the stack,
+/// `s.refs[start..]`, and pops them.
+fn build_serial<P: Primitives>(ctx: &Ctx<'_, P>, cell: Aabb, start: usize, depth: u32, out: &mut Out, s: &mut Scratch) {
+    let Some(split) = ctx.decide(&cell, &s.refs[start..], depth, &mut s.keys) else {
+        leaf(&s.refs[start..], &mut s.ids, out);
+        s.refs.truncate(start);
+        return;
+    };
+    let (l, r) = (&mut s.left, &mut s.right);
+    l.clear();
+    r.clear();
+    ctx.partition(&cell, &s.refs[start..], split, |x| l.push(x), |x| r.push(x));
+    // The node's list is no longer needed: the right child's replaces it and the left
+    // child's goes on top, to be built (and popped) first.
+    s.refs.truncate(start);
+    s.refs.extend_from_slice(&s.right);
+    let mid = s.refs.len();
+    s.refs.extend_from_slice(&s.left);
+    let (lcell, rcell) = Ctx::<P>::child_cells(&cell, split);
+    let at = out.nodes.len();
+    out.nodes.push(Node::default());
+    build_serial(ctx, lcell, mid, depth + 1, out, s);
+    let above = out.nodes.len();
+    build_serial(ctx, rcell, start, depth + 1, out, s);
+    out.nodes[at] = Node::interior(split.axis, split.pos, (above - at) as u32);
 }
