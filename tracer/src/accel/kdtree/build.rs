@@ -113,15 +113,6 @@ struct Split {
     planar_left: bool,
 }
 
-impl Split {
-    /// Worse than any split: the start of a search for the cheapest.
-    const NONE: Split = Split { cost: f32::INFINITY, axis: 0, pos: 0.0, planar_left: true };
-
-    fn found(self) -> Option<Split> {
-        (self.cost < f32::INFINITY).then_some(self)
-    }
-}
-
 struct Ctx<'a, P> {
     prims: &'a P,
     traversal_cost: f32,
@@ -222,13 +213,25 @@ impl<P: Primitives> Ctx<'_, P> {
         if r.is_empty() { Aabb::EMPTY } else { r }
     }
 
-    /// The SAH cost of a split with `nl`, `nr` references and child areas `pl`, `pr`
-    /// relative to the parent's.
-    #[inline]
-    fn cost(&self, pl: f32, pr: f32, nl: u32, nr: u32) -> f32 {
+    /// The SAH cost of splitting `cell` at `pos` on `axis` with `nl`, `nr` references
+    /// on the sides.
+    fn cost(&self, cell: &Aabb, axis: usize, pos: f32, nl: u32, nr: u32) -> f32 {
+        let d = cell.diagonal();
+        let (b, c) = ((axis + 1) % 3, (axis + 2) % 3);
+        let (cap, rim) = (d[b] * d[c], d[b] + d[c]);
+        let scale = 2.0 / cell.surface_area();
+        let (al, ar) = (cap + (pos - cell.min[axis]) * rim, cap + (cell.max[axis] - pos) * rim);
+        self.traversal_cost + self.intersection_cost * scale * self.relative_cost(al, ar, nl, nr)
+    }
+
+    /// The part of the cost that differs between planes of one axis, given the
+    /// children's half areas without their common factor: the sweeps compare this and
+    /// compute the full cost of the winner only.
+    #[inline(always)]
+    fn relative_cost(&self, al: f32, ar: f32, nl: u32, nr: u32) -> f32 {
         // (u32 counts: converting them to f32 is one instruction, usize's is not.)
         let bonus = if nl == 0 || nr == 0 { 1.0 - self.empty_bonus } else { 1.0 };
-        self.traversal_cost + self.intersection_cost * bonus * (pl * nl as f32 + pr * nr as f32)
+        bonus * (al * nl as f32 + ar * nr as f32)
     }
 
     /// Exact SAH over every extent boundary on every axis; `keys` is scratch.
@@ -261,9 +264,8 @@ impl<P: Primitives> Ctx<'_, P> {
         let (b, c) = ((axis + 1) % 3, (axis + 2) % 3);
         let cap = d[b] * d[c];
         let rim = d[b] + d[c];
-        let inv_sa = 1.0 / cell.surface_area();
         let (lo, hi) = (cell.min[axis], cell.max[axis]);
-        let mut best = Split::NONE;
+        let (mut best_c, mut best) = (f32::INFINITY, (0.0, 0, 0, true));
         let (mut nl, mut nr) = (0u32, n as u32);
         let mut i = 0;
         while i < keys.len() {
@@ -278,25 +280,27 @@ impl<P: Primitives> Ctx<'_, P> {
             let [ends, planars, starts] = count;
             nr -= ends + planars;
             if p > lo && p < hi {
-                let pl = 2.0 * (cap + (p - lo) * rim) * inv_sa;
-                let pr = 2.0 * (cap + (hi - p) * rim) * inv_sa;
-                let (c, planar_left) = if planars == 0 {
-                    (self.cost(pl, pr, nl, nr), true)
+                let (al, ar) = (cap + (p - lo) * rim, cap + (hi - p) * rim);
+                let (c, l, r) = if planars == 0 {
+                    (self.relative_cost(al, ar, nl, nr), nl, nr)
                 } else {
-                    let left = self.cost(pl, pr, nl + planars, nr);
-                    let right = self.cost(pl, pr, nl, nr + planars);
-                    if left <= right { (left, true) } else { (right, false) }
+                    let left = self.relative_cost(al, ar, nl + planars, nr);
+                    let right = self.relative_cost(al, ar, nl, nr + planars);
+                    if left <= right { (left, nl + planars, nr) } else { (right, nl, nr + planars) }
                 };
-                if c < best.cost {
-                    best = Split { cost: c, axis, pos: p, planar_left };
+                if c < best_c {
+                    (best_c, best) = (c, (p, l, r, l != nl || planars == 0));
                 }
             }
             nl += starts + planars;
         }
-        best.found()
+        (best_c < f32::INFINITY).then(|| {
+            let (pos, nl, nr, planar_left) = best;
+            Split { cost: self.cost(cell, axis, pos, nl, nr), axis, pos, planar_left }
+        })
     }
 
-    /// SAH evaluated at `BINS - 1` equally spaced planes per axis, from per-bin counts
+    /// SAH evaluated at `bins_for(n) - 1` equally spaced planes per axis, from per-bin counts
     /// of extent starts and ends. The counts only estimate the sides (an extent ending
     /// exactly on a plane counts on both); the partition then uses the exact rules.
     fn binned_split(&self, cell: &Aabb, refs: &[Ref]) -> Option<Split> {
@@ -331,8 +335,7 @@ impl<P: Primitives> Ctx<'_, P> {
             count(refs)
         };
         let n = refs.len();
-        let inv_sa = 1.0 / cell.surface_area();
-        let mut best = Split::NONE;
+        let (mut best_c, mut best) = (f32::INFINITY, (0, 0.0, 0, 0));
         for axis in 0..3 {
             let (b, c) = ((axis + 1) % 3, (axis + 2) % 3);
             let cap = d[b] * d[c];
@@ -348,15 +351,16 @@ impl<P: Primitives> Ctx<'_, P> {
                 if !(p > lo && p < hi) {
                     continue;
                 }
-                let pl = 2.0 * (cap + (p - lo) * rim) * inv_sa;
-                let pr = 2.0 * (cap + (hi - p) * rim) * inv_sa;
-                let cost = self.cost(pl, pr, nl, nr);
-                if cost < best.cost {
-                    best = Split { cost, axis, pos: p, planar_left: true };
+                let c = self.relative_cost(cap + (p - lo) * rim, cap + (hi - p) * rim, nl, nr);
+                if c < best_c {
+                    (best_c, best) = (c, (axis, p, nl, nr));
                 }
             }
         }
-        best.found()
+        (best_c < f32::INFINITY).then(|| {
+            let (axis, pos, nl, nr) = best;
+            Split { cost: self.cost(cell, axis, pos, nl, nr), axis, pos, planar_left: true }
+        })
     }
 
     fn find_split(&self, cell: &Aabb, refs: &[Ref], keys: &mut Vec<u64>) -> Option<Split> {
