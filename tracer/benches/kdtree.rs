@@ -99,10 +99,12 @@ fn tune() {
         let tree0 = KdTree::build(geo, &BuildParams::default());
         let rays = random_rays(tree0.bounds(), RAYS, 5);
         for p in &variants {
-            let (tree, secs) = timed_build(geo, p);
+            let (mut tree, secs) = timed_build(geo, p);
+            let mut geo = geo.clone();
+            geo.store_in_leaf_order(&mut tree);
             let s = tree.stats();
-            let c = mrays(|| closest(&tree, geo, &rays), rays.len());
-            let a = mrays(|| any(&tree, geo, &rays), rays.len());
+            let c = mrays(|| closest(&tree, &geo, &rays), rays.len());
+            let a = mrays(|| any(&tree, &geo, &rays), rays.len());
             println!(
                 "tune {name:>9}: Ci/Ct {:.2} eb {:.1} leaf {}: build {:.3} s, {} nodes, {} refs, depth {}, \
                  closest {c:.2} Mrays/s, any {a:.2} Mrays/s",
@@ -132,7 +134,7 @@ fn quick(spec: &str) {
     let reps: usize = parts.next().and_then(|x| x.parse().ok()).unwrap_or(if what == "all" { 5 } else { 3 });
     let seed: u64 = parts.next().and_then(|x| x.parse().ok()).unwrap_or(0);
     let nrays: usize = parts.next().and_then(|x| x.parse().ok()).unwrap_or(RAYS);
-    let geo = Geometry::new(displaced_sphere(n, seed), vec![]);
+    let mut geo = Geometry::new(displaced_sphere(n, seed), vec![]);
     let params = BuildParams::default();
     let mut builds = Vec::new();
     let mut tree = None;
@@ -141,11 +143,15 @@ fn quick(spec: &str) {
         builds.push(secs);
         tree = Some(t);
     }
-    let tree = tree.unwrap();
+    let mut tree = tree.unwrap();
+    let t = Instant::now();
+    geo.store_in_leaf_order(&mut tree);
+    let reorder = t.elapsed().as_secs_f64();
     let s = tree.stats();
     let ntri = geo.mesh.tris.len();
     println!(
-        "{ntri} triangles: build median {:.3} s of {:?}; {} nodes, {} refs, depth {}, tree {:.1} B/tri",
+        "{ntri} triangles: build median {:.3} s of {:?}, leaf-order storage {reorder:.3} s; {} nodes, {} refs, \
+         depth {}, tree {:.1} B/tri",
         median(builds.clone()),
         builds.iter().map(|b| (b * 1000.0).round() / 1000.0).collect::<Vec<_>>(),
         s.nodes,
@@ -195,10 +201,11 @@ fn bench(c: &mut Criterion) {
         return;
     }
     let params = BuildParams::default();
-    let big = Geometry::new(displaced_sphere(1_000_000, 0), vec![]);
+    let mut big = Geometry::new(displaced_sphere(1_000_000, 0), vec![]);
     let mid = Geometry::new(displaced_sphere(100_000, 0), vec![]);
 
-    let (tree, secs) = timed_build(&big, &params);
+    let (mut tree, secs) = timed_build(&big, &params);
+    big.store_in_leaf_order(&mut tree);
     let s = tree.stats();
     println!(
         "1M displaced sphere: {} triangles, build {secs:.3} s on {} threads; {s:?}",

@@ -4,7 +4,7 @@
 use glam::Vec3;
 
 use super::TriangleMesh;
-use crate::accel::{PrimHit, Primitives, RayPrecomp};
+use crate::accel::{KdTree, PrimHit, Primitives, RayPrecomp};
 use crate::geometry::clip::clipped_triangle_bounds;
 use crate::geometry::sphere::intersect_sphere;
 use crate::geometry::triangle::intersect_triangle_corners;
@@ -64,6 +64,32 @@ impl Geometry {
     #[inline]
     pub fn triangle(&self, i: usize) -> &[Vec3; 3] {
         &self.corners[i]
+    }
+
+    /// Stores the triangles in `tree`'s leaf order ([`KdTree::leaf_order`]) and renames
+    /// the tree's indices to match, so that a leaf's triangles are adjacent in memory
+    /// (on large meshes nearly every triangle test is a cache miss otherwise). `tree`
+    /// must have been built over `self`. Spheres keep their indices. Returns the
+    /// permutation applied to the triangles, `order[new] = old`.
+    pub fn store_in_leaf_order(&mut self, tree: &mut KdTree) -> Vec<u32> {
+        let ntri = self.mesh.tris.len();
+        let order: Vec<u32> = tree.leaf_order(self.len()).into_iter().filter(|&i| (i as usize) < ntri).collect();
+        let mut new_index: Vec<u32> = (0..self.len() as u32).collect();
+        for (new, &old) in order.iter().enumerate() {
+            new_index[old as usize] = new as u32;
+        }
+        tree.remap(&new_index);
+        self.permute_triangles(&order);
+        order
+    }
+
+    /// Reorders the triangles: new triangle `i` is old triangle `order[i]` (`order` is a
+    /// permutation of `0..mesh.tris.len()`). Spheres are unchanged.
+    pub fn permute_triangles(&mut self, order: &[u32]) {
+        assert_eq!(order.len(), self.mesh.tris.len(), "permute_triangles: not a permutation of the triangles");
+        assert_eq!(self.corners.len(), self.mesh.tris.len(), "Geometry: call prepare() after changing the mesh");
+        self.mesh.tris = order.iter().map(|&i| self.mesh.tris[i as usize]).collect();
+        self.corners = order.iter().map(|&i| self.corners[i as usize]).collect();
     }
 
     #[inline]

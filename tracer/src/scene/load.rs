@@ -282,7 +282,19 @@ fn finish(b: Builder, camera: Camera, settings: RenderSettings, mut lights: Vec<
     for w in &warnings {
         tracing::warn!("{w}");
     }
-    let accel = KdTree::build(&geometry, &BuildParams::for_primitives(geometry.len()));
+    let mut accel = KdTree::build(&geometry, &BuildParams::for_primitives(geometry.len()));
+    let packed = PackedTriangles::for_small_scene(&geometry);
+    // When the tree traces the scene, the triangles are stored in its leaf order from
+    // here on, for memory locality (`order[new] = old`). Small scenes, traced by packed
+    // brute force in index order, keep the file's order.
+    let order: Vec<u32> = match packed {
+        None => geometry.store_in_leaf_order(&mut accel),
+        Some(_) => (0..geometry.mesh.tris.len() as u32).collect(),
+    };
+    let mut new_index = vec![0u32; order.len()];
+    for (new, &old) in order.iter().enumerate() {
+        new_index[old as usize] = new as u32;
+    }
     let bounds = accel.bounds();
     let (center, radius) = if bounds.is_empty() {
         (Vec3::ZERO, 1.0)
@@ -290,7 +302,11 @@ fn finish(b: Builder, camera: Camera, settings: RenderSettings, mut lights: Vec<
         (bounds.center(), (0.5 * bounds.diagonal().length()).max(1e-3))
     };
 
-    for (i, t) in geometry.mesh.tris.iter().enumerate() {
+    // Emissive triangles in the order the files list them (the light list's order shapes
+    // light sampling, so it does not follow the storage order), by their new indices.
+    for &i in &new_index {
+        let i = i as usize;
+        let t = &geometry.mesh.tris[i];
         let m = &materials[t.material as usize];
         if !m.is_emissive() {
             continue;
@@ -331,7 +347,7 @@ fn finish(b: Builder, camera: Camera, settings: RenderSettings, mut lights: Vec<
     Scene {
         camera,
         settings,
-        packed: PackedTriangles::for_small_scene(&geometry),
+        packed,
         geometry,
         accel,
         materials,
@@ -384,4 +400,56 @@ pub(super) fn uv_or_barycentric(uvs: &[Vec2], idx: [u32; 3], b: Vec3) -> Vec2 {
         return Vec2::new(b.y, b.z);
     }
     b.x * uvs[idx[0] as usize] + b.y * uvs[idx[1] as usize] + b.z * uvs[idx[2] as usize]
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::material::MaterialDesc;
+    use crate::scene::generate::displaced_sphere;
+
+    /// The loader stores triangles in the kd-tree's leaf order: hits, materials and area
+    /// lights must all speak of the same (permuted) triangles, and the lights keep the
+    /// file's order.
+    #[test]
+    fn leaf_order_storage_keeps_lights_and_materials_consistent() {
+        let mut mesh = displaced_sphere(20_000, 2);
+        for (i, t) in mesh.tris.iter_mut().enumerate() {
+            t.material = u32::from(i % 7 == 0);
+        }
+        let file_order: Vec<[Vec3; 3]> = (0..mesh.tris.len()).map(|i| mesh.corners(i)).collect();
+        let emissive = MaterialDesc { name: "lamp".into(), ke: Vec3::ONE, ..MaterialDesc::default() };
+        let model =
+            ObjModel { mesh, materials: vec![MaterialDesc::default_grey("grey"), emissive], ..ObjModel::default() };
+        let s = scene_from_bare_obj(model);
+        let g = &s.geometry;
+        assert!(s.packed.is_none(), "the test is about the kd-tree path");
+        // The permutation moved triangles (else the test proves nothing).
+        assert!((0..g.mesh.tris.len()).any(|i| g.mesh.corners(i) != file_order[i]));
+        let mut seen = Vec::new();
+        for (li, l) in s.lights.lights.iter().enumerate() {
+            if let Light::Triangle { prim, p0, e1, e2, .. } = *l {
+                let i = prim as usize;
+                let c = g.mesh.corners(i);
+                assert_eq!(*g.triangle(i), c);
+                assert_eq!((p0, e1, e2), (c[0], c[1] - c[0], c[2] - c[0]));
+                assert_eq!(g.mesh.tris[i].material, 1);
+                assert_eq!(s.lights.light_of_prim(prim), Some(li));
+                seen.push(c);
+            }
+        }
+        let expect: Vec<[Vec3; 3]> = file_order.iter().step_by(7).copied().collect();
+        assert_eq!(seen, expect, "area lights in the file's order");
+        // A hit reports the material and corners of the triangle it names.
+        for (k, c) in expect.iter().enumerate().step_by(97) {
+            let target = (c[0] + c[1] + c[2]) / 3.0;
+            let origin = target * 3.0 + Vec3::new(0.01, 0.02, 0.03) * k as f32;
+            let ray = crate::geometry::Ray::new(origin, (target - origin).normalize());
+            let hit = s.intersect(&ray, f32::INFINITY).expect("aimed at the mesh");
+            let si = s.interaction(&ray, &hit);
+            let i = hit.prim as usize;
+            assert_eq!(si.material, g.mesh.tris[i].material);
+            assert_eq!(s.lights.light_of_prim(hit.prim).is_some(), si.material == 1);
+        }
+    }
 }

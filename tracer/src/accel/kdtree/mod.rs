@@ -196,6 +196,55 @@ impl KdTree {
         self.occluded_impl(prims, ray, tmax)
     }
 
+    /// A permutation of the primitive indices `0..n` (`order[new] = old`): every index
+    /// the leaves list, in order of its first listing in depth-first leaf order (the
+    /// node array's order), then the unlisted ones in index order. Storing the
+    /// primitives in this order puts a leaf's primitives next to each other in memory,
+    /// and neighbouring leaves' close by; [`KdTree::remap`] then renames the tree's
+    /// indices to match. Deterministic: a function of the tree alone.
+    pub fn leaf_order(&self, n: usize) -> Vec<u32> {
+        let mut seen = vec![false; n];
+        let mut order = Vec::with_capacity(n);
+        let mut take = |i: u32| {
+            if !std::mem::replace(&mut seen[i as usize], true) {
+                order.push(i);
+            }
+        };
+        for node in &self.nodes {
+            if !node.is_leaf() {
+                continue;
+            }
+            match node.prim_count() {
+                0 => {}
+                1 => take(node.data),
+                c => self.ids[node.data as usize..node.data as usize + c].iter().for_each(|&i| take(i)),
+            }
+        }
+        order.extend((0..n as u32).filter(|&i| !seen[i as usize]));
+        order
+    }
+
+    /// Renames primitive `i` to `new_index[i]` throughout the tree, for use after the
+    /// primitive set was permuted (see [`KdTree::leaf_order`]). Each leaf's list is
+    /// sorted, so a leaf reads its primitives in ascending address order. The answers
+    /// stay bit-identical to brute force over the permuted set: the traversal's result
+    /// does not depend on the order within a leaf.
+    pub fn remap(&mut self, new_index: &[u32]) {
+        for id in &mut self.ids {
+            *id = new_index[*id as usize];
+        }
+        for node in &mut self.nodes {
+            if !node.is_leaf() {
+                continue;
+            }
+            match node.prim_count() {
+                0 => {}
+                1 => node.data = new_index[node.data as usize],
+                c => self.ids[node.data as usize..node.data as usize + c].sort_unstable(),
+            }
+        }
+    }
+
     fn compute_stats(&self, depth_limit: usize) -> KdTreeStats {
         let mut s = KdTreeStats {
             nodes: self.nodes.len(),

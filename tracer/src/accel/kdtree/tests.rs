@@ -2,7 +2,7 @@ use glam::Vec3;
 use proptest::prelude::*;
 
 use super::*;
-use crate::accel::{brute_force_intersect, brute_force_occluded};
+use crate::accel::{RayPrecomp, brute_force_intersect, brute_force_occluded};
 use crate::scene::generate::displaced_sphere;
 use crate::scene::{Geometry, NONE, Sphere, Tri, TriangleMesh};
 
@@ -355,4 +355,81 @@ fn flat_primitives_in_split_planes() {
         let h = tree.intersect(&geo, &ray, f32::INFINITY);
         assert_eq!(key(h), key(brute_force_intersect(&geo, &ray, f32::INFINITY)), "{ray:?}");
     }
+}
+
+/// The same answers, up to the permutation, after the triangles are stored in leaf order
+/// and the tree's indices renamed; and the renamed tree is still exact against brute
+/// force over the permuted set. Hits may name another primitive only in a tie (duplicate
+/// or coincident primitives, which brute force settles by index order).
+fn check_leaf_order(geo: Geometry, params: &BuildParams, r: &mut Rng, rays: usize) -> Result<(), TestCaseError> {
+    let tree = KdTree::build(&geo, params);
+    let (mut moved, mut moved_tree) = (geo.clone(), KdTree::build(&geo, params));
+    let order = moved.store_in_leaf_order(&mut moved_tree);
+    let (mut again, mut again_tree) = (geo.clone(), KdTree::build(&geo, params));
+    prop_assert_eq!(&order, &again.store_in_leaf_order(&mut again_tree), "not deterministic");
+    prop_assert_eq!(&again_tree.nodes, &moved_tree.nodes);
+    prop_assert_eq!(&again_tree.ids, &moved_tree.ids);
+    let ntri = geo.mesh.tris.len();
+    let mut sorted = order.clone();
+    sorted.sort_unstable();
+    prop_assert!(sorted.iter().copied().eq(0..ntri as u32), "not a permutation");
+    for (new, &old) in order.iter().enumerate() {
+        prop_assert_eq!(moved.mesh.tris[new], geo.mesh.tris[old as usize]);
+        prop_assert_eq!(moved.triangle(new), geo.triangle(old as usize));
+    }
+    prop_assert_eq!(&moved.spheres, &geo.spheres);
+    let old = |p: u32| if (p as usize) < ntri { order[p as usize] } else { p };
+    for _ in 0..rays {
+        let ray = random_ray(r);
+        for tmax in [f32::INFINITY, r.range(0.0, 4.0)] {
+            check(&moved, &moved_tree, &ray, tmax)?;
+            prop_assert_eq!(tree.occluded(&geo, &ray, tmax), moved_tree.occluded(&moved, &ray, tmax));
+            match (tree.intersect(&geo, &ray, tmax), moved_tree.intersect(&moved, &ray, tmax)) {
+                (None, None) => {}
+                (Some(a), Some(b)) if old(b.prim) == a.prim => {
+                    prop_assert_eq!(key(Some(a)), key(Some(Hit { prim: a.prim, ..b })))
+                }
+                (Some(a), Some(b)) => {
+                    // A tie: the other primitive hits (nearly) as close.
+                    let pre = RayPrecomp::new(&ray);
+                    let other = geo.intersect(old(b.prim), &ray, &pre, f32::INFINITY);
+                    prop_assert!(other.is_some_and(|h| (h.t - a.t).abs() <= 1e-5 * a.t), "{:?} vs {:?}", a, b);
+                }
+                (a, b) => prop_assert!(false, "{:?} vs {:?}, ray {:?}", a, b, ray),
+            }
+        }
+    }
+    Ok(())
+}
+
+proptest! {
+    #![proptest_config(ProptestConfig { cases: 48, failure_persistence: None, ..ProptestConfig::default() })]
+
+    #[test]
+    fn leaf_order_storage_gives_the_same_hits(seed in any::<u64>(), size in 0usize..4, rays_seed in any::<u64>()) {
+        let n = [0, 1 + (seed % 16) as usize, 50 + (seed % 200) as usize, 500 + (seed % 2500) as usize][size];
+        let mut r = Rng(rays_seed);
+        let params = random_params(&mut r);
+        check_leaf_order(random_scene(seed, n), &params, &mut r, 100)?;
+    }
+}
+
+#[test]
+fn leaf_order_storage_on_displaced_sphere_with_spheres() {
+    let mut r = Rng(9);
+    let spheres =
+        (0..200).map(|_| Sphere { center: r.v(-1.5, 1.5), radius: r.range(0.01, 0.15), material: 0 }).collect();
+    let geo = Geometry::new(displaced_sphere(20_000, 5), spheres);
+    check_leaf_order(geo, &BuildParams::default(), &mut r, 600).unwrap();
+}
+
+/// After the reordering, the stored order is the tree's leaf order: each leaf's
+/// triangles not listed by an earlier leaf are adjacent, following the previous leaf's.
+#[test]
+fn leaf_order_follows_the_leaves() {
+    let mut geo = Geometry::new(displaced_sphere(5_000, 1), vec![]);
+    let mut tree = KdTree::build(&geo, &BuildParams::default());
+    geo.store_in_leaf_order(&mut tree);
+    let first = tree.leaf_order(geo.len());
+    assert!(first.iter().copied().eq(0..geo.len() as u32), "the stored order is the tree's leaf order");
 }
