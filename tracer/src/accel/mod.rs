@@ -60,6 +60,11 @@ pub trait Primitives: Sync {
 
     /// Nearest hit of primitive `i` with `0 < t < tmax`.
     fn intersect(&self, i: u32, ray: &Ray, pre: &RayPrecomp, tmax: f32) -> Option<PrimHit>;
+
+    /// A hint that primitive `i` is about to be tested: start loading its data into the
+    /// cache. No effect on any result.
+    #[inline(always)]
+    fn prefetch(&self, _i: u32) {}
 }
 
 /// The O(N) reference query: the kd-tree must give exactly this answer.

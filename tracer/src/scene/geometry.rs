@@ -133,6 +133,29 @@ impl Primitives for Geometry {
             PrimRef::Sphere(s) => self.intersect_sphere(s, ray, tmax),
         }
     }
+
+    #[inline(always)]
+    fn prefetch(&self, i: u32) {
+        // The 36 corner bytes may straddle two cache lines.
+        if let Some(c) = self.corners.get(i as usize) {
+            let p: *const u8 = (c as *const [Vec3; 3]).cast();
+            prefetch(p);
+            prefetch(p.wrapping_add(size_of::<[Vec3; 3]>() - 1));
+        }
+    }
+}
+
+/// Hints the cache to load `p`'s line (nothing is dereferenced).
+#[inline(always)]
+fn prefetch(p: *const u8) {
+    // SAFETY: a prefetch is a hint; it never faults, whatever the address (SSE is part
+    // of the x86_64 baseline).
+    #[cfg(target_arch = "x86_64")]
+    unsafe {
+        core::arch::x86_64::_mm_prefetch::<{ core::arch::x86_64::_MM_HINT_T0 }>(p.cast())
+    };
+    #[cfg(not(target_arch = "x86_64"))]
+    let _ = p;
 }
 
 impl Geometry {

@@ -206,6 +206,7 @@ impl KdTree {
         let s = self.setup(ray, pre.inv_dir, tmax)?;
         let mut c = Candidates::new(tmax, s.slack);
         self.walk(ray, pre.inv_dir, &s, tmax, |ids| {
+            prefetch_all(prims, ids);
             for &g in ids {
                 if let Some(h) = prims.intersect(g, ray, &pre, c.bound) {
                     c.record(g, h);
@@ -224,6 +225,7 @@ impl KdTree {
         let Some(s) = self.setup(ray, pre.inv_dir, tmax) else { return false };
         let mut hit = false;
         self.walk(ray, pre.inv_dir, &s, tmax, |ids| {
+            prefetch_all(prims, ids);
             if ids.iter().any(|&g| prims.intersect(g, ray, &pre, tmax).is_some()) {
                 hit = true;
                 f32::NAN
@@ -232,6 +234,18 @@ impl KdTree {
             }
         });
         hit
+    }
+}
+
+/// Starts loading every primitive of a leaf before the first test, so that the misses
+/// overlap instead of each waiting for the previous test (whose branch mispredictions
+/// would cancel loads issued speculatively).
+#[inline(always)]
+fn prefetch_all<P: Primitives>(prims: &P, ids: &[u32]) {
+    if ids.len() > 1 {
+        for &g in ids {
+            prims.prefetch(g);
+        }
     }
 }
 
