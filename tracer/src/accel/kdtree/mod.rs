@@ -1,5 +1,5 @@
-//! SAH kd-tree: O(N log N) build with perfect splits (Wald & Havran 2006) in
-//! [`build`], compact 8-byte nodes, and a stack-based front-to-back traversal in
+//! SAH kd-tree: build with perfect (clipped) splits, binned SAH for large nodes and
+//! exact sweeps for small ones, in [`build`]; compact 8-byte nodes, and a stack-based front-to-back traversal in
 //! [`traverse`] whose answers are bit-identical to the brute-force loops.
 
 mod build;
