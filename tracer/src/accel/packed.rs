@@ -22,7 +22,7 @@
 
 use glam::Vec3;
 
-use super::{Hit, Primitives, RayPrecomp};
+use super::{Hit, PrimHit, Primitives, RayPrecomp};
 use crate::geometry::triangle::RayShear;
 use crate::geometry::{Aabb, Ray};
 use crate::scene::Geometry;
@@ -62,6 +62,8 @@ pub struct PackedTriangles {
     /// hit so far is skipped (index order is kept, so the answer is still brute force's;
     /// triangles that are neighbours in a file are usually neighbours in space).
     boxes: Vec<Aabb>,
+    /// Lanes of the last block that hold a triangle.
+    tail: u32,
     simd: Simd,
 }
 
@@ -81,7 +83,11 @@ impl PackedTriangles {
                 }
             }
         }
-        Self { blocks, len, bounds, boxes, simd: Simd::detect() }
+        let tail = match len % LANES {
+            0 => u32::MAX,
+            n => (1 << n) - 1,
+        };
+        Self { blocks, len, bounds, boxes, tail, simd: Simd::detect() }
     }
 
     /// The packed triangles of `geo` when brute force beats its kd-tree: at most
@@ -128,15 +134,14 @@ impl PackedTriangles {
     /// Lanes of block `b` that hold a triangle (the last block may be partial).
     #[inline]
     fn valid(&self, b: usize) -> u32 {
-        let n = (self.len - b * LANES).min(LANES);
-        if n == LANES { u32::MAX } else { (1 << n) - 1 }
+        if b + 1 < self.blocks.len() { u32::MAX } else { self.tail }
     }
 
     /// Nearest hit with `0 < t < tmax` among all of `prims`: exactly
     /// [`super::brute_force_intersect`]`(prims, ray, tmax)`.
     pub fn intersect<P: Primitives>(&self, prims: &P, ray: &Ray, tmax: f32) -> Option<Hit> {
         match self.simd {
-            Simd::Baseline => self.intersect_impl(prims, ray, tmax),
+            Simd::Baseline => self.intersect_impl::<P, false>(prims, ray, tmax),
             #[cfg(target_arch = "x86_64")]
             // SAFETY: `Avx2` is only chosen when the CPU reports AVX2.
             Simd::Avx2 => unsafe { self.intersect_avx2(prims, ray, tmax) },
@@ -147,7 +152,7 @@ impl PackedTriangles {
     /// [`super::brute_force_occluded`]`(prims, ray, tmax)`.
     pub fn occluded<P: Primitives>(&self, prims: &P, ray: &Ray, tmax: f32) -> bool {
         match self.simd {
-            Simd::Baseline => self.occluded_impl(prims, ray, tmax),
+            Simd::Baseline => self.occluded_impl::<P, false>(prims, ray, tmax),
             #[cfg(target_arch = "x86_64")]
             // SAFETY: as in `intersect`.
             Simd::Avx2 => unsafe { self.occluded_avx2(prims, ray, tmax) },
@@ -160,17 +165,17 @@ impl PackedTriangles {
     #[cfg(target_arch = "x86_64")]
     #[target_feature(enable = "avx2")]
     unsafe fn intersect_avx2<P: Primitives>(&self, prims: &P, ray: &Ray, tmax: f32) -> Option<Hit> {
-        self.intersect_impl(prims, ray, tmax)
+        self.intersect_impl::<P, true>(prims, ray, tmax)
     }
 
     #[cfg(target_arch = "x86_64")]
     #[target_feature(enable = "avx2")]
     unsafe fn occluded_avx2<P: Primitives>(&self, prims: &P, ray: &Ray, tmax: f32) -> bool {
-        self.occluded_impl(prims, ray, tmax)
+        self.occluded_impl::<P, true>(prims, ray, tmax)
     }
 
     #[inline(always)]
-    fn intersect_impl<P: Primitives>(&self, prims: &P, ray: &Ray, tmax: f32) -> Option<Hit> {
+    fn intersect_impl<P: Primitives, const AVX2: bool>(&self, prims: &P, ray: &Ray, tmax: f32) -> Option<Hit> {
         let pre = RayPrecomp::new(ray);
         let pad = self.margin(ray);
         if !Self::reaches(&self.bounds, pad, ray, &pre, tmax) {
@@ -178,47 +183,65 @@ impl PackedTriangles {
         }
         let mut best = None;
         let mut tmax = tmax;
-        let mut hit = |i: u32, tmax: &mut f32| {
-            if let Some(h) = prims.intersect(i, ray, &pre, *tmax) {
-                *tmax = h.t;
-                best = Some(Hit { t: h.t, prim: i, u: h.u, v: h.v });
-            }
-        };
+        let mut lanes = Lanes::default();
         let cull = self.blocks.len() >= CULL_MIN_BLOCKS;
         for (bi, block) in self.blocks.iter().enumerate() {
             if cull && !Self::reaches(&self.boxes[bi], pad, ray, &pre, tmax) {
                 continue;
             }
-            let mut keep = candidates(block, &pre.shear, tmax) & self.valid(bi);
+            let (mut keep, zero) = block_test::<AVX2>(block, &pre.shear, tmax, &mut lanes);
+            keep &= self.valid(bi);
             while keep != 0 {
                 let lane = keep.trailing_zeros() as usize;
                 keep &= keep - 1;
-                hit((bi * LANES + lane) as u32, &mut tmax);
+                let i = (bi * LANES + lane) as u32;
+                // Lanes with an edge function exactly zero need the scalar test's double
+                // precision; the others finish from the block's own values.
+                let h = if zero & (1 << lane) != 0 {
+                    prims.intersect(i, ray, &pre, tmax)
+                } else {
+                    lanes.finish(lane, tmax)
+                };
+                if let Some(h) = h {
+                    tmax = h.t;
+                    best = Some(Hit { t: h.t, prim: i, u: h.u, v: h.v });
+                }
             }
         }
-        for i in self.len..prims.len() {
-            hit(i as u32, &mut tmax);
+        for i in self.len as u32..prims.len() as u32 {
+            if let Some(h) = prims.intersect(i, ray, &pre, tmax) {
+                tmax = h.t;
+                best = Some(Hit { t: h.t, prim: i, u: h.u, v: h.v });
+            }
         }
         best
     }
 
     #[inline(always)]
-    fn occluded_impl<P: Primitives>(&self, prims: &P, ray: &Ray, tmax: f32) -> bool {
+    fn occluded_impl<P: Primitives, const AVX2: bool>(&self, prims: &P, ray: &Ray, tmax: f32) -> bool {
         let pre = RayPrecomp::new(ray);
         let pad = self.margin(ray);
         if !Self::reaches(&self.bounds, pad, ray, &pre, tmax) {
             return false;
         }
+        let mut lanes = Lanes::default();
         let cull = self.blocks.len() >= CULL_MIN_BLOCKS;
         for (bi, block) in self.blocks.iter().enumerate() {
             if cull && !Self::reaches(&self.boxes[bi], pad, ray, &pre, tmax) {
                 continue;
             }
-            let mut keep = candidates(block, &pre.shear, tmax) & self.valid(bi);
+            let (mut keep, zero) = block_test::<AVX2>(block, &pre.shear, tmax, &mut lanes);
+            keep &= self.valid(bi);
             while keep != 0 {
                 let lane = keep.trailing_zeros() as usize;
                 keep &= keep - 1;
-                if prims.intersect((bi * LANES + lane) as u32, ray, &pre, tmax).is_some() {
+                let i = (bi * LANES + lane) as u32;
+                let h = if zero & (1 << lane) != 0 {
+                    prims.intersect(i, ray, &pre, tmax)
+                } else {
+                    lanes.finish(lane, tmax)
+                };
+                if h.is_some() {
                     return true;
                 }
             }
@@ -246,10 +269,59 @@ impl Simd {
     }
 }
 
-/// Bit mask of the lanes whose triangle the watertight test may accept with `tmax` (see
-/// the module comment). Written lane-wise without branches so that it vectorises.
+/// The first half of the watertight test for the eight lanes of a block: the edge
+/// functions, `det` and `t·det`, bit for bit the scalar test's.
+#[derive(Clone, Copy, Default)]
+#[repr(C, align(32))]
+struct Lanes {
+    v: [f32; LANES],
+    w: [f32; LANES],
+    det: [f32; LANES],
+    t_scaled: [f32; LANES],
+}
+
+impl Lanes {
+    /// The rest of [`intersect_triangle_corners`] for `lane` with `tmax`, from the stored
+    /// values (the lane's edge functions are all nonzero and of one sign, `det != 0`).
+    ///
+    /// [`intersect_triangle_corners`]: crate::geometry::triangle::intersect_triangle_corners
+    #[inline(always)]
+    fn finish(&self, lane: usize, tmax: f32) -> Option<PrimHit> {
+        let (det, t_scaled) = (self.det[lane], self.t_scaled[lane]);
+        if det < 0.0 && (t_scaled >= 0.0 || t_scaled < tmax * det) {
+            return None;
+        }
+        if det > 0.0 && (t_scaled <= 0.0 || t_scaled > tmax * det) {
+            return None;
+        }
+        let inv_det = 1.0 / det;
+        let t = t_scaled * inv_det;
+        if !(t > 0.0 && t < tmax) {
+            return None;
+        }
+        Some(PrimHit { t, u: self.v[lane] * inv_det, v: self.w[lane] * inv_det })
+    }
+}
+
+/// The block test with the instruction set chosen at compile time: `(keep, zero)` as
+/// [`block_test_lanes`] returns them.
 #[inline(always)]
-fn candidates(b: &Block, shear: &RayShear, tmax: f32) -> u32 {
+fn block_test<const AVX2: bool>(b: &Block, shear: &RayShear, tmax: f32, out: &mut Lanes) -> (u32, u32) {
+    #[cfg(target_arch = "x86_64")]
+    if AVX2 {
+        // SAFETY: `AVX2` is only set on the paths `Simd::Avx2` selects, which run on CPUs
+        // that report AVX2.
+        return unsafe { block_test_avx2(b, shear, tmax, out) };
+    }
+    block_test_lanes(b, shear, tmax, out)
+}
+
+/// Bit masks of the lanes whose triangle the watertight test may accept with `tmax`
+/// (`keep`, see the module comment), and of those with an edge function exactly zero
+/// (`zero`, a subset of `keep`: they need the scalar test). Fills `out` for the others.
+/// Written lane-wise without branches so that it vectorises.
+#[inline(always)]
+fn block_test_lanes(b: &Block, shear: &RayShear, tmax: f32, out: &mut Lanes) -> (u32, u32) {
     let ([kx, ky, kz], [sx, sy, sz], [ox, oy, oz]) = shear.parts();
     let (p0, p1, p2) = (&b.p[0], &b.p[1], &b.p[2]);
     let (p0x, p0y, p0z) = (&p0[kx], &p0[ky], &p0[kz]);
@@ -258,6 +330,7 @@ fn candidates(b: &Block, shear: &RayShear, tmax: f32) -> u32 {
     // Lane l's verdict as bit l, combined below by OR: shifts and ORs vectorise, where
     // packing an array of bools into a mask did not.
     let mut keep = [0u32; LANES];
+    let mut zeros = [0u32; LANES];
     for l in 0..LANES {
         // The same operations, in the same order, as `intersect_triangle_corners`.
         let (a_x, a_y, a_z) = (p0x[l] - ox, p0y[l] - oy, p0z[l] - oz);
@@ -280,8 +353,74 @@ fn candidates(b: &Block, shear: &RayShear, tmax: f32) -> u32 {
         let out_neg = (det < 0.0) & ((t_scaled >= 0.0) | (t_scaled < limit));
         let out_pos = (det > 0.0) & ((t_scaled <= 0.0) | (t_scaled > limit));
         keep[l] = u32::from(zero | (!mixed & (det != 0.0) & !out_neg & !out_pos)) << l;
+        zeros[l] = u32::from(zero) << l;
+        (out.v[l], out.w[l], out.det[l], out.t_scaled[l]) = (v, w, det, t_scaled);
     }
-    keep.iter().fold(0, |m, &k| m | k)
+    (keep.iter().fold(0, |m, &k| m | k), zeros.iter().fold(0, |m, &k| m | k))
+}
+
+/// [`block_test_lanes`] in AVX2 intrinsics: the same IEEE operations in the same order
+/// (no fused multiply-adds), so the same bits, with the verdicts gathered by one
+/// `movemask` instead of shifts and ORs. Comparisons use the predicates of Rust's
+/// operators: ordered for `<`, `>`, `<=`, `>=`, `==`; unordered for `!=`.
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2")]
+#[inline]
+fn block_test_avx2(b: &Block, shear: &RayShear, tmax: f32, out: &mut Lanes) -> (u32, u32) {
+    use core::arch::x86_64::*;
+    let ([kx, ky, kz], [sx, sy, sz], [ox, oy, oz]) = shear.parts();
+    let (ox, oy, oz) = (_mm256_set1_ps(ox), _mm256_set1_ps(oy), _mm256_set1_ps(oz));
+    let (sx, sy, sz) = (_mm256_set1_ps(sx), _mm256_set1_ps(sy), _mm256_set1_ps(sz));
+    // SAFETY: `Block` is 32-byte aligned and each `[f32; 8]` row starts at a multiple of
+    // 32 bytes in it; kx, ky, kz are a permutation of 0, 1, 2 (`RayShear::for_ray`).
+    let ld = |v: usize, k: usize| unsafe { _mm256_load_ps(b.p.get_unchecked(v).get_unchecked(k).as_ptr()) };
+    let (a_x, a_y, a_z) = (_mm256_sub_ps(ld(0, kx), ox), _mm256_sub_ps(ld(0, ky), oy), _mm256_sub_ps(ld(0, kz), oz));
+    let (b_x, b_y, b_z) = (_mm256_sub_ps(ld(1, kx), ox), _mm256_sub_ps(ld(1, ky), oy), _mm256_sub_ps(ld(1, kz), oz));
+    let (c_x, c_y, c_z) = (_mm256_sub_ps(ld(2, kx), ox), _mm256_sub_ps(ld(2, ky), oy), _mm256_sub_ps(ld(2, kz), oz));
+    let ax = _mm256_sub_ps(a_x, _mm256_mul_ps(sx, a_z));
+    let ay = _mm256_sub_ps(a_y, _mm256_mul_ps(sy, a_z));
+    let bx = _mm256_sub_ps(b_x, _mm256_mul_ps(sx, b_z));
+    let by = _mm256_sub_ps(b_y, _mm256_mul_ps(sy, b_z));
+    let cx = _mm256_sub_ps(c_x, _mm256_mul_ps(sx, c_z));
+    let cy = _mm256_sub_ps(c_y, _mm256_mul_ps(sy, c_z));
+    let u = _mm256_sub_ps(_mm256_mul_ps(cx, by), _mm256_mul_ps(cy, bx));
+    let v = _mm256_sub_ps(_mm256_mul_ps(ax, cy), _mm256_mul_ps(ay, cx));
+    let w = _mm256_sub_ps(_mm256_mul_ps(bx, ay), _mm256_mul_ps(by, ax));
+    let z = _mm256_setzero_ps();
+    let or = |a, b| _mm256_or_ps(a, b);
+    let and = |a, b| _mm256_and_ps(a, b);
+    let zero =
+        or(or(_mm256_cmp_ps::<_CMP_EQ_OQ>(u, z), _mm256_cmp_ps::<_CMP_EQ_OQ>(v, z)), _mm256_cmp_ps::<_CMP_EQ_OQ>(w, z));
+    let neg =
+        or(or(_mm256_cmp_ps::<_CMP_LT_OQ>(u, z), _mm256_cmp_ps::<_CMP_LT_OQ>(v, z)), _mm256_cmp_ps::<_CMP_LT_OQ>(w, z));
+    let pos =
+        or(or(_mm256_cmp_ps::<_CMP_GT_OQ>(u, z), _mm256_cmp_ps::<_CMP_GT_OQ>(v, z)), _mm256_cmp_ps::<_CMP_GT_OQ>(w, z));
+    let mixed = and(neg, pos);
+    let det = _mm256_add_ps(_mm256_add_ps(u, v), w);
+    let t_scaled = _mm256_add_ps(
+        _mm256_add_ps(_mm256_mul_ps(u, _mm256_mul_ps(sz, a_z)), _mm256_mul_ps(v, _mm256_mul_ps(sz, b_z))),
+        _mm256_mul_ps(w, _mm256_mul_ps(sz, c_z)),
+    );
+    let limit = _mm256_mul_ps(_mm256_set1_ps(tmax), det);
+    let out_neg = and(
+        _mm256_cmp_ps::<_CMP_LT_OQ>(det, z),
+        or(_mm256_cmp_ps::<_CMP_GE_OQ>(t_scaled, z), _mm256_cmp_ps::<_CMP_LT_OQ>(t_scaled, limit)),
+    );
+    let out_pos = and(
+        _mm256_cmp_ps::<_CMP_GT_OQ>(det, z),
+        or(_mm256_cmp_ps::<_CMP_LE_OQ>(t_scaled, z), _mm256_cmp_ps::<_CMP_GT_OQ>(t_scaled, limit)),
+    );
+    // !mixed & det != 0 & !out_neg & !out_pos, as and-nots of the rejections.
+    let rejected = or(or(mixed, _mm256_cmp_ps::<_CMP_EQ_OQ>(det, z)), or(out_neg, out_pos));
+    let keep = or(zero, _mm256_andnot_ps(rejected, _mm256_castsi256_ps(_mm256_set1_epi32(-1))));
+    // SAFETY: `Lanes` is 32-byte aligned and its rows are [f32; 8].
+    unsafe {
+        _mm256_store_ps(out.v.as_mut_ptr(), v);
+        _mm256_store_ps(out.w.as_mut_ptr(), w);
+        _mm256_store_ps(out.det.as_mut_ptr(), det);
+        _mm256_store_ps(out.t_scaled.as_mut_ptr(), t_scaled);
+    }
+    (_mm256_movemask_ps(keep) as u32, _mm256_movemask_ps(zero) as u32)
 }
 
 #[cfg(test)]
@@ -365,6 +504,42 @@ mod tests {
                 }
             }
         }
+    }
+
+    /// The AVX2 block test gives the portable one's masks and, for every lane that
+    /// finishes from them, the same values, bit for bit.
+    #[cfg(target_arch = "x86_64")]
+    #[test]
+    fn avx2_block_test_matches_the_portable_one() {
+        if !std::is_x86_feature_detected!("avx2") {
+            return;
+        }
+        let mut r = Rng(9);
+        let geo = scene(&mut r, 40);
+        let packed = PackedTriangles::for_small_scene(&geo).expect("small");
+        let mut compared = 0;
+        for k in 0..4000 {
+            let o = r.v() * 2.0;
+            let ray = Ray::new(o, (r.v() - o).normalize());
+            let pre = RayPrecomp::new(&ray);
+            let tmax = if k % 2 == 0 { f32::INFINITY } else { 3.0 * r.f() };
+            for b in &packed.blocks {
+                let (mut a, mut c) = (Lanes::default(), Lanes::default());
+                let portable = block_test_lanes(b, &pre.shear, tmax, &mut a);
+                // SAFETY: AVX2 was detected above.
+                let avx2 = unsafe { block_test_avx2(b, &pre.shear, tmax, &mut c) };
+                assert_eq!(portable, avx2, "ray {k}");
+                let mut finishing = portable.0 & !portable.1;
+                while finishing != 0 {
+                    let l = finishing.trailing_zeros() as usize;
+                    finishing &= finishing - 1;
+                    let bits = |x: &Lanes| [x.v[l], x.w[l], x.det[l], x.t_scaled[l]].map(f32::to_bits);
+                    assert_eq!(bits(&a), bits(&c), "ray {k} lane {l}");
+                    compared += 1;
+                }
+            }
+        }
+        assert!(compared > 1000, "only {compared} kept lanes compared");
     }
 
     #[test]
