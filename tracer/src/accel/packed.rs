@@ -49,9 +49,17 @@ struct Block {
     p: [[[f32; LANES]; 3]; 3],
 }
 
+/// Eight spheres: `c[axis][lane]` and `r[lane]`.
+#[derive(Clone, Copy, Debug)]
+#[repr(C, align(32))]
+struct SphereBlock {
+    c: [[f32; LANES]; 3],
+    r: [f32; LANES],
+}
+
 /// The first `len` primitives of a [`Primitives`] set, when they are triangles, packed for
-/// the block test. Queries take the set itself for the exact tests and for the primitives
-/// after the triangles (spheres), which are tested one by one.
+/// the block test, and the spheres that follow them, packed for a block pre-test. Queries
+/// take the set itself for the exact tests and for any primitives after those.
 #[derive(Clone, Debug)]
 pub struct PackedTriangles {
     blocks: Vec<Block>,
@@ -64,13 +72,17 @@ pub struct PackedTriangles {
     boxes: Vec<Aabb>,
     /// Lanes of the last block that hold a triangle.
     tail: u32,
+    /// The spheres, primitives `len..len + spheres`.
+    sphere_blocks: Vec<SphereBlock>,
+    spheres: usize,
     simd: Simd,
 }
 
 impl PackedTriangles {
-    /// Packs triangles `0..len` from their corners (in index order); `bounds` must hold
-    /// every primitive of the set the queries will pass.
-    pub fn new(corners: impl ExactSizeIterator<Item = [Vec3; 3]>, bounds: Aabb) -> Self {
+    /// Packs triangles `0..len` from their corners (in index order) and the spheres
+    /// (center, radius) that follow them, primitives `len..len + spheres.len()`; `bounds`
+    /// must hold every primitive of the set the queries will pass.
+    pub fn new(corners: impl ExactSizeIterator<Item = [Vec3; 3]>, spheres: &[(Vec3, f32)], bounds: Aabb) -> Self {
         let len = corners.len();
         let mut blocks = vec![Block { p: [[[0.0; LANES]; 3]; 3] }; len.div_ceil(LANES)];
         let mut boxes = vec![Aabb::EMPTY; blocks.len()];
@@ -87,7 +99,16 @@ impl PackedTriangles {
             0 => u32::MAX,
             n => (1 << n) - 1,
         };
-        Self { blocks, len, bounds, boxes, tail, simd: Simd::detect() }
+        let mut sphere_blocks =
+            vec![SphereBlock { c: [[0.0; LANES]; 3], r: [0.0; LANES] }; spheres.len().div_ceil(LANES)];
+        for (i, &(c, r)) in spheres.iter().enumerate() {
+            let b = &mut sphere_blocks[i / LANES];
+            for a in 0..3 {
+                b.c[a][i % LANES] = c[a];
+            }
+            b.r[i % LANES] = r;
+        }
+        Self { blocks, len, bounds, boxes, tail, sphere_blocks, spheres: spheres.len(), simd: Simd::detect() }
     }
 
     /// The packed triangles of `geo` when brute force beats its kd-tree: at most
@@ -96,7 +117,8 @@ impl PackedTriangles {
         let n = geo.mesh.tris.len();
         (n <= SMALL_TRIANGLES && geo.spheres.len() <= SMALL_SPHERES).then(|| {
             let bounds = (0..geo.len() as u32).fold(Aabb::EMPTY, |b, i| b.union(geo.bounds(i)));
-            Self::new((0..n).map(|i| *geo.triangle(i)), bounds)
+            let spheres: Vec<(Vec3, f32)> = geo.spheres.iter().map(|s| (s.center, s.radius)).collect();
+            Self::new((0..n).map(|i| *geo.triangle(i)), &spheres, bounds)
         })
     }
 
@@ -109,7 +131,14 @@ impl PackedTriangles {
     }
 
     pub fn bytes(&self) -> usize {
-        self.blocks.len() * size_of::<Block>()
+        self.blocks.len() * size_of::<Block>() + self.sphere_blocks.len() * size_of::<SphereBlock>()
+    }
+
+    /// Lanes of sphere block `b` that hold a sphere.
+    #[inline]
+    fn sphere_valid(&self, b: usize) -> u32 {
+        let n = (self.spheres - b * LANES).min(LANES);
+        if n == LANES { u32::MAX } else { (1 << n) - 1 }
     }
 
     /// The margin by which boxes are widened for this ray: far above the rounding of the
@@ -208,7 +237,20 @@ impl PackedTriangles {
                 }
             }
         }
-        for i in self.len as u32..prims.len() as u32 {
+        let sphere_a = ray.dir.length_squared();
+        for (bi, block) in self.sphere_blocks.iter().enumerate() {
+            let mut keep = sphere_candidates(block, ray, sphere_a) & self.sphere_valid(bi);
+            while keep != 0 {
+                let lane = keep.trailing_zeros() as usize;
+                keep &= keep - 1;
+                let i = (self.len + bi * LANES + lane) as u32;
+                if let Some(h) = prims.intersect(i, ray, &pre, tmax) {
+                    tmax = h.t;
+                    best = Some(Hit { t: h.t, prim: i, u: h.u, v: h.v });
+                }
+            }
+        }
+        for i in (self.len + self.spheres) as u32..prims.len() as u32 {
             if let Some(h) = prims.intersect(i, ray, &pre, tmax) {
                 tmax = h.t;
                 best = Some(Hit { t: h.t, prim: i, u: h.u, v: h.v });
@@ -246,7 +288,18 @@ impl PackedTriangles {
                 }
             }
         }
-        (self.len..prims.len()).any(|i| prims.intersect(i as u32, ray, &pre, tmax).is_some())
+        let sphere_a = ray.dir.length_squared();
+        for (bi, block) in self.sphere_blocks.iter().enumerate() {
+            let mut keep = sphere_candidates(block, ray, sphere_a) & self.sphere_valid(bi);
+            while keep != 0 {
+                let lane = keep.trailing_zeros() as usize;
+                keep &= keep - 1;
+                if prims.intersect((self.len + bi * LANES + lane) as u32, ray, &pre, tmax).is_some() {
+                    return true;
+                }
+            }
+        }
+        (self.len + self.spheres..prims.len()).any(|i| prims.intersect(i as u32, ray, &pre, tmax).is_some())
     }
 }
 
@@ -423,6 +476,30 @@ fn block_test_avx2(b: &Block, shear: &RayShear, tmax: f32, out: &mut Lanes) -> (
     (_mm256_movemask_ps(keep) as u32, _mm256_movemask_ps(zero) as u32)
 }
 
+/// Bit mask of the lanes of a sphere block whose sphere the ray's line may meet: the
+/// discriminant of [`intersect_sphere`] with the same operations in the same order, so a
+/// lane is dropped only where the scalar test returns at its first check (`disc < 0`).
+/// `a` is `|d|²` as the scalar test computes it.
+///
+/// [`intersect_sphere`]: crate::geometry::sphere::intersect_sphere
+#[inline(always)]
+fn sphere_candidates(b: &SphereBlock, ray: &Ray, a: f32) -> u32 {
+    let (o, d) = (ray.origin, ray.dir);
+    let mut keep = [0u32; LANES];
+    for (l, k) in keep.iter_mut().enumerate() {
+        // f = o - c; b = -f·d; l = f + (b / a) d; disc = a (r² - l·l), as glam's scalar
+        // Vec3 evaluates them: dot products summed x, y, then z.
+        let (fx, fy, fz) = (o.x - b.c[0][l], o.y - b.c[1][l], o.z - b.c[2][l]);
+        let bq = -(fx * d.x + fy * d.y + fz * d.z);
+        let s = bq / a;
+        let (lx, ly, lz) = (fx + s * d.x, fy + s * d.y, fz + s * d.z);
+        let r = b.r[l];
+        let disc = a * (r * r - (lx * lx + ly * ly + lz * lz));
+        *k = u32::from(!(disc < 0.0)) << l;
+    }
+    keep.iter().fold(0, |m, &k| m | k)
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -467,13 +544,15 @@ mod tests {
         }
         let dup = mesh.corners(3);
         tri(&mut mesh, dup);
-        let spheres = (0..3).map(|_| Sphere { center: r.v(), radius: 0.1 + 0.2 * r.f(), material: 0 }).collect();
+        // Eleven spheres: a full block of eight and a partial one.
+        let spheres = (0..11).map(|_| Sphere { center: r.v(), radius: 0.05 + 0.2 * r.f(), material: 0 }).collect();
         Geometry::new(mesh, spheres)
     }
 
     #[test]
     fn block_test_is_exactly_brute_force() {
         let mut r = Rng(3);
+        let mut sphere_hits = 0;
         for n in [0, 1, 7, 8, 9, 40] {
             let geo = scene(&mut r, n);
             let detected = PackedTriangles::for_small_scene(&geo).expect("small");
@@ -490,6 +569,7 @@ mod tests {
                 let ray = Ray::new(o, (target - o).normalize());
                 let tmax = if k % 3 == 0 { f32::INFINITY } else { (target - o).length() * (0.5 + r.f()) };
                 let expected = brute_force_intersect(&geo, &ray, tmax);
+                sphere_hits += usize::from(expected.is_some_and(|h| h.prim as usize >= geo.mesh.tris.len()));
                 assert_eq!(packed.intersect(&geo, &ray, tmax), expected, "n {n} ray {k}");
                 assert_eq!(packed.occluded(&geo, &ray, tmax), brute_force_occluded(&geo, &ray, tmax), "n {n} ray {k}");
                 // tmax at and just around a hit's own distance: where `t·det` meets
@@ -504,6 +584,7 @@ mod tests {
                 }
             }
         }
+        assert!(sphere_hits > 500, "only {sphere_hits} sphere hits tested");
     }
 
     /// The AVX2 block test gives the portable one's masks and, for every lane that
