@@ -87,7 +87,7 @@ impl PackedTriangles {
     /// The packed triangles of `geo` when brute force beats its kd-tree: at most
     /// [`SMALL_TRIANGLES`] triangles and [`SMALL_SPHERES`] spheres.
     pub fn for_small_scene(geo: &Geometry) -> Option<Self> {
-        let n = geo.mesh.tris.len();
+        let n = geo.triangle_count();
         (n <= SMALL_TRIANGLES && geo.spheres.len() <= SMALL_SPHERES).then(|| {
             let bounds = (0..geo.len() as u32).fold(Aabb::EMPTY, |b, i| b.union(geo.bounds(i)));
             Self::new((0..n).map(|i| *geo.triangle(i)), bounds)
@@ -102,8 +102,9 @@ impl PackedTriangles {
         self.len == 0
     }
 
+    /// Bytes allocated for the blocks and their boxes.
     pub fn bytes(&self) -> usize {
-        self.blocks.len() * size_of::<Block>()
+        self.blocks.capacity() * size_of::<Block>() + self.boxes.capacity() * size_of::<Aabb>()
     }
 
     /// The margin by which boxes are widened for this ray: far above the rounding of the
@@ -375,7 +376,7 @@ mod tests {
         // Straight down onto the grid (spheres are somewhere in [-1, 1]³: aim between).
         let ray = Ray::new(Vec3::new(-0.9, -0.9, 5.0), -Vec3::Z);
         let h = packed.intersect(&geo, &ray, f32::INFINITY).expect("the grid is hit");
-        assert!((h.t - 4.75).abs() < 1e-5 || h.prim as usize >= geo.mesh.tris.len(), "{h:?}");
+        assert!((h.t - 4.75).abs() < 1e-5 || h.prim as usize >= geo.triangle_count(), "{h:?}");
         let away = Ray::new(Vec3::new(0.0, 0.0, 5.0), Vec3::Z);
         assert!(packed.intersect(&geo, &away, f32::INFINITY).is_none());
         assert!(!packed.occluded(&geo, &away, f32::INFINITY));
