@@ -95,7 +95,7 @@ pub fn run(args: BenchArgs) -> anyhow::Result<()> {
         };
         let scene = tracer::scene::scene_from_bare_obj(model);
         eprintln!("generated mesh in {:.2}s", t.elapsed().as_secs_f64());
-        scenes.push((format!("displaced sphere ({} triangles)", scene.geometry.mesh.tris.len()), scene));
+        scenes.push((format!("displaced sphere ({} triangles)", scene.geometry.triangle_count()), scene));
     }
 
     println!("threads: {} (ray throughput is measured on one thread: Mrays/s per core)", rayon::current_num_threads());
@@ -134,7 +134,7 @@ impl SplitMix {
 fn bench_scene(name: &str, scene: &Scene, args: &BenchArgs) {
     let repeat = args.repeat.max(1);
     let geom = &scene.geometry;
-    let ntri = geom.mesh.tris.len().max(1);
+    let ntri = geom.triangle_count().max(1);
     println!("\n== {name}");
 
     let builds: Vec<f64> = (0..repeat)
@@ -146,13 +146,11 @@ fn bench_scene(name: &str, scene: &Scene, args: &BenchArgs) {
         })
         .collect();
     let stats = scene.accel.stats();
-    let mesh_bytes = geom.mesh.positions.len() * 12
-        + geom.mesh.normals.len() * 12
-        + geom.mesh.uvs.len() * 8
-        + geom.mesh.tris.len() * std::mem::size_of::<tracer::scene::Tri>();
-    // The triangle corners the intersection test reads (a copy of the positions laid
-    // out per triangle).
-    let test_bytes = geom.accel_bytes();
+    // What the scene holds for its geometry after loading (allocated bytes): the compact
+    // mesh (materials, shading-normal and uv indices and the normals and uvs where the
+    // mesh has them), the triangle corners (the only copy of the positions), the tree.
+    let gb = geom.bytes();
+    let tree_bytes = scene.accel.heap_bytes();
     println!(
         "kd-tree build: {:.3} ms (median of {repeat}); {} nodes, {} leaves, depth {}, {} refs",
         median(builds) * 1e3,
@@ -168,12 +166,21 @@ fn bench_scene(name: &str, scene: &Scene, args: &BenchArgs) {
             p.bytes()
         );
     }
+    let per_tri = |b: usize| b as f64 / ntri as f64;
+    let mut extra = String::new();
+    if gb.spheres > 0 {
+        extra += &format!(" + spheres {} B", gb.spheres);
+    }
+    let packed_bytes = scene.packed.as_ref().map_or(0, |p| p.bytes());
+    if packed_bytes > 0 {
+        extra += &format!(" + packed blocks {:.1} B/tri", per_tri(packed_bytes));
+    }
     println!(
-        "memory: mesh {:.1} B/tri + intersection corners {:.1} B/tri + tree {:.1} B/tri = {:.1} B/tri",
-        mesh_bytes as f64 / ntri as f64,
-        test_bytes as f64 / ntri as f64,
-        stats.bytes as f64 / ntri as f64,
-        (mesh_bytes + test_bytes + stats.bytes) as f64 / ntri as f64
+        "memory: mesh {:.1} B/tri + corners {:.1} B/tri + tree {:.1} B/tri{extra} = {:.1} B/tri",
+        per_tri(gb.mesh),
+        per_tri(gb.corners),
+        per_tri(tree_bytes),
+        per_tri(gb.total() + tree_bytes + packed_bytes)
     );
 
     // Primary rays: one per pixel, jittered, repeated to reach the requested count.

@@ -148,7 +148,7 @@ fn quick(spec: &str) {
     geo.store_in_leaf_order(&mut tree);
     let reorder = t.elapsed().as_secs_f64();
     let s = tree.stats();
-    let ntri = geo.mesh.tris.len();
+    let ntri = geo.triangle_count();
     println!(
         "{ntri} triangles: build median {:.3} s of {:?}, leaf-order storage {reorder:.3} s; {} nodes, {} refs, \
          depth {}, tree {:.1} B/tri",
@@ -209,7 +209,7 @@ fn bench(c: &mut Criterion) {
     let s = tree.stats();
     println!(
         "1M displaced sphere: {} triangles, build {secs:.3} s on {} threads; {s:?}",
-        big.mesh.tris.len(),
+        big.triangle_count(),
         rayon::current_num_threads()
     );
 

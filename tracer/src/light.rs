@@ -278,8 +278,10 @@ pub struct LightSet {
     /// Per-light data for the per-point selection; empty when there are more than
     /// [`LOCAL_SELECTION_MAX`] lights (selection by power alone).
     importance: Vec<Importance>,
-    /// For each primitive, the index of its area light, or `u32::MAX`.
-    prim_light: Vec<u32>,
+    /// `(primitive, its area light)` for the emissive primitives, sorted by primitive:
+    /// 8 bytes per emitter rather than 4 per primitive of the scene (it is looked up only
+    /// when a path hits an emitter).
+    prim_light: Vec<(u32, u32)>,
     environment: Option<u32>,
 }
 
@@ -302,15 +304,25 @@ impl LightSet {
                 *c = 1.0;
             }
         }
-        let mut prim_light = vec![u32::MAX; prim_count];
+        let mut prim_light = Vec::new();
         let mut environment = None;
         for (i, l) in lights.iter().enumerate() {
             match *l {
-                Light::Triangle { prim, .. } | Light::Sphere { prim, .. } => prim_light[prim as usize] = i as u32,
+                Light::Triangle { prim, .. } | Light::Sphere { prim, .. } => {
+                    assert!((prim as usize) < prim_count, "light {i}: primitive {prim} out of range");
+                    prim_light.push((prim, i as u32));
+                }
                 Light::Environment { .. } => environment = Some(i as u32),
                 _ => {}
             }
         }
+        // A primitive named by several lights belongs to the last (stable sort, then keep
+        // the last of each run).
+        prim_light.sort_by_key(|&(prim, _)| prim);
+        prim_light.reverse();
+        prim_light.dedup_by_key(|&mut (prim, _)| prim);
+        prim_light.reverse();
+        prim_light.shrink_to_fit();
         let importance = if lights.len() <= LOCAL_SELECTION_MAX {
             lights.iter().map(|l| Importance::new(l, scene_radius)).collect()
         } else {
@@ -405,10 +417,8 @@ impl LightSet {
     /// The area light that primitive `prim` belongs to.
     #[inline]
     pub fn light_of_prim(&self, prim: u32) -> Option<usize> {
-        match self.prim_light.get(prim as usize) {
-            Some(&l) if l != u32::MAX => Some(l as usize),
-            _ => None,
-        }
+        let i = self.prim_light.binary_search_by_key(&prim, |&(p, _)| p).ok()?;
+        Some(self.prim_light[i].1 as usize)
     }
 
     pub fn environment(&self) -> Option<usize> {
@@ -433,6 +443,35 @@ mod tests {
         assert_eq!(set.select(0.25).unwrap().0, 2);
         assert_eq!(set.select(0.999_999_9).unwrap().0, 2);
         assert!(LightSet::new(vec![], 0, 1.0).select(0.5).is_none());
+    }
+
+    #[test]
+    fn area_lights_are_found_by_primitive() {
+        let tri = |prim: u32| Light::Triangle {
+            prim,
+            p0: Vec3::ZERO,
+            e1: Vec3::X,
+            e2: Vec3::Z,
+            normal: -Vec3::Y,
+            area: 0.5,
+            radiance: Vec3::ONE,
+        };
+        // Lights in file order, primitives in storage order (not sorted).
+        let lights = vec![
+            tri(9),
+            Light::Point { position: Vec3::ZERO, intensity: Vec3::ONE },
+            tri(2),
+            Light::Sphere { prim: 12, center: Vec3::ZERO, radius: 1.0, radiance: Vec3::ONE },
+            tri(5),
+            Light::Environment { radiance: Vec3::ONE },
+        ];
+        let set = LightSet::new(lights, 13, 1.0);
+        let found: Vec<Option<usize>> = (0..14).map(|p| set.light_of_prim(p)).collect();
+        let mut expect = vec![None; 14];
+        (expect[9], expect[2], expect[12], expect[5]) = (Some(0), Some(2), Some(3), Some(4));
+        assert_eq!(found, expect);
+        assert_eq!(set.environment(), Some(5));
+        assert_eq!(LightSet::new(vec![], 0, 1.0).light_of_prim(0), None);
     }
 
     fn mixed_lights() -> Vec<Light> {

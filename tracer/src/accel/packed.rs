@@ -114,7 +114,7 @@ impl PackedTriangles {
     /// The packed triangles of `geo` when brute force beats its kd-tree: at most
     /// [`SMALL_TRIANGLES`] triangles and [`SMALL_SPHERES`] spheres.
     pub fn for_small_scene(geo: &Geometry) -> Option<Self> {
-        let n = geo.mesh.tris.len();
+        let n = geo.triangle_count();
         (n <= SMALL_TRIANGLES && geo.spheres.len() <= SMALL_SPHERES).then(|| {
             let bounds = (0..geo.len() as u32).fold(Aabb::EMPTY, |b, i| b.union(geo.bounds(i)));
             let spheres: Vec<(Vec3, f32)> = geo.spheres.iter().map(|s| (s.center, s.radius)).collect();
@@ -130,8 +130,11 @@ impl PackedTriangles {
         self.len == 0
     }
 
+    /// Bytes allocated for the triangle blocks, their boxes and the sphere blocks.
     pub fn bytes(&self) -> usize {
-        self.blocks.len() * size_of::<Block>() + self.sphere_blocks.len() * size_of::<SphereBlock>()
+        self.blocks.capacity() * size_of::<Block>()
+            + self.boxes.capacity() * size_of::<Aabb>()
+            + self.sphere_blocks.capacity() * size_of::<SphereBlock>()
     }
 
     /// Lanes of sphere block `b` that hold a sphere.
@@ -569,7 +572,7 @@ mod tests {
                 let ray = Ray::new(o, (target - o).normalize());
                 let tmax = if k % 3 == 0 { f32::INFINITY } else { (target - o).length() * (0.5 + r.f()) };
                 let expected = brute_force_intersect(&geo, &ray, tmax);
-                sphere_hits += usize::from(expected.is_some_and(|h| h.prim as usize >= geo.mesh.tris.len()));
+                sphere_hits += usize::from(expected.is_some_and(|h| h.prim as usize >= geo.triangle_count()));
                 assert_eq!(packed.intersect(&geo, &ray, tmax), expected, "n {n} ray {k}");
                 assert_eq!(packed.occluded(&geo, &ray, tmax), brute_force_occluded(&geo, &ray, tmax), "n {n} ray {k}");
                 // tmax at and just around a hit's own distance: where `t·det` meets
@@ -631,7 +634,7 @@ mod tests {
         // Straight down onto the grid (spheres are somewhere in [-1, 1]³: aim between).
         let ray = Ray::new(Vec3::new(-0.9, -0.9, 5.0), -Vec3::Z);
         let h = packed.intersect(&geo, &ray, f32::INFINITY).expect("the grid is hit");
-        assert!((h.t - 4.75).abs() < 1e-5 || h.prim as usize >= geo.mesh.tris.len(), "{h:?}");
+        assert!((h.t - 4.75).abs() < 1e-5 || h.prim as usize >= geo.triangle_count(), "{h:?}");
         let away = Ray::new(Vec3::new(0.0, 0.0, 5.0), Vec3::Z);
         assert!(packed.intersect(&geo, &away, f32::INFINITY).is_none());
         assert!(!packed.occluded(&geo, &away, f32::INFINITY));

@@ -3,11 +3,11 @@
 
 use std::path::{Path, PathBuf};
 
-use glam::{Mat3, Vec2, Vec3};
+use glam::{Mat3, Vec3};
 
 use super::file::{LightDesc, SceneFile, SphereDesc};
 use super::obj::{ObjError, ObjModel, load_obj};
-use super::{Geometry, NONE, Scene, Sphere};
+use super::{Geometry, NONE, Scene, Sphere, TriangleMesh};
 use crate::accel::packed::PackedTriangles;
 use crate::accel::{BuildParams, KdTree, Primitives};
 use crate::camera::Camera;
@@ -65,7 +65,8 @@ pub fn scene_from_toml(text: &str, display_name: &str, base: &Path) -> Result<Sc
 
 #[derive(Default)]
 struct Builder {
-    geometry: Geometry,
+    mesh: TriangleMesh,
+    spheres: Vec<Sphere>,
     materials: Vec<Material>,
     material_names: Vec<String>,
     textures: Vec<Texture>,
@@ -77,16 +78,13 @@ impl Builder {
     fn add_model(&mut self, model: ObjModel, linear: Mat3, translate: Vec3) {
         let ObjModel { mesh, materials, textures, warnings } = model;
         let (mat_base, tex_base) = (self.materials.len() as u32, self.textures.len() as u32);
-        let (pos_base, n_base, uv_base) = (
-            self.geometry.mesh.positions.len() as u32,
-            self.geometry.mesh.normals.len() as u32,
-            self.geometry.mesh.uvs.len() as u32,
-        );
+        let (pos_base, n_base, uv_base) =
+            (self.mesh.positions.len() as u32, self.mesh.normals.len() as u32, self.mesh.uvs.len() as u32);
         let normal_m = linear.inverse().transpose();
         // A mirroring transform turns counter-clockwise into clockwise: swap two corners
         // so that front faces (and one-sided emitters) stay on the same side.
         let mirrored = linear.determinant() < 0.0;
-        let out = &mut self.geometry.mesh;
+        let out = &mut self.mesh;
         out.positions.extend(mesh.positions.iter().map(|&p| linear * p + translate));
         out.normals.extend(mesh.normals.iter().map(|&n| (normal_m * n).normalize_or_zero()));
         out.uvs.extend_from_slice(&mesh.uvs);
@@ -188,7 +186,7 @@ fn assemble(file: &SceneFile, name: &str, base: &Path) -> Result<Scene, SceneErr
             return Err(invalid(field("radius"), format!("must be > 0, got {}", s.radius)));
         }
         let desc = sphere_material(s, &field, &invalid)?;
-        b.geometry.spheres.push(Sphere { center, radius: s.radius, material: b.materials.len() as u32 });
+        b.spheres.push(Sphere { center, radius: s.radius, material: b.materials.len() as u32 });
         b.materials.push(Material::from_desc(&desc));
         b.material_names.push(format!("sphere[{i}]"));
     }
@@ -277,8 +275,9 @@ fn sphere_material(
 
 /// Collects area lights and builds the kd-tree.
 fn finish(b: Builder, camera: Camera, settings: RenderSettings, mut lights: Vec<Light>, background: Vec3) -> Scene {
-    let Builder { mut geometry, materials, material_names, textures, warnings } = b;
-    geometry.prepare();
+    let Builder { mesh, spheres, materials, material_names, textures, warnings } = b;
+    // From here on the scene keeps only the compact runtime form of the mesh.
+    let mut geometry = Geometry::new(mesh, spheres);
     for w in &warnings {
         tracing::warn!("{w}");
     }
@@ -289,7 +288,7 @@ fn finish(b: Builder, camera: Camera, settings: RenderSettings, mut lights: Vec<
     // brute force in index order, keep the file's order.
     let order: Vec<u32> = match packed {
         None => geometry.store_in_leaf_order(&mut accel),
-        Some(_) => (0..geometry.mesh.tris.len() as u32).collect(),
+        Some(_) => (0..geometry.triangle_count() as u32).collect(),
     };
     let mut new_index = vec![0u32; order.len()];
     for (new, &old) in order.iter().enumerate() {
@@ -306,12 +305,11 @@ fn finish(b: Builder, camera: Camera, settings: RenderSettings, mut lights: Vec<
     // light sampling, so it does not follow the storage order), by their new indices.
     for &i in &new_index {
         let i = i as usize;
-        let t = &geometry.mesh.tris[i];
-        let m = &materials[t.material as usize];
+        let m = &materials[geometry.material(i) as usize];
         if !m.is_emissive() {
             continue;
         }
-        let [p0, p1, p2] = geometry.mesh.corners(i);
+        let [p0, p1, p2] = *geometry.triangle(i);
         let (e1, e2) = (p1 - p0, p2 - p0);
         let c = e1.cross(e2);
         let area = 0.5 * c.length();
@@ -327,7 +325,7 @@ fn finish(b: Builder, camera: Camera, settings: RenderSettings, mut lights: Vec<
             });
         }
     }
-    let ntri = geometry.mesh.tris.len();
+    let ntri = geometry.triangle_count();
     for (i, s) in geometry.spheres.iter().enumerate() {
         let m = &materials[s.material as usize];
         if m.is_emissive() {
@@ -394,14 +392,6 @@ pub fn scene_from_bare_obj(model: ObjModel) -> Scene {
     finish(b, camera, RenderSettings::default(), lights, background)
 }
 
-/// Used by [`Scene::interaction`]: interpolated texture coordinates or the barycentrics.
-pub(super) fn uv_or_barycentric(uvs: &[Vec2], idx: [u32; 3], b: Vec3) -> Vec2 {
-    if idx[0] == NONE || idx[1] == NONE || idx[2] == NONE {
-        return Vec2::new(b.y, b.z);
-    }
-    b.x * uvs[idx[0] as usize] + b.y * uvs[idx[1] as usize] + b.z * uvs[idx[2] as usize]
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -425,15 +415,14 @@ mod tests {
         let g = &s.geometry;
         assert!(s.packed.is_none(), "the test is about the kd-tree path");
         // The permutation moved triangles (else the test proves nothing).
-        assert!((0..g.mesh.tris.len()).any(|i| g.mesh.corners(i) != file_order[i]));
+        assert!((0..g.triangle_count()).any(|i| *g.triangle(i) != file_order[i]));
         let mut seen = Vec::new();
         for (li, l) in s.lights.lights.iter().enumerate() {
             if let Light::Triangle { prim, p0, e1, e2, .. } = *l {
                 let i = prim as usize;
-                let c = g.mesh.corners(i);
-                assert_eq!(*g.triangle(i), c);
+                let c = *g.triangle(i);
                 assert_eq!((p0, e1, e2), (c[0], c[1] - c[0], c[2] - c[0]));
-                assert_eq!(g.mesh.tris[i].material, 1);
+                assert_eq!(g.material(i), 1);
                 assert_eq!(s.lights.light_of_prim(prim), Some(li));
                 seen.push(c);
             }
@@ -448,7 +437,7 @@ mod tests {
             let hit = s.intersect(&ray, f32::INFINITY).expect("aimed at the mesh");
             let si = s.interaction(&ray, &hit);
             let i = hit.prim as usize;
-            assert_eq!(si.material, g.mesh.tris[i].material);
+            assert_eq!(si.material, g.material(i));
             assert_eq!(s.lights.light_of_prim(hit.prim).is_some(), si.material == 1);
         }
     }

@@ -1,4 +1,5 @@
-//! Triangle meshes as the loaders produce them and the scene stores them.
+//! Triangle meshes as the loaders produce them. The scene keeps the compact runtime form
+//! made from one by [`super::Geometry::new`].
 
 use glam::{Vec2, Vec3};
 

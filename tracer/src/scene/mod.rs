@@ -10,7 +10,7 @@ pub mod mesh;
 pub mod obj;
 pub mod overrides;
 
-pub use geometry::{Geometry, PrimRef, Sphere};
+pub use geometry::{Geometry, GeometryBytes, PrimRef, Sphere};
 pub use load::{RenderSettings, SceneError, load_scene, scene_from_bare_obj, scene_from_toml};
 pub use mesh::{NONE, Tri, TriangleMesh};
 pub use overrides::Overrides;
@@ -83,17 +83,14 @@ impl Scene {
     pub fn interaction(&self, ray: &Ray, hit: &Hit) -> SurfaceHit {
         match self.geometry.resolve(hit.prim) {
             PrimRef::Triangle(i) => {
-                let mesh = &self.geometry.mesh;
-                let tri = &mesh.tris[i];
-                let [p0, p1, p2] = mesh.corners(i);
+                let g = &self.geometry;
+                let [p0, p1, p2] = *g.triangle(i);
                 let b = Vec3::new(1.0 - hit.u - hit.v, hit.u, hit.v);
                 // Interpolating the corners is more accurate than ray.at(t) far away.
                 let p = b.x * p0 + b.y * p1 + b.z * p2;
                 let ng = (p1 - p0).cross(p2 - p0).normalize_or_zero();
-                let ns = if tri.n[0] != NONE {
-                    let n = b.x * mesh.normals[tri.n[0] as usize]
-                        + b.y * mesh.normals[tri.n[1] as usize]
-                        + b.z * mesh.normals[tri.n[2] as usize];
+                let ns = if let Some([n0, n1, n2]) = g.shading_normals(i) {
+                    let n = b.x * n0 + b.y * n1 + b.z * n2;
                     let n = n.normalize_or_zero();
                     if n == Vec3::ZERO || !n.is_finite() {
                         ng
@@ -105,8 +102,8 @@ impl Scene {
                 } else {
                     ng
                 };
-                let uv = load::uv_or_barycentric(&mesh.uvs, tri.uv, b);
-                SurfaceHit { p, ng, ns, uv, material: tri.material, prim: hit.prim, t: hit.t }
+                let uv = g.uv(i, b);
+                SurfaceHit { p, ng, ns, uv, material: g.material(i), prim: hit.prim, t: hit.t }
             }
             PrimRef::Sphere(i) => {
                 let s = &self.geometry.spheres[i];

@@ -168,7 +168,10 @@ pub struct KdTree {
 
 impl KdTree {
     pub fn build<P: Primitives>(prims: &P, params: &BuildParams) -> KdTree {
-        let b = build::build(prims, params);
+        let mut b = build::build(prims, params);
+        // The build grows both arrays by pushing: give back the slack it leaves.
+        b.out.nodes.shrink_to_fit();
+        b.out.ids.shrink_to_fit();
         let mut tree =
             KdTree { nodes: b.out.nodes, ids: b.out.ids, bounds: b.bounds, cell: b.cell, stats: Default::default() };
         tree.stats = tree.compute_stats(b.max_depth as usize);
@@ -182,6 +185,11 @@ impl KdTree {
 
     pub fn stats(&self) -> KdTreeStats {
         self.stats.clone()
+    }
+
+    /// Bytes allocated for the nodes and the primitive-index array (their capacity).
+    pub fn heap_bytes(&self) -> usize {
+        self.nodes.capacity() * size_of::<Node>() + self.ids.capacity() * size_of::<u32>()
     }
 
     /// Nearest hit with `0 < t < tmax`: exactly what [`super::brute_force_intersect`]

@@ -313,7 +313,7 @@ fn nodes_are_compact_and_tree_is_shareable() {
     let tree = KdTree::build(&geo, &BuildParams::default());
     let s = tree.stats();
     assert_eq!(s.nodes, 2 * s.leaves - 1);
-    assert!(s.prim_refs >= geo.mesh.tris.len() / 2, "{s:?}");
+    assert!(s.prim_refs >= geo.triangle_count() / 2, "{s:?}");
     assert_eq!(s.bytes, 8 * s.nodes + 4 * tree.ids.len());
     // Depth-first: an interior node's below child is the next node.
     for (i, n) in tree.nodes.iter().enumerate() {
@@ -323,7 +323,7 @@ fn nodes_are_compact_and_tree_is_shareable() {
     }
     // A depth limit of 0 gives one leaf with everything.
     let one = KdTree::build(&geo, &BuildParams { max_depth: Some(0), ..Default::default() });
-    assert_eq!((one.stats().nodes, one.stats().prim_refs), (1, geo.mesh.tris.len() + geo.spheres.len()));
+    assert_eq!((one.stats().nodes, one.stats().prim_refs), (1, geo.triangle_count() + geo.spheres.len()));
 }
 
 #[test]
@@ -369,12 +369,15 @@ fn check_leaf_order(geo: Geometry, params: &BuildParams, r: &mut Rng, rays: usiz
     prop_assert_eq!(&order, &again.store_in_leaf_order(&mut again_tree), "not deterministic");
     prop_assert_eq!(&again_tree.nodes, &moved_tree.nodes);
     prop_assert_eq!(&again_tree.ids, &moved_tree.ids);
-    let ntri = geo.mesh.tris.len();
+    let ntri = geo.triangle_count();
     let mut sorted = order.clone();
     sorted.sort_unstable();
     prop_assert!(sorted.iter().copied().eq(0..ntri as u32), "not a permutation");
     for (new, &old) in order.iter().enumerate() {
-        prop_assert_eq!(moved.mesh.tris[new], geo.mesh.tris[old as usize]);
+        let o = old as usize;
+        prop_assert_eq!(moved.material(new), geo.material(o));
+        prop_assert_eq!(moved.normal_indices(new), geo.normal_indices(o));
+        prop_assert_eq!(moved.uv_indices(new), geo.uv_indices(o));
         prop_assert_eq!(moved.triangle(new), geo.triangle(old as usize));
     }
     prop_assert_eq!(&moved.spheres, &geo.spheres);
