@@ -29,36 +29,51 @@ pub fn clipped_triangle_bounds(p: [Vec3; 3], clip: &Aabb) -> Aabb {
         return tri_bounds;
     }
 
-    let mut poly = [Vec3::ZERO; MAX_VERTS];
-    let mut n = 3;
-    poly[..3].copy_from_slice(&p);
-    let mut next = [Vec3::ZERO; MAX_VERTS];
-    for axis in 0..3 {
-        // Planes that do not cut the triangle's bounds cannot remove anything.
-        if tri_bounds.min[axis] < clip.min[axis] {
-            n = clip_plane(&poly[..n], &mut next, axis, clip.min[axis], true);
-            std::mem::swap(&mut poly, &mut next);
-        }
-        if n == 0 {
-            return Aabb::EMPTY;
-        }
-        if tri_bounds.max[axis] > clip.max[axis] {
-            n = clip_plane(&poly[..n], &mut next, axis, clip.max[axis], false);
-            std::mem::swap(&mut poly, &mut next);
-        }
-        if n == 0 {
-            return Aabb::EMPTY;
-        }
+    // Ping-pong between two buffers (swapping them cost as much as a clip step).
+    let mut bufs = [[Vec3::ZERO; MAX_VERTS]; 2];
+    bufs[0][..3].copy_from_slice(&p);
+    let (mut cur, mut n) = (0, 3);
+    macro_rules! clip {
+        ($axis:literal) => {
+            // Planes that do not cut the triangle's bounds cannot remove anything.
+            if tri_bounds.min[$axis] < clip.min[$axis] {
+                let [a, b] = &mut bufs;
+                let (from, to) = if cur == 0 { (a, b) } else { (b, a) };
+                n = clip_plane::<$axis, true>(&from[..n], to, clip.min[$axis]);
+                cur ^= 1;
+            }
+            if n == 0 {
+                return Aabb::EMPTY;
+            }
+            if tri_bounds.max[$axis] > clip.max[$axis] {
+                let [a, b] = &mut bufs;
+                let (from, to) = if cur == 0 { (a, b) } else { (b, a) };
+                n = clip_plane::<$axis, false>(&from[..n], to, clip.max[$axis]);
+                cur ^= 1;
+            }
+            if n == 0 {
+                return Aabb::EMPTY;
+            }
+        };
     }
+    clip!(0);
+    clip!(1);
+    clip!(2);
     // Interpolation may round a created vertex a hair outside the box or the triangle's
     // bounds; the intersection keeps the documented containment.
-    Aabb::from_points(&poly[..n]).intersection(inter)
+    Aabb::from_points(&bufs[cur][..n]).intersection(inter)
 }
 
-/// One Sutherland–Hodgman step: keeps the part of `poly` with `v[axis] >= value`
-/// (`keep_above`) or `v[axis] <= value`. Returns the vertex count written to `out`.
-fn clip_plane(poly: &[Vec3], out: &mut [Vec3; MAX_VERTS], axis: usize, value: f32, keep_above: bool) -> usize {
-    let inside = |v: Vec3| if keep_above { v[axis] >= value } else { v[axis] <= value };
+/// One Sutherland–Hodgman step: keeps the part of `poly` with `v[AXIS] >= value`
+/// (`KEEP_ABOVE`) or `v[AXIS] <= value`. Returns the vertex count written to `out`.
+#[inline(always)]
+fn clip_plane<const AXIS: usize, const KEEP_ABOVE: bool>(
+    poly: &[Vec3],
+    out: &mut [Vec3; MAX_VERTS],
+    value: f32,
+) -> usize {
+    let coord = |v: Vec3| v.to_array()[AXIS];
+    let inside = |v: Vec3| if KEEP_ABOVE { coord(v) >= value } else { coord(v) <= value };
     let mut m = 0;
     let Some(&last) = poly.last() else { return 0 };
     let mut prev = last;
@@ -69,9 +84,9 @@ fn clip_plane(poly: &[Vec3], out: &mut [Vec3; MAX_VERTS], axis: usize, value: f3
             // Interpolate from the inside vertex so that the same edge gives the same
             // point whichever way it is walked.
             let (a, b) = if prev_in { (prev, cur) } else { (cur, prev) };
-            let t = (value - a[axis]) / (b[axis] - a[axis]);
+            let t = (value - coord(a)) / (coord(b) - coord(a));
             let mut x = a + (b - a) * t;
-            x[axis] = value;
+            x[AXIS] = value;
             if m < MAX_VERTS {
                 out[m] = x;
                 m += 1;
