@@ -166,30 +166,6 @@ impl Node {
     }
 }
 
-/// Asks the kernel to back the whole 2 MiB pages inside `v`'s buffer with transparent
-/// huge pages, now (Linux; elsewhere nothing). A large tree on 4 KiB pages costs a TLB
-/// miss on nearly every node step near the root, and the system default here is
-/// `madvise` (huge pages only where asked for). Contents and addresses are unchanged;
-/// if the kernel declines, nothing changes.
-fn advise_huge_pages<T>(v: &[T]) {
-    #[cfg(target_os = "linux")]
-    {
-        const HUGE: usize = 2 << 20;
-        let start = v.as_ptr() as usize;
-        let (lo, hi) = (start.next_multiple_of(HUGE), (start + size_of_val(v)) / HUGE * HUGE);
-        if hi > lo {
-            // SAFETY: [lo, hi) lies inside `v`'s allocation; both advices keep the memory's
-            // contents and mapping (MADV_COLLAPSE copies populated pages into huge ones).
-            unsafe {
-                libc::madvise(lo as *mut libc::c_void, hi - lo, libc::MADV_HUGEPAGE);
-                libc::madvise(lo as *mut libc::c_void, hi - lo, libc::MADV_COLLAPSE);
-            }
-        }
-    }
-    #[cfg(not(target_os = "linux"))]
-    let _ = v;
-}
-
 /// The build's output (depth-first nodes and a shared index array) with each leaf's
 /// indices moved right after the leaf, child offsets adjusted: the node order, and so
 /// the tree, are unchanged. Measured on the 1M-triangle mesh (`KDTREE_QUICK`): the
@@ -236,7 +212,7 @@ impl KdTree {
     pub fn build<P: Primitives>(prims: &P, params: &BuildParams) -> KdTree {
         let b = build::build(prims, params);
         let nodes = inline_leaf_ids(&b.out.nodes, &b.out.ids);
-        advise_huge_pages(&nodes);
+        crate::accel::advise_huge_pages(&nodes);
         let mut tree = KdTree { nodes, bounds: b.bounds, cell: b.cell, stats: Default::default() };
         tree.stats = tree.compute_stats(b.max_depth as usize);
         tree
