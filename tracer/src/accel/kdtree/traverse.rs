@@ -217,9 +217,13 @@ impl KdTree {
         let pre = RayPrecomp::new(ray);
         let s = self.setup(ray, pre.inv_dir, tmax)?;
         let mut c = Candidates::new(tmax, s.slack);
+        let mut mb = Mailbox::new();
         self.walk(ray, pre.inv_dir, &s, tmax, |ids| {
             prefetch_all(prims, ids);
             for &g in ids {
+                if mb.seen(g) {
+                    continue;
+                }
                 if let Some(h) = prims.intersect(g, ray, &pre, c.bound) {
                     c.record(g, h);
                 }
@@ -236,6 +240,8 @@ impl KdTree {
         let pre = RayPrecomp::new(ray);
         let Some(s) = self.setup(ray, pre.inv_dir, tmax) else { return false };
         let mut hit = false;
+        // No mailbox here: the query ends at its first hit, so few primitives come up
+        // twice (measured: 1% more instructions, no faster).
         self.walk(ray, pre.inv_dir, &s, tmax, |ids| {
             prefetch_all(prims, ids);
             if ids.iter().any(|&g| prims.intersect(g, ray, &pre, tmax).is_some()) {
@@ -258,6 +264,46 @@ fn prefetch_all<P: Primitives>(prims: &P, ids: &[u32]) {
         for &g in ids {
             prims.prefetch(g);
         }
+    }
+}
+
+/// Slots of the [`Mailbox`].
+const MAILBOX: usize = 32;
+
+/// The primitives tested recently in this query, by index modulo [`MAILBOX`] (a later
+/// one evicts an earlier one in its slot). A primitive listed in several leaves along
+/// the ray (there are 2.7 listings per triangle on the 1M mesh) is tested once: the
+/// test is a function of the primitive and `tmax`, and `tmax` only shrinks during a
+/// query, so a primitive that missed misses again, and one that hit gives the same hit,
+/// which the query has already seen. Forgetting one (eviction) only costs a test.
+/// Closest-hit only: it keeps going past its first hits into the next leaves, which
+/// list many of the same triangles.
+struct Mailbox([u32; MAILBOX]);
+
+impl Mailbox {
+    /// Slot k starts with k + 1, which no index kept in slot k can equal.
+    const EMPTY: [u32; MAILBOX] = {
+        let mut m = [0; MAILBOX];
+        let mut k = 0;
+        while k < MAILBOX {
+            m[k] = k as u32 + 1;
+            k += 1;
+        }
+        m
+    };
+
+    #[inline(always)]
+    fn new() -> Self {
+        Self(Self::EMPTY)
+    }
+
+    /// Whether `g` was tested in this query (as far as remembered); remembers it.
+    #[inline(always)]
+    fn seen(&mut self, g: u32) -> bool {
+        let slot = &mut self.0[g as usize % MAILBOX];
+        let seen = *slot == g;
+        *slot = g;
+        seen
     }
 }
 
