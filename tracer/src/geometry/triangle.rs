@@ -110,9 +110,7 @@ pub fn intersect_triangle_corners(shear: &RayShear, p: &[Vec3; 3], tmax: f32) ->
     // Fall back to double precision on an edge, as the paper prescribes, so that the
     // sign test is exact there.
     if u == 0.0 || v == 0.0 || w == 0.0 {
-        u = (cx as f64 * by as f64 - cy as f64 * bx as f64) as f32;
-        v = (ax as f64 * cy as f64 - ay as f64 * cx as f64) as f32;
-        w = (bx as f64 * ay as f64 - by as f64 * ax as f64) as f32;
+        (u, v, w) = edge_functions_f64(ax, ay, bx, by, cx, cy);
     }
     if (u < 0.0 || v < 0.0 || w < 0.0) && (u > 0.0 || v > 0.0 || w > 0.0) {
         return None;
@@ -138,6 +136,17 @@ pub fn intersect_triangle_corners(shear: &RayShear, p: &[Vec3; 3], tmax: f32) ->
         return None;
     }
     Some(TriangleHit { t, b1: v * inv_det, b2: w * inv_det })
+}
+
+/// The three edge functions in double precision (exact for f32 inputs), rounded to f32:
+/// the rare case of a ray on an edge, kept out of the hot test's code.
+#[cold]
+#[inline(never)]
+fn edge_functions_f64(ax: f32, ay: f32, bx: f32, by: f32, cx: f32, cy: f32) -> (f32, f32, f32) {
+    let u = (cx as f64 * by as f64 - cy as f64 * bx as f64) as f32;
+    let v = (ax as f64 * cy as f64 - ay as f64 * cx as f64) as f32;
+    let w = (bx as f64 * ay as f64 - by as f64 * ax as f64) as f32;
+    (u, v, w)
 }
 
 #[cfg(test)]

@@ -314,13 +314,21 @@ fn nodes_are_compact_and_tree_is_shareable() {
     let s = tree.stats();
     assert_eq!(s.nodes, 2 * s.leaves - 1);
     assert!(s.prim_refs >= geo.triangle_count() / 2, "{s:?}");
-    assert_eq!(s.bytes, 8 * s.nodes + 4 * tree.ids.len());
-    // Depth-first: an interior node's below child is the next node.
-    for (i, n) in tree.nodes.iter().enumerate() {
+    assert_eq!(s.bytes, 8 * tree.nodes.len());
+    // Depth-first: an interior node's below child is the next node; a leaf of several
+    // primitives is followed by its indices, two per slot.
+    let (mut i, mut nodes, mut refs) = (0, 0, 0);
+    while i < tree.nodes.len() {
+        let n = tree.nodes[i];
         if !n.is_leaf() {
             assert!(n.above() > 1 && i + n.above() < tree.nodes.len());
+        } else {
+            refs += tree.leaf_ids(i, n).len();
         }
+        nodes += 1;
+        i += 1 + n.id_slots();
     }
+    assert_eq!((nodes, refs), (s.nodes, s.prim_refs));
     // A depth limit of 0 gives one leaf with everything.
     let one = KdTree::build(&geo, &BuildParams { max_depth: Some(0), ..Default::default() });
     assert_eq!((one.stats().nodes, one.stats().prim_refs), (1, geo.triangle_count() + geo.spheres.len()));
@@ -368,7 +376,6 @@ fn check_leaf_order(geo: Geometry, params: &BuildParams, r: &mut Rng, rays: usiz
     let (mut again, mut again_tree) = (geo.clone(), KdTree::build(&geo, params));
     prop_assert_eq!(&order, &again.store_in_leaf_order(&mut again_tree), "not deterministic");
     prop_assert_eq!(&again_tree.nodes, &moved_tree.nodes);
-    prop_assert_eq!(&again_tree.ids, &moved_tree.ids);
     let ntri = geo.triangle_count();
     let mut sorted = order.clone();
     sorted.sort_unstable();
