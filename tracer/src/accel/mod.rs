@@ -45,9 +45,8 @@ impl RayPrecomp {
 /// huge pages, now (Linux; elsewhere nothing). A large tree on 4 KiB pages costs a TLB
 /// miss on nearly every node step near the root, and the system default here is
 /// `madvise` (huge pages only where asked for). Contents and addresses are unchanged;
-/// if the kernel declines, nothing changes. Used for the kd-tree's nodes; the scene's
-/// triangle corners (36 MB on the 1M mesh) gained as much again in a trial (see the
-/// commit that added this).
+/// if the kernel declines, nothing changes. Used for the kd-tree's nodes and the scene's
+/// triangle corners (`Geometry::permute_triangles`).
 pub fn advise_huge_pages<T>(v: &[T]) {
     #[cfg(target_os = "linux")]
     {
