@@ -23,7 +23,7 @@
 use glam::Vec3;
 
 use super::{Hit, PrimHit, Primitives, RayPrecomp};
-use crate::geometry::triangle::RayShear;
+use crate::geometry::triangle::{RayShear, finish_watertight};
 use crate::geometry::{Aabb, Ray};
 use crate::scene::Geometry;
 
@@ -208,13 +208,40 @@ impl PackedTriangles {
 
     #[inline(always)]
     fn intersect_impl<P: Primitives, const AVX2: bool>(&self, prims: &P, ray: &Ray, tmax: f32) -> Option<Hit> {
+        let mut best = None;
+        self.each_hit::<P, AVX2>(prims, ray, tmax, |prim, h| {
+            best = Some(Hit { t: h.t, prim, u: h.u, v: h.v });
+            Some(h.t)
+        });
+        best
+    }
+
+    #[inline(always)]
+    fn occluded_impl<P: Primitives, const AVX2: bool>(&self, prims: &P, ray: &Ray, tmax: f32) -> bool {
+        let mut found = false;
+        self.each_hit::<P, AVX2>(prims, ray, tmax, |_, _| {
+            found = true;
+            None
+        });
+        found
+    }
+
+    /// The brute-force loop: every primitive of `prims` in index order, tested with the
+    /// current `tmax`, with the block tests skipping those that cannot pass. `hit` gets
+    /// each hit and returns the `tmax` to go on with, or `None` to stop.
+    #[inline(always)]
+    fn each_hit<P: Primitives, const AVX2: bool>(
+        &self,
+        prims: &P,
+        ray: &Ray,
+        mut tmax: f32,
+        mut hit: impl FnMut(u32, PrimHit) -> Option<f32>,
+    ) {
         let pre = RayPrecomp::new(ray);
         let pad = self.margin(ray);
         if !Self::reaches(&self.bounds, pad, ray, &pre, tmax) {
-            return None;
+            return;
         }
-        let mut best = None;
-        let mut tmax = tmax;
         let mut lanes = Lanes::default();
         let cull = self.blocks.len() >= CULL_MIN_BLOCKS;
         for (bi, block) in self.blocks.iter().enumerate() {
@@ -235,8 +262,8 @@ impl PackedTriangles {
                     lanes.finish(lane, tmax)
                 };
                 if let Some(h) = h {
-                    tmax = h.t;
-                    best = Some(Hit { t: h.t, prim: i, u: h.u, v: h.v });
+                    let Some(t) = hit(i, h) else { return };
+                    tmax = t;
                 }
             }
         }
@@ -248,61 +275,17 @@ impl PackedTriangles {
                 keep &= keep - 1;
                 let i = (self.len + bi * LANES + lane) as u32;
                 if let Some(h) = prims.intersect(i, ray, &pre, tmax) {
-                    tmax = h.t;
-                    best = Some(Hit { t: h.t, prim: i, u: h.u, v: h.v });
+                    let Some(t) = hit(i, h) else { return };
+                    tmax = t;
                 }
             }
         }
         for i in (self.len + self.spheres) as u32..prims.len() as u32 {
             if let Some(h) = prims.intersect(i, ray, &pre, tmax) {
-                tmax = h.t;
-                best = Some(Hit { t: h.t, prim: i, u: h.u, v: h.v });
+                let Some(t) = hit(i, h) else { return };
+                tmax = t;
             }
         }
-        best
-    }
-
-    #[inline(always)]
-    fn occluded_impl<P: Primitives, const AVX2: bool>(&self, prims: &P, ray: &Ray, tmax: f32) -> bool {
-        let pre = RayPrecomp::new(ray);
-        let pad = self.margin(ray);
-        if !Self::reaches(&self.bounds, pad, ray, &pre, tmax) {
-            return false;
-        }
-        let mut lanes = Lanes::default();
-        let cull = self.blocks.len() >= CULL_MIN_BLOCKS;
-        for (bi, block) in self.blocks.iter().enumerate() {
-            if cull && !Self::reaches(&self.boxes[bi], pad, ray, &pre, tmax) {
-                continue;
-            }
-            let (mut keep, zero) = block_test::<AVX2>(block, &pre.shear, tmax, &mut lanes);
-            keep &= self.valid(bi);
-            while keep != 0 {
-                let lane = keep.trailing_zeros() as usize;
-                keep &= keep - 1;
-                let i = (bi * LANES + lane) as u32;
-                let h = if zero & (1 << lane) != 0 {
-                    prims.intersect(i, ray, &pre, tmax)
-                } else {
-                    lanes.finish(lane, tmax)
-                };
-                if h.is_some() {
-                    return true;
-                }
-            }
-        }
-        let sphere_a = ray.dir.length_squared();
-        for (bi, block) in self.sphere_blocks.iter().enumerate() {
-            let mut keep = sphere_candidates(block, ray, sphere_a) & self.sphere_valid(bi);
-            while keep != 0 {
-                let lane = keep.trailing_zeros() as usize;
-                keep &= keep - 1;
-                if prims.intersect((self.len + bi * LANES + lane) as u32, ray, &pre, tmax).is_some() {
-                    return true;
-                }
-            }
-        }
-        (self.len + self.spheres..prims.len()).any(|i| prims.intersect(i as u32, ray, &pre, tmax).is_some())
     }
 }
 
@@ -343,19 +326,11 @@ impl Lanes {
     /// [`intersect_triangle_corners`]: crate::geometry::triangle::intersect_triangle_corners
     #[inline(always)]
     fn finish(&self, lane: usize, tmax: f32) -> Option<PrimHit> {
-        let (det, t_scaled) = (self.det[lane], self.t_scaled[lane]);
-        if det < 0.0 && (t_scaled >= 0.0 || t_scaled < tmax * det) {
-            return None;
-        }
-        if det > 0.0 && (t_scaled <= 0.0 || t_scaled > tmax * det) {
-            return None;
-        }
-        let inv_det = 1.0 / det;
-        let t = t_scaled * inv_det;
-        if !(t > 0.0 && t < tmax) {
-            return None;
-        }
-        Some(PrimHit { t, u: self.v[lane] * inv_det, v: self.w[lane] * inv_det })
+        finish_watertight(self.v[lane], self.w[lane], self.det[lane], self.t_scaled[lane], tmax).map(|h| PrimHit {
+            t: h.t,
+            u: h.b1,
+            v: h.b2,
+        })
     }
 }
 

@@ -123,6 +123,14 @@ pub fn intersect_triangle_corners(shear: &RayShear, p: &[Vec3; 3], tmax: f32) ->
     let bz = shear.sz * b_z;
     let cz = shear.sz * c_z;
     let t_scaled = u * az + v * bz + w * cz;
+    finish_watertight(v, w, det, t_scaled, tmax)
+}
+
+/// The last step of the watertight test, from the edge functions `v`, `w` (all three of
+/// one sign), `det = u + v + w` (nonzero) and `t·det`: the range check against `tmax` and
+/// the division. Packed tests that computed the same values call it too.
+#[inline(always)]
+pub(crate) fn finish_watertight(v: f32, w: f32, det: f32, t_scaled: f32, tmax: f32) -> Option<TriangleHit> {
     // Compare t * det against [0, tmax * det] without dividing; signs follow det.
     if det < 0.0 && (t_scaled >= 0.0 || t_scaled < tmax * det) {
         return None;
