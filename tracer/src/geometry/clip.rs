@@ -33,27 +33,25 @@ pub fn clipped_triangle_bounds(p: [Vec3; 3], clip: &Aabb) -> Aabb {
     let mut bufs = [[Vec3::ZERO; MAX_VERTS]; 2];
     bufs[0][..3].copy_from_slice(&p);
     let (mut cur, mut n) = (0, 3);
+    // One plane: clip if it cuts the triangle's bounds (otherwise it cannot remove
+    // anything), then stop if nothing is left.
+    macro_rules! plane {
+        ($axis:literal, $above:literal, $cuts:expr, $value:expr) => {
+            if $cuts {
+                let [a, b] = &mut bufs;
+                let (from, to) = if cur == 0 { (a, b) } else { (b, a) };
+                n = clip_plane::<$axis, $above>(&from[..n], to, $value);
+                cur ^= 1;
+            }
+            if n == 0 {
+                return Aabb::EMPTY;
+            }
+        };
+    }
     macro_rules! clip {
         ($axis:literal) => {
-            // Planes that do not cut the triangle's bounds cannot remove anything.
-            if tri_bounds.min[$axis] < clip.min[$axis] {
-                let [a, b] = &mut bufs;
-                let (from, to) = if cur == 0 { (a, b) } else { (b, a) };
-                n = clip_plane::<$axis, true>(&from[..n], to, clip.min[$axis]);
-                cur ^= 1;
-            }
-            if n == 0 {
-                return Aabb::EMPTY;
-            }
-            if tri_bounds.max[$axis] > clip.max[$axis] {
-                let [a, b] = &mut bufs;
-                let (from, to) = if cur == 0 { (a, b) } else { (b, a) };
-                n = clip_plane::<$axis, false>(&from[..n], to, clip.max[$axis]);
-                cur ^= 1;
-            }
-            if n == 0 {
-                return Aabb::EMPTY;
-            }
+            plane!($axis, true, tri_bounds.min[$axis] < clip.min[$axis], clip.min[$axis]);
+            plane!($axis, false, tri_bounds.max[$axis] > clip.max[$axis], clip.max[$axis]);
         };
     }
     clip!(0);
