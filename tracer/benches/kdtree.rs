@@ -144,6 +144,8 @@ fn quick(spec: &str) {
         tree = Some(t);
     }
     let mut tree = tree.unwrap();
+    // Of the tree as built (before leaf-order storage renames its indices).
+    let fingerprint = tree.fingerprint();
     let t = Instant::now();
     geo.store_in_leaf_order(&mut tree);
     let reorder = t.elapsed().as_secs_f64();
@@ -151,13 +153,14 @@ fn quick(spec: &str) {
     let ntri = geo.triangle_count();
     println!(
         "{ntri} triangles: build median {:.3} s of {:?}, leaf-order storage {reorder:.3} s; {} nodes, {} refs, \
-         depth {}, tree {:.1} B/tri",
+         depth {}, tree {:.1} B/tri, fingerprint {:016x}",
         median(builds.clone()),
         builds.iter().map(|b| (b * 1000.0).round() / 1000.0).collect::<Vec<_>>(),
         s.nodes,
         s.prim_refs,
         s.max_depth,
-        s.bytes as f64 / ntri as f64
+        s.bytes as f64 / ntri as f64,
+        fingerprint
     );
     let rays = random_rays(tree.bounds(), nrays, 1);
     let rate = |f: &dyn Fn() -> usize| {

@@ -173,6 +173,24 @@ fn count_bins(chunk: &[Ref], lo: Vec3, scale: Vec3, k: usize, c: &mut [u32]) {
     }
 }
 
+/// The first lowest of `costs` and its index (`None` if all are infinite or NaN): what
+/// scanning for `c < best` finds, in two vectorised passes (the lowest value, then
+/// its first position) instead of one branch per plane.
+fn first_min(costs: &[f32]) -> Option<(usize, f32)> {
+    // Eight running minima: `if c < m { c } else { m }` is `minps`, so the lanes
+    // vectorise; NaN never wins, as in the scan.
+    let mut m = [f32::INFINITY; 8];
+    let chunks = costs.chunks_exact(8);
+    let tail = chunks.remainder();
+    for ch in chunks {
+        for l in 0..8 {
+            m[l] = if ch[l] < m[l] { ch[l] } else { m[l] };
+        }
+    }
+    let low = tail.iter().chain(&m).fold(f32::INFINITY, |m, &c| if c < m { c } else { m });
+    (low < f32::INFINITY).then(|| (costs.iter().position(|&c| c == low).unwrap_or(0), low))
+}
+
 /// A primitive and its extent in the current cell.
 #[derive(Clone, Copy, Debug)]
 struct Ref {
@@ -441,9 +459,14 @@ impl<P: Primitives> Ctx<'_, P> {
             let (starts, ends) = counts[2 * axis * k..][..2 * k].split_at_mut(k);
             // Prefix sums: the plane between bins i - 1 and i has starts[i - 1]
             // extents starting left of it and n - ends[i - 1] ending right of it.
-            for i in 1..k {
-                starts[i] += starts[i - 1];
-                ends[i] += ends[i - 1];
+            // (Running sums in registers: `x[i] += x[i - 1]` waits on the store of the
+            // step before, and was a sixth of choosing splits.)
+            let (mut sum_s, mut sum_e) = (0u32, 0u32);
+            for (s, e) in starts.iter_mut().zip(ends.iter_mut()) {
+                sum_s += *s;
+                *s = sum_s;
+                sum_e += *e;
+                *e = sum_e;
             }
             // The costs of all planes first (a loop the compiler vectorises), then the
             // first lowest; the same expressions and order as one loop doing both.
@@ -457,11 +480,11 @@ impl<P: Primitives> Ctx<'_, P> {
                 let c = self.relative_cost(cap + (p - lo) * rim, cap + (hi - p) * rim, nl, n - e);
                 *cost = if p > lo && p < hi { c } else { f32::INFINITY };
             }
-            for (j, &c) in costs.iter().enumerate() {
-                if c < best_c {
-                    best_c = c;
-                    best = (axis, lo + (j as i32 + 1) as f32 * step, starts[j], n - ends[j]);
-                }
+            if let Some((j, c)) = first_min(costs)
+                && c < best_c
+            {
+                best_c = c;
+                best = (axis, lo + (j as i32 + 1) as f32 * step, starts[j], n - ends[j]);
             }
         }
         (best_c < f32::INFINITY).then(|| {

@@ -227,6 +227,17 @@ impl KdTree {
         self.stats.clone()
     }
 
+    /// A hash of the node array (leaf indices included): equal fingerprints mean the same
+    /// tree, for checking that a build change left the tree alone.
+    pub fn fingerprint(&self) -> u64 {
+        use std::hash::{Hash, Hasher};
+        let mut h = std::collections::hash_map::DefaultHasher::new();
+        for n in &self.nodes {
+            (n.data, n.flags).hash(&mut h);
+        }
+        h.finish()
+    }
+
     /// Bytes allocated for the nodes, leaf indices included (their capacity).
     pub fn heap_bytes(&self) -> usize {
         self.nodes.capacity() * size_of::<Node>()
