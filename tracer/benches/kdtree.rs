@@ -135,7 +135,11 @@ fn quick(spec: &str) {
     let seed: u64 = parts.next().and_then(|x| x.parse().ok()).unwrap_or(0);
     let nrays: usize = parts.next().and_then(|x| x.parse().ok()).unwrap_or(RAYS);
     let mut geo = Geometry::new(displaced_sphere(n, seed), vec![]);
-    let params = BuildParams::default();
+    // `KDTREE_CI=x`: another intersection cost (Ci/Ct) than the default, for tuning.
+    let params = match std::env::var("KDTREE_CI").ok().and_then(|x| x.parse().ok()) {
+        Some(ci) => BuildParams { intersection_cost: ci, ..Default::default() },
+        None => BuildParams::default(),
+    };
     let mut builds = Vec::new();
     let mut tree = None;
     for _ in 0..(if matches!(what.as_str(), "all" | "build") { reps } else { 1 }) {

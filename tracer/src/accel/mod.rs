@@ -3,6 +3,7 @@
 //! the scene's triangles and spheres.
 
 pub mod kdtree;
+mod lanes;
 pub mod packed;
 
 pub use kdtree::{BuildParams, KdTree, KdTreeStats};
@@ -85,6 +86,15 @@ pub trait Primitives: Sync {
 
     /// Nearest hit of primitive `i` with `0 < t < tmax`.
     fn intersect(&self, i: u32, ray: &Ray, pre: &RayPrecomp, tmax: f32) -> Option<PrimHit>;
+
+    /// The triangles among the primitives, when they are primitives `0..n` stored as
+    /// corners (what the kd-tree's eight-lane leaf test gathers from); empty otherwise.
+    /// Primitive `i < n`'s [`Primitives::intersect`] must then be the watertight test
+    /// of `triangle_corners()[i]` with barycentrics `(u, v) = (b1, b2)`.
+    #[inline(always)]
+    fn triangle_corners(&self) -> &[[glam::Vec3; 3]] {
+        &[]
+    }
 
     /// A hint that primitive `i` is about to be tested: start loading its data into the
     /// cache. No effect on any result.

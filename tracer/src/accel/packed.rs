@@ -6,28 +6,24 @@
 //! 32 in blocks of eight lanes (structure-of-arrays, which the compiler vectorises) is
 //! several times cheaper, and brute force is exact by definition.
 //!
-//! Exactness. The block pass repeats the first half of the watertight test
-//! ([`intersect_triangle_corners`]) lane by lane with the same operations in the same
-//! order, so its edge functions `u, v, w`, `det` and `t·det` are the scalar test's bits.
-//! It keeps a lane when the scalar test could accept it with the block's starting `tmax`
-//! (or when an edge function is exactly zero, where the scalar test switches to double
-//! precision). Kept lanes then run the scalar test itself, in index order, with the
-//! current `tmax`: since a smaller `tmax` only rejects more, this is exactly the loop of
+//! Exactness. Each block runs the eight-lane pass of [`super::lanes`], whose kept lanes
+//! then finish with the scalar test's own last step (or run the scalar test, on an
+//! edge), in index order, with the current `tmax`: exactly the loop of
 //! [`brute_force_intersect`] / [`brute_force_occluded`], and so also exactly what the
 //! kd-tree returns.
 //!
-//! [`intersect_triangle_corners`]: crate::geometry::triangle::intersect_triangle_corners
 //! [`brute_force_intersect`]: super::brute_force_intersect
 //! [`brute_force_occluded`]: super::brute_force_occluded
 
 use glam::Vec3;
 
+#[cfg(target_arch = "x86_64")]
+use super::lanes::watertight_avx2;
+use super::lanes::{LANES, Lanes, Simd};
 use super::{Hit, PrimHit, Primitives, RayPrecomp};
-use crate::geometry::triangle::{RayShear, finish_watertight};
+use crate::geometry::triangle::RayShear;
 use crate::geometry::{Aabb, Ray};
 use crate::scene::Geometry;
-
-const LANES: usize = 8;
 
 /// Largest scene traced by [`PackedTriangles`] instead of the kd-tree. Full renders
 /// (`coordinator render SCENE --local-workers 0 --width 256 --spp 16`, median of 5,
@@ -289,51 +285,6 @@ impl PackedTriangles {
     }
 }
 
-/// Which instruction set the block test runs with, decided once per process.
-#[derive(Clone, Copy, Debug)]
-enum Simd {
-    Baseline,
-    #[cfg(target_arch = "x86_64")]
-    Avx2,
-}
-
-impl Simd {
-    #[inline]
-    fn detect() -> Self {
-        #[cfg(target_arch = "x86_64")]
-        if std::is_x86_feature_detected!("avx2") {
-            return Simd::Avx2;
-        }
-        Simd::Baseline
-    }
-}
-
-/// The first half of the watertight test for the eight lanes of a block: the edge
-/// functions, `det` and `t·det`, bit for bit the scalar test's.
-#[derive(Clone, Copy, Default)]
-#[repr(C, align(32))]
-struct Lanes {
-    v: [f32; LANES],
-    w: [f32; LANES],
-    det: [f32; LANES],
-    t_scaled: [f32; LANES],
-}
-
-impl Lanes {
-    /// The rest of [`intersect_triangle_corners`] for `lane` with `tmax`, from the stored
-    /// values (the lane's edge functions are all nonzero and of one sign, `det != 0`).
-    ///
-    /// [`intersect_triangle_corners`]: crate::geometry::triangle::intersect_triangle_corners
-    #[inline(always)]
-    fn finish(&self, lane: usize, tmax: f32) -> Option<PrimHit> {
-        finish_watertight(self.v[lane], self.w[lane], self.det[lane], self.t_scaled[lane], tmax).map(|h| PrimHit {
-            t: h.t,
-            u: h.b1,
-            v: h.b2,
-        })
-    }
-}
-
 /// The block test with the instruction set chosen at compile time: `(keep, zero)` as
 /// [`block_test_lanes`] returns them.
 #[inline(always)]
@@ -390,68 +341,19 @@ fn block_test_lanes(b: &Block, shear: &RayShear, tmax: f32, out: &mut Lanes) -> 
     (keep.iter().fold(0, |m, &k| m | k), zeros.iter().fold(0, |m, &k| m | k))
 }
 
-/// [`block_test_lanes`] in AVX2 intrinsics: the same IEEE operations in the same order
-/// (no fused multiply-adds), so the same bits, with the verdicts gathered by one
-/// `movemask` instead of shifts and ORs. Comparisons use the predicates of Rust's
-/// operators: ordered for `<`, `>`, `<=`, `>=`, `==`; unordered for `!=`.
+/// [`block_test_lanes`] in AVX2 intrinsics ([`watertight_avx2`]): the same bits, with
+/// the verdicts gathered by one `movemask` instead of shifts and ORs.
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx2")]
 #[inline]
 fn block_test_avx2(b: &Block, shear: &RayShear, tmax: f32, out: &mut Lanes) -> (u32, u32) {
     use core::arch::x86_64::*;
-    let ([kx, ky, kz], [sx, sy, sz], [ox, oy, oz]) = shear.parts();
-    let (ox, oy, oz) = (_mm256_set1_ps(ox), _mm256_set1_ps(oy), _mm256_set1_ps(oz));
-    let (sx, sy, sz) = (_mm256_set1_ps(sx), _mm256_set1_ps(sy), _mm256_set1_ps(sz));
+    let ([kx, ky, kz], _, _) = shear.parts();
     // SAFETY: `Block` is 32-byte aligned and each `[f32; 8]` row starts at a multiple of
     // 32 bytes in it; kx, ky, kz are a permutation of 0, 1, 2 (`RayShear::for_ray`).
     let ld = |v: usize, k: usize| unsafe { _mm256_load_ps(b.p.get_unchecked(v).get_unchecked(k).as_ptr()) };
-    let (a_x, a_y, a_z) = (_mm256_sub_ps(ld(0, kx), ox), _mm256_sub_ps(ld(0, ky), oy), _mm256_sub_ps(ld(0, kz), oz));
-    let (b_x, b_y, b_z) = (_mm256_sub_ps(ld(1, kx), ox), _mm256_sub_ps(ld(1, ky), oy), _mm256_sub_ps(ld(1, kz), oz));
-    let (c_x, c_y, c_z) = (_mm256_sub_ps(ld(2, kx), ox), _mm256_sub_ps(ld(2, ky), oy), _mm256_sub_ps(ld(2, kz), oz));
-    let ax = _mm256_sub_ps(a_x, _mm256_mul_ps(sx, a_z));
-    let ay = _mm256_sub_ps(a_y, _mm256_mul_ps(sy, a_z));
-    let bx = _mm256_sub_ps(b_x, _mm256_mul_ps(sx, b_z));
-    let by = _mm256_sub_ps(b_y, _mm256_mul_ps(sy, b_z));
-    let cx = _mm256_sub_ps(c_x, _mm256_mul_ps(sx, c_z));
-    let cy = _mm256_sub_ps(c_y, _mm256_mul_ps(sy, c_z));
-    let u = _mm256_sub_ps(_mm256_mul_ps(cx, by), _mm256_mul_ps(cy, bx));
-    let v = _mm256_sub_ps(_mm256_mul_ps(ax, cy), _mm256_mul_ps(ay, cx));
-    let w = _mm256_sub_ps(_mm256_mul_ps(bx, ay), _mm256_mul_ps(by, ax));
-    let z = _mm256_setzero_ps();
-    let or = |a, b| _mm256_or_ps(a, b);
-    let and = |a, b| _mm256_and_ps(a, b);
-    let zero =
-        or(or(_mm256_cmp_ps::<_CMP_EQ_OQ>(u, z), _mm256_cmp_ps::<_CMP_EQ_OQ>(v, z)), _mm256_cmp_ps::<_CMP_EQ_OQ>(w, z));
-    let neg =
-        or(or(_mm256_cmp_ps::<_CMP_LT_OQ>(u, z), _mm256_cmp_ps::<_CMP_LT_OQ>(v, z)), _mm256_cmp_ps::<_CMP_LT_OQ>(w, z));
-    let pos =
-        or(or(_mm256_cmp_ps::<_CMP_GT_OQ>(u, z), _mm256_cmp_ps::<_CMP_GT_OQ>(v, z)), _mm256_cmp_ps::<_CMP_GT_OQ>(w, z));
-    let mixed = and(neg, pos);
-    let det = _mm256_add_ps(_mm256_add_ps(u, v), w);
-    let t_scaled = _mm256_add_ps(
-        _mm256_add_ps(_mm256_mul_ps(u, _mm256_mul_ps(sz, a_z)), _mm256_mul_ps(v, _mm256_mul_ps(sz, b_z))),
-        _mm256_mul_ps(w, _mm256_mul_ps(sz, c_z)),
-    );
-    let limit = _mm256_mul_ps(_mm256_set1_ps(tmax), det);
-    let out_neg = and(
-        _mm256_cmp_ps::<_CMP_LT_OQ>(det, z),
-        or(_mm256_cmp_ps::<_CMP_GE_OQ>(t_scaled, z), _mm256_cmp_ps::<_CMP_LT_OQ>(t_scaled, limit)),
-    );
-    let out_pos = and(
-        _mm256_cmp_ps::<_CMP_GT_OQ>(det, z),
-        or(_mm256_cmp_ps::<_CMP_LE_OQ>(t_scaled, z), _mm256_cmp_ps::<_CMP_GT_OQ>(t_scaled, limit)),
-    );
-    // !mixed & det != 0 & !out_neg & !out_pos, as and-nots of the rejections.
-    let rejected = or(or(mixed, _mm256_cmp_ps::<_CMP_EQ_OQ>(det, z)), or(out_neg, out_pos));
-    let keep = or(zero, _mm256_andnot_ps(rejected, _mm256_castsi256_ps(_mm256_set1_epi32(-1))));
-    // SAFETY: `Lanes` is 32-byte aligned and its rows are [f32; 8].
-    unsafe {
-        _mm256_store_ps(out.v.as_mut_ptr(), v);
-        _mm256_store_ps(out.w.as_mut_ptr(), w);
-        _mm256_store_ps(out.det.as_mut_ptr(), det);
-        _mm256_store_ps(out.t_scaled.as_mut_ptr(), t_scaled);
-    }
-    (_mm256_movemask_ps(keep) as u32, _mm256_movemask_ps(zero) as u32)
+    let p = [ld(0, kx), ld(0, ky), ld(0, kz), ld(1, kx), ld(1, ky), ld(1, kz), ld(2, kx), ld(2, ky), ld(2, kz)];
+    watertight_avx2(&p, shear, tmax, out)
 }
 
 /// Bit mask of the lanes of a sphere block whose sphere the ray's line may meet: the

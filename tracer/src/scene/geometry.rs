@@ -233,6 +233,11 @@ impl Primitives for Geometry {
     }
 
     #[inline(always)]
+    fn triangle_corners(&self) -> &[[Vec3; 3]] {
+        &self.corners
+    }
+
+    #[inline(always)]
     fn prefetch(&self, i: u32) {
         // The 36 corner bytes may straddle two cache lines.
         if let Some(c) = self.corners.get(i as usize) {

@@ -5,6 +5,7 @@
 mod build;
 mod traverse;
 
+use super::lanes::Simd;
 use super::{Hit, Primitives, Ray};
 use crate::geometry::Aabb;
 
@@ -206,6 +207,8 @@ pub struct KdTree {
     /// Root cell (the primitives' padded extents): what traversal clips rays to.
     cell: Aabb,
     stats: KdTreeStats,
+    /// The instruction set of the leaves' eight-lane triangle test.
+    simd: Simd,
 }
 
 impl KdTree {
@@ -213,7 +216,8 @@ impl KdTree {
         let b = build::build(prims, params);
         let nodes = inline_leaf_ids(&b.out.nodes, &b.out.ids);
         crate::accel::advise_huge_pages(&nodes);
-        let mut tree = KdTree { nodes, bounds: b.bounds, cell: b.cell, stats: Default::default() };
+        let mut tree =
+            KdTree { nodes, bounds: b.bounds, cell: b.cell, stats: Default::default(), simd: Simd::detect() };
         tree.stats = tree.compute_stats(b.max_depth as usize);
         tree
     }
@@ -246,13 +250,23 @@ impl KdTree {
     /// Nearest hit with `0 < t < tmax`: exactly what [`super::brute_force_intersect`]
     /// returns.
     pub fn intersect<P: Primitives>(&self, prims: &P, ray: &Ray, tmax: f32) -> Option<Hit> {
-        self.intersect_impl(prims, ray, tmax)
+        match self.simd {
+            Simd::Baseline => self.intersect_impl::<P, false>(prims, ray, tmax),
+            #[cfg(target_arch = "x86_64")]
+            // SAFETY: `Avx2` is only chosen when the CPU reports AVX2.
+            Simd::Avx2 => unsafe { self.intersect_avx2(prims, ray, tmax) },
+        }
     }
 
     /// Whether anything is hit with `0 < t < tmax`: exactly
     /// [`super::brute_force_occluded`], stopping at the first hit found.
     pub fn occluded<P: Primitives>(&self, prims: &P, ray: &Ray, tmax: f32) -> bool {
-        self.occluded_impl(prims, ray, tmax)
+        match self.simd {
+            Simd::Baseline => self.occluded_impl::<P, false>(prims, ray, tmax),
+            #[cfg(target_arch = "x86_64")]
+            // SAFETY: as in `intersect`.
+            Simd::Avx2 => unsafe { self.occluded_avx2(prims, ray, tmax) },
+        }
     }
 
     /// A permutation of the primitive indices `0..n` (`order[new] = old`): every index

@@ -185,6 +185,11 @@ fn check<P: Primitives>(prims: &P, tree: &KdTree, ray: &Ray, tmax: f32) -> Resul
     prop_assert_eq!(key(got), key(expect), "intersect, ray {:?} tmax {}", ray, tmax);
     let expect_occ = brute_force_occluded(prims, ray, tmax);
     prop_assert_eq!(tree.occluded(prims, ray, tmax), expect_occ, "occluded, ray {:?} tmax {}", ray, tmax);
+    // The path of CPUs without AVX2 (leaf triangles one by one) too.
+    let base = tree.intersect_impl::<P, false>(prims, ray, tmax);
+    prop_assert_eq!(key(base), key(expect), "intersect (baseline), ray {:?} tmax {}", ray, tmax);
+    let base_occ = tree.occluded_impl::<P, false>(prims, ray, tmax);
+    prop_assert_eq!(base_occ, expect_occ, "occluded (baseline), ray {:?} tmax {}", ray, tmax);
     Ok(())
 }
 
