@@ -7,7 +7,7 @@ use std::time::Instant;
 
 use clap::Args;
 use glam::{Vec2, Vec3};
-use tracer::accel::{BuildParams, KdTree, Primitives};
+use tracer::accel::{BuildParams, KdTree};
 use tracer::film::SampleRange;
 use tracer::geometry::{Frame, Ray, offset_origin};
 use tracer::integrator::Integrator;
@@ -140,7 +140,7 @@ fn bench_scene(name: &str, scene: &Scene, args: &BenchArgs) {
     let builds: Vec<f64> = (0..repeat)
         .map(|_| {
             let t = Instant::now();
-            let tree = KdTree::build(geom, &BuildParams::for_primitives(geom.len()));
+            let tree = KdTree::build(geom, &BuildParams::for_scene(geom.triangle_count(), geom.spheres.len()));
             std::hint::black_box(&tree);
             t.elapsed().as_secs_f64()
         })

@@ -4,7 +4,7 @@
 //! Directions are in a local frame whose z axis is the lobe/cone axis (use
 //! [`crate::geometry::frame::Frame`] to go to world space). Solid-angle pdfs are per
 //! steradian; the disk pdf is per unit area of the unit disk. Every function is total:
-//! inputs on the closed square [0,1]² and degenerate parameters give finite results.
+//! inputs on the closed square \[0,1\]² and degenerate parameters give finite results.
 
 use glam::{Vec2, Vec3};
 use std::f32::consts::{FRAC_PI_2, FRAC_PI_4, PI};

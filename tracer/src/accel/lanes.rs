@@ -141,8 +141,8 @@ pub(crate) const GATHER_MAX_TRIANGLES: usize = (i32::MAX as usize - 8) / 9;
 /// `corners.len()` primitives are the triangles `corners` (at most
 /// [`GATHER_MAX_TRIANGLES`]): their corners are gathered by index. Returns `(keep, zero,
 /// other)` by lane (lane `l` is `ids[l]`): `keep` and `zero` as [`watertight_avx2`]'s
-/// for the triangles, `other` the lanes whose primitive is not a triangle (for the
-/// caller's own test).
+/// for the triangles, `other` the lanes the caller tests itself: those whose primitive
+/// is not a triangle, or all when fewer than two are.
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx2")]
 #[inline]
@@ -165,6 +165,11 @@ pub(crate) fn gather_test_avx2(
     let below = _mm256_andnot_si256(_mm256_cmpgt_epi32(_mm256_setzero_si256(), idx), _mm256_cmpgt_epi32(ntri, idx));
     let tri = _mm256_and_si256(valid, below);
     let other = _mm256_movemask_ps(_mm256_castsi256_ps(_mm256_andnot_si256(tri, valid))) as u32;
+    // With fewer than two triangles (a leaf of spheres) the pass is not worth its nine
+    // gathers: the caller tests them all.
+    if (_mm256_movemask_ps(_mm256_castsi256_ps(tri)) as u32).count_ones() < 2 {
+        return (0, 0, (1 << ids.len()) - 1);
+    }
     // Float offset of each triangle's first corner: 9 i (lanes not gathered: 0).
     let base_off = _mm256_and_si256(tri, _mm256_add_epi32(_mm256_slli_epi32::<3>(idx), idx));
     let ([kx, ky, kz], _, _) = shear.parts();
@@ -240,11 +245,13 @@ mod tests {
             assert_eq!(zero & !keep, 0);
             for (l, &id) in ids.iter().enumerate() {
                 let bit = 1 << l;
-                if id as usize >= corners.len() {
-                    assert!(other & bit != 0 && keep & bit == 0);
+                if other & bit != 0 {
+                    // Not a triangle, or the group had too few to be worth the pass.
+                    let tris = ids.iter().filter(|&&i| (i as usize) < corners.len()).count();
+                    assert!(keep & bit == 0 && (id as usize >= corners.len() || tris < 2));
                     continue;
                 }
-                assert_eq!(other & bit, 0);
+                assert!((id as usize) < corners.len());
                 let scalar = intersect_triangle_corners(&shear, &corners[id as usize], tmax);
                 if keep & bit == 0 {
                     assert!(scalar.is_none(), "dropped a hit: ray {q} lane {l}");

@@ -6,7 +6,7 @@
 //! 32 in blocks of eight lanes (structure-of-arrays, which the compiler vectorises) is
 //! several times cheaper, and brute force is exact by definition.
 //!
-//! Exactness. Each block runs the eight-lane pass of [`super::lanes`], whose kept lanes
+//! Exactness. Each block runs the eight-lane pass of `accel/lanes.rs`, whose kept lanes
 //! then finish with the scalar test's own last step (or run the scalar test, on an
 //! edge), in index order, with the current `tmax`: exactly the loop of
 //! [`brute_force_intersect`] / [`brute_force_occluded`], and so also exactly what the

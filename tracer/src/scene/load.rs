@@ -281,7 +281,8 @@ fn finish(b: Builder, camera: Camera, settings: RenderSettings, mut lights: Vec<
     for w in &warnings {
         tracing::warn!("{w}");
     }
-    let mut accel = KdTree::build(&geometry, &BuildParams::for_primitives(geometry.len()));
+    let mut accel =
+        KdTree::build(&geometry, &BuildParams::for_scene(geometry.triangle_count(), geometry.spheres.len()));
     let packed = PackedTriangles::for_small_scene(&geometry);
     // When the tree traces the scene, the triangles are stored in its leaf order from
     // here on, for memory locality (`order[new] = old`). Small scenes, traced by packed

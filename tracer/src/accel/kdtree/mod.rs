@@ -1,6 +1,7 @@
 //! SAH kd-tree: build with perfect (clipped) splits, binned SAH for large nodes and
-//! exact sweeps for small ones, in [`build`]; compact 8-byte nodes, and a stack-based front-to-back traversal in
-//! [`traverse`] whose answers are bit-identical to the brute-force loops.
+//! exact sweeps for small ones, in `build.rs`; compact 8-byte nodes, and a stack-based
+//! front-to-back traversal in `traverse.rs` whose answers are bit-identical to the
+//! brute-force loops. Leaves test their triangles eight at a time (`accel/lanes.rs`).
 
 mod build;
 mod traverse;
@@ -15,33 +16,38 @@ const MAX_DEPTH: u32 = 60;
 /// Build parameters.
 ///
 /// The defaults were chosen by measuring single-thread throughput of incoherent rays
-/// (origins on the bounding sphere towards uniform points in the box; `KDTREE_TUNE=…
-/// cargo bench -p tracer --bench kdtree`) on this 2-core machine, on the 100k-triangle
-/// displaced sphere and on a scene of 10k random spheres plus a 20k-triangle mesh.
-/// Closest-hit / any-hit Mrays/s, build time:
+/// (origins on the bounding sphere towards uniform points in the box) on this 2-core
+/// machine, whose timings swing by ±20 % between runs, so figures are medians (best) of
+/// five processes run interleaved. Leaves test their triangles eight at a time (corners
+/// gathered, `accel/lanes.rs`), which makes a primitive test cheap against a node
+/// step (a likely cache miss), so big leaves and shallow trees win. 1M-triangle
+/// displaced sphere (`KDTREE_CI=… KDTREE_QUICK=closest|any,1000000,5 cargo bench -p
+/// tracer --bench kdtree`), closest / any hit in Mrays/s, build on both threads:
 ///
-/// | Ci/Ct | 100k mesh | nodes | build | spheres scene | nodes |
-/// |------:|----------:|------:|------:|--------------:|------:|
-/// | 0.20  | 0.97 / 1.29 | 68k | 0.30 s | 0.98 / 1.18 | 16k |
-/// | 0.35  | 1.02 / 1.34 | 148k | 0.35 s | 0.98 / 1.20 | 35k |
-/// | 0.50  | 1.02 / 1.27 | 271k | 0.49 s | 0.94 / 1.16 | 61k |
-/// | 1.00  | 0.97 / 1.13 | 495k | 0.62 s | 0.82 / 0.98 | 122k |
-/// | 1.50  | 0.81 / 0.96 | 718k | 0.75 s | 0.81 / 0.98 | 149k |
-/// | 4.00  | 0.78 / 0.83 | 1.3M | 1.14 s | 0.73 / 0.88 | 301k |
-/// | 80.0 (pbrt) | 0.71 / 0.82 | 1.6M | 1.24 s | 0.73 / 0.87 | 359k |
+/// | Ci/Ct | closest | any | build | tree |
+/// |------:|--------:|----:|------:|-----:|
+/// | 0.12  | 0.56 (0.62) | 0.71 (0.84) | 0.62–0.78 s | 10.4 B/tri |
+/// | 0.18  | 0.53 (0.66) | 0.72 (0.75) | 0.73–0.93 s | 13.5 B/tri |
+/// | 0.35  | 0.46 (0.55) | 0.54 (0.77) | 1.14–1.47 s | 23.1 B/tri |
+/// | 0.35, leaves one by one (before) | 0.46 (0.52) | 0.55 (0.66) | | |
 ///
-/// Traversal here is bound by memory latency and branch misses (about 15 ns per node
-/// step against 12 ns per triangle test), so small trees with a few more primitives per
-/// leaf win, and they build faster too.
+/// One run each (`KDTREE_TUNE=0.08,0.12,0.2,0.35,1.0`): 100k-triangle mesh 0.75 / 0.94
+/// at 0.08, 0.79 / 1.00 at 0.12, 0.90 / 0.94 at 0.2, 0.76 / 0.85 at 0.35, 0.68 / 0.78 at
+/// 1; a scene of 10k random spheres and a 20k-triangle mesh 0.35 / 0.61, 0.38 / 0.65,
+/// 0.47 / 0.71, 0.49 / 0.57, 0.43 / 0.52: spheres are tested one by one and prefer
+/// smaller leaves ([`BuildParams::for_scene`] keeps 0.35 for such sets). The cup scene
+/// (4.4k triangles) renders at the same speed at 0.12 and 0.35 (0.77–0.79 against
+/// 0.75–0.77 M samples/s).
 #[derive(Clone, Debug)]
 pub struct BuildParams {
     /// SAH cost of visiting an interior node. Default 1.
     pub traversal_cost: f32,
     /// SAH cost of one primitive test; only its ratio to `traversal_cost` shapes the
-    /// tree. Default 0.35: the best closest- and any-hit throughput in the table above.
+    /// tree. Default 0.12: the best closest- and any-hit throughput in the table above,
+    /// and half the build time and tree size of 0.35.
     pub intersection_cost: f32,
     /// Fraction (0..1) by which the SAH discounts a split that cuts off empty space.
-    /// Default 0.2. Measured at Ci/Ct 0.35: 0 gives 0.96 / 0.99 Mrays/s (mesh / spheres),
+    /// Default 0.2. Measured at Ci/Ct 0.35 with leaves tested one by one: 0 gives 0.96 / 0.99 Mrays/s (mesh / spheres),
     /// 0.2 gives 1.02 / 0.98, 0.5 gives 0.88 / 0.61 (thin empty slabs around every
     /// sphere), 0.8 gives 0.89 / 0.53.
     pub empty_bonus: f32,
@@ -50,31 +56,49 @@ pub struct BuildParams {
     /// (the traversal stack).
     pub max_depth: Option<u32>,
     /// Nodes with at most this many primitives become leaves without an SAH sweep.
-    /// Default 1. With SAH termination the value barely matters (0, 1, 2 and 4 all
-    /// measured within 3 %): the SAH already stops before leaves get that small.
+    /// Default 1. With SAH termination the value barely matters (0, 1, 2 and 4 give the
+    /// same tree at Ci/Ct 0.08): the SAH already stops before leaves get that small.
     pub max_leaf_prims: usize,
 }
 
-/// Scenes of at most this many primitives get [`BuildParams::for_primitives`]'s deeper
+/// Scenes of at most this many primitives get [`BuildParams::for_scene`]'s deeper
 /// trees.
 pub const SMALL_SCENE_PRIMS: usize = 1024;
 
+/// Cost ratio for sets where other primitives than triangles (spheres) are at least
+/// [`OTHER_PRIMS_SHARE`] of all: their tests run one by one, not eight lanes at a
+/// time, so smaller leaves pay (spheres scene of the table: 0.55–0.68 / 0.64–0.81
+/// Mrays/s at 0.35 against 0.38–0.44 / 0.39–0.41 at 0.12).
+pub const OTHER_PRIMS_INTERSECTION_COST: f32 = 0.35;
+/// See [`OTHER_PRIMS_INTERSECTION_COST`]: one primitive in ten.
+pub const OTHER_PRIMS_SHARE: f64 = 0.1;
+
 impl BuildParams {
-    /// The parameters for a scene of `n` primitives. The default cost ratio was tuned on
-    /// large meshes, whose trees do not fit in cache, so each node step risks a miss.
-    /// A small scene's tree and triangles stay in L1/L2, node steps are cheap, and a
-    /// deeper tree with fewer primitive tests per leaf wins: full renders at Ci/Ct 2
-    /// against 0.35 (`coordinator render SCENE --local-workers 0 --width 256 --spp 16`,
-    /// median of 5, samples/s): Cornell box (32 triangles) +7 %, Veach MIS +5 %, room
-    /// +14 %, glass +7 %; the cup (4.4k triangles) −2 %, hence the threshold.
-    pub fn for_primitives(n: usize) -> Self {
-        if n <= SMALL_SCENE_PRIMS { Self { intersection_cost: 2.0, ..Self::default() } } else { Self::default() }
+    /// The parameters for a scene of `triangles` triangles and `others` other
+    /// primitives. The default cost ratio was tuned on large meshes, whose trees do not
+    /// fit in cache, so each node step risks a miss. A small scene's tree and triangles
+    /// stay in L1/L2, node steps are cheap, and a deeper tree with fewer primitive tests
+    /// per leaf wins: full renders at Ci/Ct 2 against 0.35 (`coordinator render SCENE
+    /// --local-workers 0 --width 256 --spp 16`, median of 5, samples/s): Cornell box (32
+    /// triangles) +7 %, Veach MIS +5 %, room +14 %, glass +7 %; the cup (4.4k triangles)
+    /// −2 %, hence the threshold. (Those scenes now take the packed brute force; the
+    /// threshold applies to 257–1024 primitives.) Sets of many spheres keep
+    /// [`OTHER_PRIMS_INTERSECTION_COST`].
+    pub fn for_scene(triangles: usize, others: usize) -> Self {
+        let n = triangles + others;
+        if n <= SMALL_SCENE_PRIMS {
+            Self { intersection_cost: 2.0, ..Self::default() }
+        } else if others as f64 >= OTHER_PRIMS_SHARE * n as f64 {
+            Self { intersection_cost: OTHER_PRIMS_INTERSECTION_COST, ..Self::default() }
+        } else {
+            Self::default()
+        }
     }
 }
 
 impl Default for BuildParams {
     fn default() -> Self {
-        Self { traversal_cost: 1.0, intersection_cost: 0.35, empty_bonus: 0.2, max_depth: None, max_leaf_prims: 1 }
+        Self { traversal_cost: 1.0, intersection_cost: 0.12, empty_bonus: 0.2, max_depth: None, max_leaf_prims: 1 }
     }
 }
 
