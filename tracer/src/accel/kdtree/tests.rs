@@ -448,3 +448,14 @@ fn leaf_order_follows_the_leaves() {
     let first = tree.leaf_order(geo.len());
     assert!(first.iter().copied().eq(0..geo.len() as u32), "the stored order is the tree's leaf order");
 }
+
+#[test]
+fn scene_parameters_follow_size_and_composition() {
+    let ci = |t, o| BuildParams::for_scene(t, o).intersection_cost;
+    // Small scenes: deep trees; meshes: the default; sphere-heavy sets: smaller leaves.
+    assert_eq!(ci(1000, 24), 2.0);
+    assert_eq!(ci(1_000_000, 0), BuildParams::default().intersection_cost);
+    assert_eq!(ci(1_000_000, 1000), BuildParams::default().intersection_cost);
+    assert_eq!(ci(20_000, 10_000), super::OTHER_PRIMS_INTERSECTION_COST);
+    assert!(BuildParams::default().intersection_cost < super::OTHER_PRIMS_INTERSECTION_COST);
+}
