@@ -47,9 +47,9 @@ pub struct BuildParams {
     /// and half the build time and tree size of 0.35.
     pub intersection_cost: f32,
     /// Fraction (0..1) by which the SAH discounts a split that cuts off empty space.
-    /// Default 0.2. Measured at Ci/Ct 0.35 with leaves tested one by one: 0 gives 0.96 / 0.99 Mrays/s (mesh / spheres),
-    /// 0.2 gives 1.02 / 0.98, 0.5 gives 0.88 / 0.61 (thin empty slabs around every
-    /// sphere), 0.8 gives 0.89 / 0.53.
+    /// Default 0.2. Measured at Ci/Ct 0.35 with leaves tested one by one: 0 gives
+    /// 0.96 / 0.99 Mrays/s (mesh / spheres), 0.2 gives 1.02 / 0.98, 0.5 gives 0.88 / 0.61
+    /// (thin empty slabs around every sphere), 0.8 gives 0.89 / 0.53.
     pub empty_bonus: f32,
     /// Deepest level; `None` is pbrt's `round(8 + 1.3 log2 N)` (34 for 1M primitives),
     /// deep enough that the SAH, not the limit, ends nearly every branch. Capped at 60
