@@ -64,8 +64,9 @@ pub struct RayCount {
     pub rays: u64,
 }
 
-/// The estimate for one camera ray.
-#[inline]
+/// The estimate for one camera ray. (Inlined into the render loop's variants, so that
+/// the sampler's code is compiled for each instruction set; see `render.rs`.)
+#[inline(always)]
 pub fn li(integrator: Integrator, scene: &Scene, ray: Ray, sampler: &mut Sampler, count: &mut RayCount) -> Vec3 {
     let strategy = match integrator {
         Integrator::Path => path::Strategy::Mis,

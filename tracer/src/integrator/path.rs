@@ -43,6 +43,7 @@ impl Options {
 }
 
 /// Radiance arriving at the camera along `ray`.
+#[inline(always)]
 pub fn li(scene: &Scene, mut ray: Ray, sampler: &mut Sampler, count: &mut RayCount, opt: &Options) -> Vec3 {
     let mut l = Vec3::ZERO;
     let mut beta = Vec3::ONE;
