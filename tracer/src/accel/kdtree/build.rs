@@ -188,7 +188,11 @@ fn first_min(costs: &[f32]) -> Option<(usize, f32)> {
         }
     }
     let low = tail.iter().chain(&m).fold(f32::INFINITY, |m, &c| if c < m { c } else { m });
-    (low < f32::INFINITY).then(|| (costs.iter().position(|&c| c == low).unwrap_or(0), low))
+    if !(low < f32::INFINITY) {
+        return None;
+    }
+    // `low` is one of the costs, so it has a first position.
+    costs.iter().position(|&c| c == low).map(|j| (j, low))
 }
 
 /// A primitive and its extent in the current cell.
