@@ -378,6 +378,16 @@ async fn execute(plan: Plan, args: &RunArgs) -> anyhow::Result<()> {
 
 /// Renders a job's units in this process: leases from the same farm state as remote
 /// workers do, renders on the rayon pool, and submits through the same checks and merge.
+/// Renders `units` on `pool`, or returns what a panic in one of them said.
+fn render_units<U: Sync, R: Send>(
+    pool: &rayon::ThreadPool,
+    units: &[U],
+    render: impl Fn(&U) -> R + Sync,
+) -> Result<Vec<R>, String> {
+    std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| pool.install(|| units.par_iter().map(&render).collect())))
+        .map_err(|p| tracer::render::panic_message(p.as_ref()))
+}
+
 fn execute_in_process(shared: &Shared, job: &str, threads: usize) {
     let pool = match rayon::ThreadPoolBuilder::new().num_threads(threads).build() {
         Ok(p) => p,
@@ -405,28 +415,56 @@ fn execute_in_process(shared: &Shared, job: &str, threads: usize) {
             std::thread::sleep(Duration::from_millis(20));
             continue;
         };
-        let results: Vec<UnitResult> = pool.install(|| {
-            units
-                .par_iter()
-                .map(|u| {
-                    let (acc, count) = tracer::render::render_unit_counted(&scene, integrator, u.tile, u.samples);
-                    UnitResult {
-                        unit: u.unit,
-                        tile: u.tile,
-                        samples: SampleRange::new(u.samples.start, u.samples.end),
-                        sums: acc.sums,
-                        counts: acc.counts,
-                        nonfinite: acc.nonfinite,
-                        rays: count.rays,
-                    }
-                })
-                .collect()
+        let rendered = render_units(&pool, &units, |u| {
+            let (acc, count) = tracer::render::render_unit_counted(&scene, integrator, u.tile, u.samples);
+            UnitResult {
+                unit: u.unit,
+                tile: u.tile,
+                samples: SampleRange::new(u.samples.start, u.samples.end),
+                sums: acc.sums,
+                counts: acc.counts,
+                nonfinite: acc.nonfinite,
+                rays: count.rays,
+            }
         });
+        let results = match rendered {
+            Ok(r) => r,
+            Err(msg) => {
+                // A bug in the tracer: stop the job with the message rather than leave
+                // it waiting for units no thread renders (the results of earlier
+                // batches are checkpointed as usual).
+                if let Ok(en) = shared.farm().entry_mut(job) {
+                    en.job.fail(format!("a render thread panicked (a tilefarm bug; please report it): {msg}"));
+                }
+                return;
+            }
+        };
         let mut farm = shared.farm();
         for r in &results {
             if let Err(e) = farm.submit(me, job, r, Instant::now()) {
                 tracing::error!("in-process result rejected: {e}");
             }
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A panic in one unit comes back as its message, so the job can stop with it
+    /// (before, the in-process thread died and the render waited forever).
+    #[test]
+    fn a_panicking_unit_is_reported_not_lost() {
+        let pool = rayon::ThreadPoolBuilder::new().num_threads(2).build().unwrap();
+        let units: Vec<u32> = (0..16).collect();
+        assert_eq!(render_units(&pool, &units, |&u| u * 2), Ok((0..16).map(|u| u * 2).collect()));
+        let r = render_units(&pool, &units, |&u| {
+            if u == 11 {
+                panic!("unit {u} out of bounds");
+            }
+            u
+        });
+        assert_eq!(r, Err("unit 11 out of bounds".to_string()));
     }
 }

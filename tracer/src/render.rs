@@ -87,6 +87,16 @@ pub struct RenderStats {
     pub nonfinite: u64,
 }
 
+/// What a panic's payload says (`panic!` with a literal or a formatted message), for
+/// reporting a render unit that panicked instead of losing it.
+pub fn panic_message(payload: &(dyn std::any::Any + Send)) -> String {
+    payload
+        .downcast_ref::<&str>()
+        .map(|s| s.to_string())
+        .or_else(|| payload.downcast_ref::<String>().cloned())
+        .unwrap_or_else(|| "unknown panic".into())
+}
+
 /// Renders the whole image in this process on the rayon pool: tiles in parallel, each
 /// over all of `samples`. `progress(samples_done)` is called as tiles finish.
 pub fn render_image(

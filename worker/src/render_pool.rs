@@ -62,12 +62,7 @@ impl RenderPool {
             }));
             done(match r {
                 Ok((acc, count)) => RenderOutcome::Done { acc, rays: count.rays, elapsed: start.elapsed() },
-                Err(p) => RenderOutcome::Panicked(
-                    p.downcast_ref::<&str>()
-                        .map(|s| s.to_string())
-                        .or_else(|| p.downcast_ref::<String>().cloned())
-                        .unwrap_or_else(|| "unknown panic".into()),
-                ),
+                Err(p) => RenderOutcome::Panicked(tracer::render::panic_message(p.as_ref())),
             })
         });
     }
