@@ -161,9 +161,10 @@ fn bench_scene(name: &str, scene: &Scene, args: &BenchArgs) {
     );
     if let Some(p) = &scene.packed {
         println!(
-            "rays are traced by packed brute force ({} triangles in blocks of 8, {} B), not the kd-tree",
+            "rays are traced by packed brute force ({} triangles in blocks of 8, {} B, {}), not the kd-tree",
             p.len(),
-            p.bytes()
+            p.bytes(),
+            p.instruction_set()
         );
     }
     let per_tri = |b: usize| b as f64 / ntri as f64;

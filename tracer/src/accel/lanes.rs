@@ -1,9 +1,10 @@
-//! The watertight triangle test for eight triangles at once, bit for bit the scalar
-//! test's ([`intersect_triangle_corners`]): shared by the brute-force blocks of small
-//! scenes ([`super::packed`], corners stored lane by lane) and the kd-tree's leaves
-//! (corners gathered by index from the scene's triangles).
+//! The watertight triangle test for eight (AVX2) or sixteen (AVX-512) triangles at once,
+//! bit for bit the scalar test's ([`intersect_triangle_corners`]): shared by the
+//! brute-force blocks of small scenes ([`super::packed`], corners stored lane by lane;
+//! with AVX-512 two blocks at a time) and the kd-tree's leaves (eight lanes, corners
+//! gathered by index from the scene's triangles).
 //!
-//! The eight-lane pass repeats the first half of the scalar test with the same IEEE
+//! The lane pass repeats the first half of the scalar test with the same IEEE
 //! operations in the same order (no fused multiply-adds: Rust does not contract
 //! `a * b + c`), so its edge functions `u, v, w`, `det` and `t·det` are the scalar test's
 //! bits. It keeps a lane when the scalar test could accept it with the pass's `tmax`, or
@@ -20,36 +21,64 @@ use glam::Vec3;
 use super::PrimHit;
 use crate::geometry::triangle::{RayShear, finish_watertight};
 
+/// Lanes of an AVX2 pass (and of a brute-force block).
 pub(crate) const LANES: usize = 8;
 
-/// Which instruction set the eight-lane tests run with, decided once per structure.
+/// Lanes of an AVX-512 pass.
+pub(crate) const WIDE: usize = 16;
+
+/// Which instruction set the lane tests run with, decided once per structure.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub(crate) enum Simd {
     Baseline,
     #[cfg(target_arch = "x86_64")]
     Avx2,
+    /// Sixteen lanes; the rest of the query is compiled for AVX2 as well.
+    #[cfg(target_arch = "x86_64")]
+    Avx512,
 }
 
 impl Simd {
+    /// For reports: `portable`, `AVX2` or `AVX-512`.
+    pub(crate) fn name(self) -> &'static str {
+        match self {
+            Simd::Baseline => "portable",
+            #[cfg(target_arch = "x86_64")]
+            Simd::Avx2 => "AVX2",
+            #[cfg(target_arch = "x86_64")]
+            Simd::Avx512 => "AVX-512",
+        }
+    }
+
+    /// The widest the CPU has, unless `TILEFARM_SIMD` (`baseline`, `avx2`) asks for
+    /// less: for comparing the paths (their answers are the same bits).
     #[inline]
     pub(crate) fn detect() -> Self {
+        let cap = std::env::var("TILEFARM_SIMD").unwrap_or_default();
         #[cfg(target_arch = "x86_64")]
-        if std::is_x86_feature_detected!("avx2") {
-            return Simd::Avx2;
+        {
+            let avx2 = std::is_x86_feature_detected!("avx2") && cap != "baseline";
+            if avx2 && std::is_x86_feature_detected!("avx512f") && cap != "avx2" {
+                return Simd::Avx512;
+            }
+            if avx2 {
+                return Simd::Avx2;
+            }
         }
+        let _ = cap;
         Simd::Baseline
     }
 }
 
-/// The first half of the watertight test for eight lanes: the edge functions, `det`
-/// and `t·det`, bit for bit the scalar test's.
+/// The first half of the watertight test for up to sixteen lanes: the edge functions,
+/// `det` and `t·det`, bit for bit the scalar test's (an AVX2 pass fills the first eight).
 #[derive(Clone, Copy, Default)]
-#[repr(C, align(32))]
+#[repr(C, align(64))]
 pub(crate) struct Lanes {
-    pub(crate) v: [f32; LANES],
-    pub(crate) w: [f32; LANES],
-    pub(crate) det: [f32; LANES],
-    pub(crate) t_scaled: [f32; LANES],
+    pub(crate) v: [f32; WIDE],
+    pub(crate) w: [f32; WIDE],
+    pub(crate) det: [f32; WIDE],
+    pub(crate) t_scaled: [f32; WIDE],
 }
 
 impl Lanes {
@@ -63,6 +92,35 @@ impl Lanes {
             v: h.b2,
         })
     }
+}
+
+/// The arithmetic of the lane pass, the same for every width: the corners relative to
+/// the origin, sheared; the edge functions; `det`, `t·det` and `tmax·det`. `$p` holds the
+/// nine permuted coordinate vectors (see [`watertight_avx2`]), the rest name one width's
+/// `set1`, `sub`, `mul` and `add`.
+macro_rules! lane_arithmetic {
+    ($p:expr, $shear:expr, $tmax:expr, $set1:ident, $sub:ident, $mul:ident, $add:ident) => {{
+        let p = $p;
+        let (_, [sx, sy, sz], [ox, oy, oz]) = $shear.parts();
+        let (ox, oy, oz) = ($set1(ox), $set1(oy), $set1(oz));
+        let (sx, sy, sz) = ($set1(sx), $set1(sy), $set1(sz));
+        let (a_x, a_y, a_z) = ($sub(p[0], ox), $sub(p[1], oy), $sub(p[2], oz));
+        let (b_x, b_y, b_z) = ($sub(p[3], ox), $sub(p[4], oy), $sub(p[5], oz));
+        let (c_x, c_y, c_z) = ($sub(p[6], ox), $sub(p[7], oy), $sub(p[8], oz));
+        let ax = $sub(a_x, $mul(sx, a_z));
+        let ay = $sub(a_y, $mul(sy, a_z));
+        let bx = $sub(b_x, $mul(sx, b_z));
+        let by = $sub(b_y, $mul(sy, b_z));
+        let cx = $sub(c_x, $mul(sx, c_z));
+        let cy = $sub(c_y, $mul(sy, c_z));
+        let u = $sub($mul(cx, by), $mul(cy, bx));
+        let v = $sub($mul(ax, cy), $mul(ay, cx));
+        let w = $sub($mul(bx, ay), $mul(by, ax));
+        let det = $add($add(u, v), w);
+        let t_scaled = $add($add($mul(u, $mul(sz, a_z)), $mul(v, $mul(sz, b_z))), $mul(w, $mul(sz, c_z)));
+        let limit = $mul($set1($tmax), det);
+        (u, v, w, det, t_scaled, limit)
+    }};
 }
 
 /// The eight-lane pass in AVX2 from the corners' coordinates on the shear's permuted
@@ -81,21 +139,8 @@ pub(crate) fn watertight_avx2(
     out: &mut Lanes,
 ) -> (u32, u32) {
     use core::arch::x86_64::*;
-    let (_, [sx, sy, sz], [ox, oy, oz]) = shear.parts();
-    let (ox, oy, oz) = (_mm256_set1_ps(ox), _mm256_set1_ps(oy), _mm256_set1_ps(oz));
-    let (sx, sy, sz) = (_mm256_set1_ps(sx), _mm256_set1_ps(sy), _mm256_set1_ps(sz));
-    let (a_x, a_y, a_z) = (_mm256_sub_ps(p[0], ox), _mm256_sub_ps(p[1], oy), _mm256_sub_ps(p[2], oz));
-    let (b_x, b_y, b_z) = (_mm256_sub_ps(p[3], ox), _mm256_sub_ps(p[4], oy), _mm256_sub_ps(p[5], oz));
-    let (c_x, c_y, c_z) = (_mm256_sub_ps(p[6], ox), _mm256_sub_ps(p[7], oy), _mm256_sub_ps(p[8], oz));
-    let ax = _mm256_sub_ps(a_x, _mm256_mul_ps(sx, a_z));
-    let ay = _mm256_sub_ps(a_y, _mm256_mul_ps(sy, a_z));
-    let bx = _mm256_sub_ps(b_x, _mm256_mul_ps(sx, b_z));
-    let by = _mm256_sub_ps(b_y, _mm256_mul_ps(sy, b_z));
-    let cx = _mm256_sub_ps(c_x, _mm256_mul_ps(sx, c_z));
-    let cy = _mm256_sub_ps(c_y, _mm256_mul_ps(sy, c_z));
-    let u = _mm256_sub_ps(_mm256_mul_ps(cx, by), _mm256_mul_ps(cy, bx));
-    let v = _mm256_sub_ps(_mm256_mul_ps(ax, cy), _mm256_mul_ps(ay, cx));
-    let w = _mm256_sub_ps(_mm256_mul_ps(bx, ay), _mm256_mul_ps(by, ax));
+    let (u, v, w, det, t_scaled, limit) =
+        lane_arithmetic!(p, shear, tmax, _mm256_set1_ps, _mm256_sub_ps, _mm256_mul_ps, _mm256_add_ps);
     let z = _mm256_setzero_ps();
     let or = |a, b| _mm256_or_ps(a, b);
     let and = |a, b| _mm256_and_ps(a, b);
@@ -106,12 +151,6 @@ pub(crate) fn watertight_avx2(
     let pos =
         or(or(_mm256_cmp_ps::<_CMP_GT_OQ>(u, z), _mm256_cmp_ps::<_CMP_GT_OQ>(v, z)), _mm256_cmp_ps::<_CMP_GT_OQ>(w, z));
     let mixed = and(neg, pos);
-    let det = _mm256_add_ps(_mm256_add_ps(u, v), w);
-    let t_scaled = _mm256_add_ps(
-        _mm256_add_ps(_mm256_mul_ps(u, _mm256_mul_ps(sz, a_z)), _mm256_mul_ps(v, _mm256_mul_ps(sz, b_z))),
-        _mm256_mul_ps(w, _mm256_mul_ps(sz, c_z)),
-    );
-    let limit = _mm256_mul_ps(_mm256_set1_ps(tmax), det);
     let out_neg = and(
         _mm256_cmp_ps::<_CMP_LT_OQ>(det, z),
         or(_mm256_cmp_ps::<_CMP_GE_OQ>(t_scaled, z), _mm256_cmp_ps::<_CMP_LT_OQ>(t_scaled, limit)),
@@ -123,7 +162,8 @@ pub(crate) fn watertight_avx2(
     // !mixed & det != 0 & !out_neg & !out_pos, as and-nots of the rejections.
     let rejected = or(or(mixed, _mm256_cmp_ps::<_CMP_EQ_OQ>(det, z)), or(out_neg, out_pos));
     let keep = or(zero, _mm256_andnot_ps(rejected, _mm256_castsi256_ps(_mm256_set1_epi32(-1))));
-    // SAFETY: `Lanes` is 32-byte aligned and its rows are [f32; 8].
+    // SAFETY: `Lanes` is 64-byte aligned and its rows are [f32; 16] (the first eight
+    // are written).
     unsafe {
         _mm256_store_ps(out.v.as_mut_ptr(), v);
         _mm256_store_ps(out.w.as_mut_ptr(), w);
@@ -131,6 +171,40 @@ pub(crate) fn watertight_avx2(
         _mm256_store_ps(out.t_scaled.as_mut_ptr(), t_scaled);
     }
     (_mm256_movemask_ps(keep) as u32, _mm256_movemask_ps(zero) as u32)
+}
+
+/// [`watertight_avx2`] for sixteen lanes in AVX-512: the same predicates, as mask
+/// registers; returns `(keep, zero)` and fills all sixteen lanes of `out`.
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2,avx512f")]
+#[inline]
+pub(crate) fn watertight_avx512(
+    p: &[core::arch::x86_64::__m512; 9],
+    shear: &RayShear,
+    tmax: f32,
+    out: &mut Lanes,
+) -> (u32, u32) {
+    use core::arch::x86_64::*;
+    let (u, v, w, det, t_scaled, limit) =
+        lane_arithmetic!(p, shear, tmax, _mm512_set1_ps, _mm512_sub_ps, _mm512_mul_ps, _mm512_add_ps);
+    let z = _mm512_setzero_ps();
+    let eq = |a, b| _mm512_cmp_ps_mask::<_CMP_EQ_OQ>(a, b);
+    let lt = |a, b| _mm512_cmp_ps_mask::<_CMP_LT_OQ>(a, b);
+    let gt = |a, b| _mm512_cmp_ps_mask::<_CMP_GT_OQ>(a, b);
+    let zero = eq(u, z) | eq(v, z) | eq(w, z);
+    let mixed = (lt(u, z) | lt(v, z) | lt(w, z)) & (gt(u, z) | gt(v, z) | gt(w, z));
+    let out_neg = lt(det, z) & (_mm512_cmp_ps_mask::<_CMP_GE_OQ>(t_scaled, z) | lt(t_scaled, limit));
+    let out_pos = gt(det, z) & (_mm512_cmp_ps_mask::<_CMP_LE_OQ>(t_scaled, z) | gt(t_scaled, limit));
+    let rejected = mixed | eq(det, z) | out_neg | out_pos;
+    let keep = zero | !rejected;
+    // SAFETY: `Lanes` is 64-byte aligned and its rows are [f32; 16].
+    unsafe {
+        _mm512_store_ps(out.v.as_mut_ptr(), v);
+        _mm512_store_ps(out.w.as_mut_ptr(), w);
+        _mm512_store_ps(out.det.as_mut_ptr(), det);
+        _mm512_store_ps(out.t_scaled.as_mut_ptr(), t_scaled);
+    }
+    (keep as u32, zero as u32)
 }
 
 /// Most triangles [`gather_test_avx2`] can address: lane offsets `9 i + 8` into the
