@@ -5,6 +5,12 @@
 //! bonus, leaf size) and prints build time, size and throughput for each. With
 //! `KDTREE_QUICK=all` (or `build`, `closest`, `any`, optionally `,TRIANGLES`) it prints
 //! medians of the 1M-triangle build and of single-thread throughput, without criterion.
+//! `KDTREE_AB=CI_A,CI_B[,TRIANGLES]` builds the mesh's tree with two intersection costs
+//! and times them against each other in one process, in alternating short slices: on a
+//! host whose speed drifts within minutes, the ratio of the two is far steadier than
+//! figures from separate runs (A against itself: 1.01, median of 200 slices; Ci 0.08 and
+//! 0.18 against the default 0.12: 0.97–1.01 on the 1M mesh). To compare code rather than
+//! parameters, give the two trees the variants to compare.
 
 use std::hint::black_box;
 use std::time::Instant;
@@ -198,6 +204,64 @@ fn quick(spec: &str) {
     }
 }
 
+/// `KDTREE_AB=CI_A,CI_B[,TRIANGLES]`: B's throughput over A's, closest and any hit, as
+/// the median over slices of the rays, each traced by both (one thread).
+fn ab(spec: &str) {
+    let v: Vec<f64> = spec.split(',').filter_map(|x| x.parse().ok()).collect();
+    let (ci_a, ci_b) = (v.first().copied().unwrap_or(0.12) as f32, v.get(1).copied().unwrap_or(0.12) as f32);
+    let n = v.get(2).map_or(1_000_000, |&t| t as usize);
+    let mesh = displaced_sphere(n, 0);
+    let make = |ci: f32| {
+        let mut geo = Geometry::new(mesh.clone(), vec![]);
+        let (mut tree, _) = timed_build(&geo, &BuildParams { intersection_cost: ci, ..Default::default() });
+        geo.store_in_leaf_order(&mut tree);
+        (geo, tree)
+    };
+    let (a, b) = (make(ci_a), make(ci_b));
+    let rays = random_rays(a.1.bounds(), RAYS, 1);
+    assert_eq!(closest(&a.1, &a.0, &rays), closest(&b.1, &b.0, &rays), "A and B disagree");
+    let slice = 5_000;
+    const ROUNDS: usize = 10;
+    let time = |t: &(Geometry, KdTree), rays: &[(Ray, f32)], any_hit: bool| {
+        let s = Instant::now();
+        black_box(if any_hit { any(&t.1, &t.0, rays) } else { closest(&t.1, &t.0, rays) });
+        s.elapsed().as_secs_f64()
+    };
+    for (name, any_hit) in [("closest-hit", false), ("any-hit", true)] {
+        let mut ratios = Vec::new();
+        let (mut ta, mut tb) = (0.0, 0.0);
+        for _round in 0..ROUNDS {
+            for (k, chunk) in rays.chunks(slice).enumerate() {
+                // A then B, or B then A, on each slice, never one twice in a row on the
+                // same rays (the second pass would find its own nodes in the cache).
+                let (ra, rb) = if k % 2 == 0 {
+                    let ra = time(&a, chunk, any_hit);
+                    (ra, time(&b, chunk, any_hit))
+                } else {
+                    let rb = time(&b, chunk, any_hit);
+                    (time(&a, chunk, any_hit), rb)
+                };
+                ratios.push(ra / rb);
+                (ta, tb) = (ta + ra, tb + rb);
+            }
+        }
+        ratios.sort_by(f64::total_cmp);
+        let q = |f: f64| ratios[((ratios.len() - 1) as f64 * f) as usize];
+        let rate = |t: f64| ROUNDS as f64 * rays.len() as f64 / t / 1e6;
+        println!(
+            "{name}: B/A throughput {:.3} (median of {} slice pairs; quartiles {:.3}-{:.3}); A {:.3}, B {:.3} Mrays/s \
+             (Ci {ci_a} vs {ci_b}, {} triangles)",
+            q(0.5),
+            ratios.len(),
+            q(0.25),
+            q(0.75),
+            rate(ta),
+            rate(tb),
+            a.0.triangle_count()
+        );
+    }
+}
+
 fn bench(c: &mut Criterion) {
     if std::env::var_os("KDTREE_TUNE").is_some() {
         tune();
@@ -205,6 +269,10 @@ fn bench(c: &mut Criterion) {
     }
     if let Ok(spec) = std::env::var("KDTREE_QUICK") {
         quick(&spec);
+        return;
+    }
+    if let Ok(spec) = std::env::var("KDTREE_AB") {
+        ab(&spec);
         return;
     }
     let params = BuildParams::default();
