@@ -10,7 +10,9 @@
 //! host whose speed drifts within minutes, the ratio of the two is far steadier than
 //! figures from separate runs (A against itself: 1.01, median of 200 slices; Ci 0.08 and
 //! 0.18 against the default 0.12: 0.97–1.01 on the 1M mesh). To compare code rather than
-//! parameters, give the two trees the variants to compare.
+//! parameters, give the two trees the variants to compare; `KDTREE_AB_SIMD=baseline,avx2`
+//! builds them under two `TILEFARM_SIMD` settings (sixteen-lane leaves, tried this way:
+//! 0.99–1.01 of eight, on the 1M and 100k meshes and with Ci 0.06, so not kept).
 
 use std::hint::black_box;
 use std::time::Instant;
@@ -211,13 +213,20 @@ fn ab(spec: &str) {
     let (ci_a, ci_b) = (v.first().copied().unwrap_or(0.12) as f32, v.get(1).copied().unwrap_or(0.12) as f32);
     let n = v.get(2).map_or(1_000_000, |&t| t as usize);
     let mesh = displaced_sphere(n, 0);
-    let make = |ci: f32| {
+    // `KDTREE_AB_SIMD=A,B`: the instruction sets (`TILEFARM_SIMD`) the two trees use.
+    let simd: Vec<String> = std::env::var("KDTREE_AB_SIMD").unwrap_or_default().split(',').map(String::from).collect();
+    let make = |ci: f32, which: usize| {
+        if let Some(s) = simd.get(which).filter(|s| !s.is_empty()) {
+            // SAFETY: the bench is single-threaded here (no other thread reads the
+            // environment while it changes).
+            unsafe { std::env::set_var("TILEFARM_SIMD", s) };
+        }
         let mut geo = Geometry::new(mesh.clone(), vec![]);
         let (mut tree, _) = timed_build(&geo, &BuildParams { intersection_cost: ci, ..Default::default() });
         geo.store_in_leaf_order(&mut tree);
         (geo, tree)
     };
-    let (a, b) = (make(ci_a), make(ci_b));
+    let (a, b) = (make(ci_a, 0), make(ci_b, 1));
     let rays = random_rays(a.1.bounds(), RAYS, 1);
     assert_eq!(closest(&a.1, &a.0, &rays), closest(&b.1, &b.0, &rays), "A and B disagree");
     let slice = 5_000;
