@@ -272,6 +272,11 @@ impl PackedTriangles {
         let mut lanes = Lanes::default();
         let cull = self.blocks.len() >= CULL_MIN_BLOCKS;
         let reach = |bi: usize, tmax: f32| !cull || Self::reaches(&self.boxes[bi], pad, ray, &pre, tmax);
+        // One block alone: its first triangle, kept lanes and zero lanes.
+        let test = |c: usize, tmax: f32, lanes: &mut Lanes| {
+            let (keep, zero) = block_test::<W>(&self.blocks[c], &pre.shear, tmax, lanes);
+            (c * LANES, keep & self.valid(c), zero)
+        };
         let mut bi = 0;
         while bi < self.blocks.len() {
             // The lanes to finish: lane l is triangle `first + l` (with sixteen lanes,
@@ -279,17 +284,13 @@ impl PackedTriangles {
             let (first, mut keep, zero) = if W == WIDE_LANES && bi + 1 < self.blocks.len() {
                 let (a, b) = (bi, bi + 1);
                 bi += 2;
-                let test = |c: usize, lanes: &mut Lanes| {
-                    let (keep, zero) = block_test::<W>(&self.blocks[c], &pre.shear, tmax, lanes);
-                    (c * LANES, keep & self.valid(c), zero)
-                };
                 match (reach(a, tmax), reach(b, tmax)) {
                     (true, true) => {
                         let (keep, zero) = pair_test(&self.blocks[a], &self.blocks[b], &pre.shear, tmax, &mut lanes);
                         (a * LANES, keep & (self.valid(a) | self.valid(b) << LANES), zero)
                     }
-                    (true, false) => test(a, &mut lanes),
-                    (false, true) => test(b, &mut lanes),
+                    (true, false) => test(a, tmax, &mut lanes),
+                    (false, true) => test(b, tmax, &mut lanes),
                     (false, false) => continue,
                 }
             } else {
@@ -297,8 +298,7 @@ impl PackedTriangles {
                 if !reach(bi - 1, tmax) {
                     continue;
                 }
-                let (keep, zero) = block_test::<W>(&self.blocks[bi - 1], &pre.shear, tmax, &mut lanes);
-                ((bi - 1) * LANES, keep & self.valid(bi - 1), zero)
+                test(bi - 1, tmax, &mut lanes)
             };
             while keep != 0 {
                 let lane = keep.trailing_zeros() as usize;
