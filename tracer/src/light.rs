@@ -82,6 +82,8 @@ impl Light {
     }
 
     /// Samples incident light at `p` (with geometric normal `n` for ray offsets).
+    // Inline: see the note on `Bsdf`'s methods (bsdf/mod.rs).
+    #[inline(always)]
     pub fn sample_li(&self, p: Vec3, u: Vec2) -> Option<LightSample> {
         match *self {
             Light::Point { position, intensity } => {

@@ -80,6 +80,8 @@ impl Scene {
     }
 
     /// Surface data at a hit found by [`Scene::intersect`] for `ray`.
+    // Inline: see the note on `Bsdf`'s methods (bsdf/mod.rs).
+    #[inline(always)]
     pub fn interaction(&self, ray: &Ray, hit: &Hit) -> SurfaceHit {
         match self.geometry.resolve(hit.prim) {
             PrimRef::Triangle(i) => {
