@@ -199,6 +199,7 @@ fn emitter_weight(
 /// Visibility of a light sample: 1 if unblocked, 0 if blocked; with stochastic-opacity
 /// materials in the scene, the product of (1 - d) over the surfaces crossed (the
 /// expected value of the opacity coin flips, so the estimate stays unbiased).
+#[inline(always)]
 fn transmittance(scene: &Scene, si: &SurfaceHit, ng: Vec3, ls: &LightSample, count: &mut RayCount) -> f32 {
     let mut origin = offset_origin(si.p, ng, ls.wi);
     let (dir, mut tmax) = match ls.target {
