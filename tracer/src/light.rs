@@ -167,6 +167,7 @@ impl Light {
 /// `Sphere::Sample(ctx)`), with the point on the sphere computed analytically so that it
 /// exists even for directions at the silhouette. Returns `(wi, point, pdf)`; `None` when
 /// `p` is inside the sphere (it emits outwards only, so nothing reaches `p`).
+#[inline(always)]
 fn sample_sphere_cone(p: Vec3, center: Vec3, radius: f32, u: Vec2) -> Option<(Vec3, Vec3, f32)> {
     let d2 = (center - p).length_squared();
     let r2 = radius * radius;
