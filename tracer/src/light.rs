@@ -169,14 +169,18 @@ impl Light {
 /// `p` is inside the sphere (it emits outwards only, so nothing reaches `p`).
 #[inline(always)]
 fn sample_sphere_cone(p: Vec3, center: Vec3, radius: f32, u: Vec2) -> Option<(Vec3, Vec3, f32)> {
-    let d2 = (center - p).length_squared();
+    let to_center = center - p;
+    let d2 = to_center.length_squared();
     let r2 = radius * radius;
     if d2 <= r2 {
         return None;
     }
+    // Two independent divisions up front; the rest multiplies by them.
     let dist = d2.sqrt();
-    let sin2_max = r2 / d2;
-    let sin_max = sin2_max.sqrt();
+    let inv_dist = 1.0 / dist;
+    let inv_sin_max = dist / radius;
+    let sin_max = radius * inv_dist;
+    let sin2_max = sin_max * sin_max;
     let cos_max = (1.0 - sin2_max).max(0.0).sqrt();
     let mut one_minus_cos_max = 1.0 - cos_max;
     let mut cos_t = (cos_max - 1.0) * u.x + 1.0;
@@ -188,10 +192,11 @@ fn sample_sphere_cone(p: Vec3, center: Vec3, radius: f32, u: Vec2) -> Option<(Ve
         one_minus_cos_max = sin2_max / 2.0;
     }
     // Angle alpha at the sphere's centre between the sampled point and the direction to p.
-    let cos_alpha = sin2_t / sin_max + cos_t * (1.0 - sin2_t / sin2_max).max(0.0).sqrt();
+    let s = sin2_t * inv_sin_max; // sin2_t / sin_max
+    let cos_alpha = s + cos_t * (1.0 - s * inv_sin_max).max(0.0).sqrt();
     let sin_alpha = (1.0 - cos_alpha * cos_alpha).max(0.0).sqrt();
     let phi = 2.0 * PI * u.y;
-    let frame = Frame::from_normal((center - p) / dist);
+    let frame = Frame::from_normal(to_center * inv_dist);
     let w = Vec3::new(sin_alpha * phi.cos(), sin_alpha * phi.sin(), cos_alpha);
     let n = frame.to_world(-w);
     let q = center + radius * n;
