@@ -4,12 +4,12 @@
 //! image is the same bits.
 
 use std::path::{Path, PathBuf};
+use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
 
 use anyhow::Context;
 use clap::Args;
-use rayon::prelude::*;
 use tracer::film::SampleRange;
 use tracer::integrator::Integrator;
 
@@ -376,46 +376,56 @@ async fn execute(plan: Plan, args: &RunArgs) -> anyhow::Result<()> {
     Ok(())
 }
 
-/// Renders a job's units in this process: leases from the same farm state as remote
-/// workers do, renders on the rayon pool, and submits through the same checks and merge.
-/// Renders `units` on `pool`, or returns what a panic in one of them said.
-fn render_units<U: Sync, R: Send>(
-    pool: &rayon::ThreadPool,
-    units: &[U],
-    render: impl Fn(&U) -> R + Sync,
-) -> Result<Vec<R>, String> {
-    std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| pool.install(|| units.par_iter().map(&render).collect())))
+/// Runs `render` on one unit, turning a panic into its message (a tracer bug must stop
+/// the job with a clear error, not kill a thread and leave the job waiting for it).
+fn render_caught<R>(render: impl FnOnce() -> R) -> Result<R, String> {
+    std::panic::catch_unwind(std::panic::AssertUnwindSafe(render))
         .map_err(|p| tracer::render::panic_message(p.as_ref()))
 }
 
+/// Renders a job's units in this process: leases from the same farm state as remote
+/// workers do and submits through the same checks and merge. `threads` threads each
+/// lease, render and submit one unit at a time, like a worker's threads. (Until this was measured, one thread
+/// leased a batch of 2 × `threads` units, rendered them on a pool and submitted them
+/// together; every batch waited for its slowest unit, which kept the CPU 180 % busy of
+/// 200 % on two cores.)
 fn execute_in_process(shared: &Shared, job: &str, threads: usize) {
-    let pool = match rayon::ThreadPoolBuilder::new().num_threads(threads).build() {
-        Ok(p) => p,
-        Err(e) => {
-            if let Ok(en) = shared.farm().entry_mut(job) {
-                en.job.fail(format!("starting render threads: {e}"));
-            }
-            return;
-        }
-    };
     let me = shared.farm().register("in-process".into(), threads as u32, Instant::now());
-    loop {
-        let (units, scene, integrator, finished) = {
+    let stop = AtomicBool::new(false);
+    std::thread::scope(|s| {
+        for i in 0..threads.max(1) {
+            let spawned = std::thread::Builder::new()
+                .name(format!("render-{i}"))
+                .spawn_scoped(s, || in_process_thread(shared, job, me, &stop));
+            if let Err(e) = spawned {
+                stop.store(true, Ordering::Relaxed);
+                if let Ok(en) = shared.farm().entry_mut(job) {
+                    en.job.fail(format!("starting render threads: {e}"));
+                }
+                return;
+            }
+        }
+    });
+}
+
+fn in_process_thread(shared: &Shared, job: &str, me: crate::job::WorkerId, stop: &AtomicBool) {
+    while !stop.load(Ordering::Relaxed) {
+        let (unit, scene, integrator, finished) = {
             let mut farm = shared.farm();
-            let units = farm.lease(me, threads * 2, Instant::now()).unwrap_or_default();
+            let unit = farm.lease(me, 1, Instant::now()).unwrap_or_default().pop();
             let Ok(e) = farm.entry(job) else { return };
             let integrator: Integrator =
                 e.spec.settings.as_ref().and_then(|s| s.integrator.parse().ok()).unwrap_or_default();
-            (units, e.scene.clone(), integrator, e.job.phase.is_final())
+            (unit, e.scene.clone(), integrator, e.job.phase.is_final())
         };
         if finished {
             return;
         }
-        let Some(scene) = scene.filter(|_| !units.is_empty()) else {
+        let (Some(u), Some(scene)) = (unit, scene) else {
             std::thread::sleep(Duration::from_millis(20));
             continue;
         };
-        let rendered = render_units(&pool, &units, |u| {
+        let rendered = render_caught(|| {
             let (acc, count) = tracer::render::render_unit_counted(&scene, integrator, u.tile, u.samples);
             UnitResult {
                 unit: u.unit,
@@ -427,22 +437,21 @@ fn execute_in_process(shared: &Shared, job: &str, threads: usize) {
                 rays: count.rays,
             }
         });
-        let results = match rendered {
-            Ok(r) => r,
+        match rendered {
+            Ok(r) => {
+                if let Err(e) = shared.farm().submit(me, job, &r, Instant::now()) {
+                    tracing::error!("in-process result rejected: {e}");
+                }
+            }
             Err(msg) => {
                 // A bug in the tracer: stop the job with the message rather than leave
-                // it waiting for units no thread renders (the results of earlier
-                // batches are checkpointed as usual).
+                // it waiting for a unit no thread renders (completed units are
+                // checkpointed as usual).
+                stop.store(true, Ordering::Relaxed);
                 if let Ok(en) = shared.farm().entry_mut(job) {
                     en.job.fail(format!("a render thread panicked (a tilefarm bug; please report it): {msg}"));
                 }
                 return;
-            }
-        };
-        let mut farm = shared.farm();
-        for r in &results {
-            if let Err(e) = farm.submit(me, job, r, Instant::now()) {
-                tracing::error!("in-process result rejected: {e}");
             }
         }
     }
@@ -452,19 +461,13 @@ fn execute_in_process(shared: &Shared, job: &str, threads: usize) {
 mod tests {
     use super::*;
 
-    /// A panic in one unit comes back as its message, so the job can stop with it
+    /// A panic in a unit comes back as its message, so the job can stop with it
     /// (before, the in-process thread died and the render waited forever).
     #[test]
     fn a_panicking_unit_is_reported_not_lost() {
-        let pool = rayon::ThreadPoolBuilder::new().num_threads(2).build().unwrap();
-        let units: Vec<u32> = (0..16).collect();
-        assert_eq!(render_units(&pool, &units, |&u| u * 2), Ok((0..16).map(|u| u * 2).collect()));
-        let r = render_units(&pool, &units, |&u| {
-            if u == 11 {
-                panic!("unit {u} out of bounds");
-            }
-            u
-        });
+        assert_eq!(render_caught(|| 21 * 2), Ok(42));
+        let unit = 11;
+        let r: Result<u32, String> = render_caught(|| panic!("unit {unit} out of bounds"));
         assert_eq!(r, Err("unit 11 out of bounds".to_string()));
     }
 }
