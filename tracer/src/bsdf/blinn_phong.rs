@@ -102,23 +102,32 @@ impl BlinnPhong {
     }
 
     /// f(wo, wi) |cos θi|.
+    #[inline]
     pub fn eval(&self, wo: Vec3, wi: Vec3) -> Vec3 {
-        let Some((wo, wi)) = Self::upper(wo, wi) else { return Vec3::ZERO };
-        let (pdf_s, ratio) = self.specular(wo, wi);
-        self.kd * (FRAC_1_PI * wi.z) + self.ks * (pdf_s * ratio)
+        self.eval_pdf(wo, wi).0
     }
 
     /// Density of [`Self::sample`]: the mixture of both lobes' densities.
+    #[inline]
     pub fn pdf(&self, wo: Vec3, wi: Vec3) -> f32 {
-        let Some((wo, wi)) = Self::upper(wo, wi) else { return 0.0 };
-        let (pdf_s, _) = self.specular(wo, wi);
-        (1.0 - self.spec_prob) * cosine_hemisphere_pdf(wi.z) + self.spec_prob * pdf_s
+        self.eval_pdf(wo, wi).1
+    }
+
+    /// [`Self::eval`] and [`Self::pdf`] together, sharing the half vector and the power
+    /// of cos θh (light sampling and `sample` need both).
+    #[inline(always)]
+    pub fn eval_pdf(&self, wo: Vec3, wi: Vec3) -> (Vec3, f32) {
+        let Some((wo, wi)) = Self::upper(wo, wi) else { return (Vec3::ZERO, 0.0) };
+        let (pdf_s, ratio) = self.specular(wo, wi);
+        let f = self.kd * (FRAC_1_PI * wi.z) + self.ks * (pdf_s * ratio);
+        (f, (1.0 - self.spec_prob) * cosine_hemisphere_pdf(wi.z) + self.spec_prob * pdf_s)
     }
 
     /// Picks a lobe with `u_lobe`, samples it with `u` (h ~ D for the specular lobe,
     /// then wi = reflect(wo, h)), and weights by the whole BSDF over the mixture pdf.
     /// None when the reflected direction falls below the horizon (that mass is simply
     /// lost; `pdf` integrates to less than 1 accordingly).
+    #[inline(always)]
     pub fn sample(&self, wo: Vec3, u_lobe: f32, u: Vec2) -> Option<BsdfSample> {
         if wo.z == 0.0 || !wo.is_finite() || (self.kd + self.ks).max_element() <= 0.0 {
             return None;
@@ -133,11 +142,11 @@ impl BlinnPhong {
             return None;
         }
         let wi = to_side_of(wo, wi_up);
-        let pdf = self.pdf(wo, wi);
+        let (f, pdf) = self.eval_pdf(wo, wi);
         if !(pdf > 0.0 && pdf.is_finite()) {
             return None;
         }
-        let weight = self.eval(wo, wi) / pdf;
+        let weight = f / pdf;
         weight.is_finite().then_some(BsdfSample { wi, weight, pdf, delta: false })
     }
 }

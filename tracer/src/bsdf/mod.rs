@@ -68,6 +68,20 @@ impl Bsdf {
         }
     }
 
+    /// [`Self::eval`] and [`Self::pdf`] at once: the same values, with the work they
+    /// share done once (for light sampling, which needs both).
+    #[inline(always)]
+    pub fn eval_pdf(&self, wo: Vec3, wi: Vec3) -> (Vec3, f32) {
+        match *self {
+            Bsdf::Diffuse { kd } => {
+                let l = Lambert { kd };
+                (l.eval(wo, wi), l.pdf(wo, wi))
+            }
+            Bsdf::Glossy { kd, ks, exponent } => BlinnPhong::new(kd, ks, exponent).eval_pdf(wo, wi),
+            Bsdf::Mirror { .. } | Bsdf::Glass { .. } => (Vec3::ZERO, 0.0),
+        }
+    }
+
     /// Solid-angle density with which `sample` produces `wi` (0 for delta BSDFs).
     #[inline(always)]
     pub fn pdf(&self, wo: Vec3, wi: Vec3) -> f32 {

@@ -116,7 +116,7 @@ pub fn li(scene: &Scene, mut ray: Ray, sampler: &mut Sampler, count: &mut RayCou
                     let reflects_above = !two_sided || ng.dot(ls.wi) > 0.0;
                     if ls.pdf > 0.0 && ls.li.max_element() > 0.0 && reflects_above {
                         let wi_local = frame.to_local(ls.wi);
-                        let f = bsdf.eval(wo_local, wi_local);
+                        let (f, bsdf_pdf) = bsdf.eval_pdf(wo_local, wi_local);
                         if f.max_element() > 0.0 {
                             let tr = transmittance(scene, &si, ng, &ls, count);
                             if tr > 0.0 {
@@ -125,7 +125,7 @@ pub fn li(scene: &Scene, mut ray: Ray, sampler: &mut Sampler, count: &mut RayCou
                                 } else {
                                     let light_pdf = pmf * ls.pdf;
                                     let w = if use_bsdf_hits {
-                                        power_heuristic(1.0, light_pdf, 1.0, bsdf.pdf(wo_local, wi_local))
+                                        power_heuristic(1.0, light_pdf, 1.0, bsdf_pdf)
                                     } else {
                                         1.0
                                     };
