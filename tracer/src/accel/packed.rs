@@ -266,7 +266,11 @@ impl PackedTriangles {
     ) {
         let pre = RayPrecomp::new(ray);
         let pad = self.margin(ray);
-        if !Self::reaches(&self.bounds, pad, ray, &pre, tmax) {
+        // From inside the (padded) bounds every ray reaches them: the slab test would
+        // say so too, and most rays of a closed scene start there.
+        let inside = ray.origin.cmpge(self.bounds.min - Vec3::splat(pad)).all()
+            && ray.origin.cmple(self.bounds.max + Vec3::splat(pad)).all();
+        if !inside && !Self::reaches(&self.bounds, pad, ray, &pre, tmax) {
             return;
         }
         let mut lanes = Lanes::default();
