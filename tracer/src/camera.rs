@@ -5,6 +5,7 @@
 use glam::{Vec2, Vec3};
 
 use crate::geometry::Ray;
+use crate::math;
 
 #[derive(Clone, Debug, PartialEq)]
 pub struct Camera {
@@ -67,7 +68,7 @@ impl Camera {
             up,
             width,
             height,
-            tan_half_fov: (fov_degrees.to_radians() * 0.5).tan(),
+            tan_half_fov: math::tan(fov_degrees.to_radians() * 0.5),
             aperture: 0.0,
             focus_distance: (look_at - position).length(),
         })

@@ -15,6 +15,7 @@ pub mod geometry;
 pub mod integrator;
 pub mod light;
 pub mod material;
+pub mod math;
 pub mod output;
 pub mod render;
 pub mod sampler;

@@ -11,6 +11,7 @@ use std::f32::consts::PI;
 use glam::{Vec2, Vec3};
 
 use crate::geometry::{Frame, offset_origin};
+use crate::math;
 use crate::sampler::ONE_MINUS_EPSILON;
 use crate::sampling::{sample_uniform_sphere, sample_uniform_triangle, uniform_sphere_pdf};
 
@@ -197,7 +198,8 @@ fn sample_sphere_cone(p: Vec3, center: Vec3, radius: f32, u: Vec2) -> Option<(Ve
     let sin_alpha = (1.0 - cos_alpha * cos_alpha).max(0.0).sqrt();
     let phi = 2.0 * PI * u.y;
     let frame = Frame::from_normal(to_center * inv_dist);
-    let w = Vec3::new(sin_alpha * phi.cos(), sin_alpha * phi.sin(), cos_alpha);
+    let (sin_phi, cos_phi) = math::sin_cos(phi);
+    let w = Vec3::new(sin_alpha * cos_phi, sin_alpha * sin_phi, cos_alpha);
     let n = frame.to_world(-w);
     let q = center + radius * n;
     let wi = (q - p).normalize();
@@ -437,6 +439,7 @@ impl LightSet {
 }
 
 #[cfg(test)]
+#[allow(clippy::disallowed_methods)] // values checked, not platform-free bits
 mod tests {
     use super::*;
 

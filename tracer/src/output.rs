@@ -6,6 +6,7 @@ use std::path::Path;
 use glam::Vec3;
 
 use crate::film::Image;
+use crate::math;
 
 #[derive(Debug, thiserror::Error)]
 pub enum OutputError {
@@ -85,7 +86,7 @@ pub fn read_exr(path: &Path) -> Result<Image, OutputError> {
 /// sRGB opto-electronic transfer function.
 #[inline]
 fn srgb_encode(linear: f32) -> f32 {
-    if linear <= 0.0031308 { 12.92 * linear } else { 1.055 * linear.powf(1.0 / 2.4) - 0.055 }
+    if linear <= 0.0031308 { 12.92 * linear } else { 1.055 * math::powf(linear, 1.0 / 2.4) - 0.055 }
 }
 
 /// Tone maps linear radiance to 8-bit sRGB: clamp to [0, 1] at exposure 1, then the sRGB

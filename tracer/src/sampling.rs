@@ -7,6 +7,8 @@
 //! inputs on the closed square \[0,1\]² and degenerate parameters give finite results.
 
 use glam::{Vec2, Vec3};
+
+use crate::math;
 use std::f32::consts::{FRAC_PI_2, FRAC_PI_4, PI};
 
 pub const INV_PI: f32 = std::f32::consts::FRAC_1_PI;
@@ -16,7 +18,7 @@ pub const INV_4PI: f32 = 0.25 * std::f32::consts::FRAC_1_PI;
 /// Unit vector with polar angle given by (`sin_theta`, `cos_theta`) and azimuth `phi`.
 #[inline]
 pub fn spherical_direction(sin_theta: f32, cos_theta: f32, phi: f32) -> Vec3 {
-    let (sin_phi, cos_phi) = phi.sin_cos();
+    let (sin_phi, cos_phi) = math::sin_cos(phi);
     Vec3::new(sin_theta * cos_phi, sin_theta * sin_phi, cos_theta)
 }
 
@@ -30,7 +32,7 @@ pub fn sample_uniform_disk_concentric(u: Vec2) -> Vec2 {
     }
     let (r, theta) =
         if o.x.abs() > o.y.abs() { (o.x, FRAC_PI_4 * (o.y / o.x)) } else { (o.y, FRAC_PI_2 - FRAC_PI_4 * (o.x / o.y)) };
-    let (sin, cos) = theta.sin_cos();
+    let (sin, cos) = math::sin_cos(theta);
     r * Vec2::new(cos, sin)
 }
 
@@ -114,9 +116,9 @@ pub fn uniform_cone_pdf(cos_theta_max: f32) -> f32 {
 #[inline]
 pub fn sample_power_cosine(u: Vec2, exponent: f32) -> Vec3 {
     let inv_np1 = 1.0 / (exponent.max(0.0) + 1.0);
-    let log_cos = u.x.ln() * inv_np1; // ln cos θ, −∞ for u.x = 0 (θ = π/2)
-    let cos_theta = log_cos.exp();
-    let sin_theta = (-(2.0 * log_cos).exp_m1()).clamp(0.0, 1.0).sqrt();
+    let log_cos = math::ln(u.x) * inv_np1; // ln cos θ, −∞ for u.x = 0 (θ = π/2)
+    let cos_theta = math::exp(log_cos);
+    let sin_theta = (-math::exp_m1(2.0 * log_cos)).clamp(0.0, 1.0).sqrt();
     spherical_direction(sin_theta, cos_theta, 2.0 * PI * u.y)
 }
 
@@ -127,7 +129,7 @@ pub fn power_cosine_pdf(cos_theta: f32, exponent: f32) -> f32 {
         return 0.0;
     }
     let n = exponent.max(0.0);
-    (n + 1.0) * INV_2PI * cos_theta.min(1.0).powf(n)
+    (n + 1.0) * INV_2PI * math::powf(cos_theta.min(1.0), n)
 }
 
 /// Uniform point on a triangle as barycentrics (b0, b1, b2), pdf = 1 / area. Heitz's

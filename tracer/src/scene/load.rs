@@ -13,6 +13,7 @@ use crate::accel::{BuildParams, KdTree, Primitives};
 use crate::camera::Camera;
 use crate::light::{Light, LightSet};
 use crate::material::{Material, MaterialDesc};
+use crate::math;
 use crate::texture::Texture;
 
 #[derive(Debug, thiserror::Error)]
@@ -216,8 +217,8 @@ fn assemble(file: &SceneFile, name: &str, base: &Path) -> Result<Scene, SceneErr
                     position: finite3(field("position"), position)?,
                     direction: unit("direction", direction)?,
                     intensity: non_negative3(field("intensity"), intensity)?,
-                    cos_total: cone_angle.to_radians().cos(),
-                    cos_falloff_start: start.to_radians().cos(),
+                    cos_total: math::cos(cone_angle.to_radians()),
+                    cos_falloff_start: math::cos(start.to_radians()),
                 }
             }
             LightDesc::Directional { direction, irradiance } => Light::Directional {
@@ -375,7 +376,7 @@ pub fn scene_from_bare_obj(model: ObjModel) -> Scene {
     };
     let fov = 40.0f32;
     // Far enough that the bounding sphere fits the vertical field of view.
-    let dist = radius / (0.5 * fov.to_radians()).sin() * 1.05;
+    let dist = radius / math::sin(0.5 * fov.to_radians()) * 1.05;
     let dir = Vec3::new(0.35, 0.35, 1.0).normalize();
     let camera = Camera::look_at(center + dir * dist, center, Vec3::Y, fov, 640, 480)
         .expect("auto-framed camera is well formed");

@@ -23,6 +23,7 @@ use crate::camera::Camera;
 use crate::geometry::Ray;
 use crate::light::LightSet;
 use crate::material::Material;
+use crate::math;
 use crate::texture::Texture;
 
 /// Everything needed to render: immutable once built, shared by all render threads.
@@ -114,8 +115,8 @@ impl Scene {
                 // Re-project onto the surface to remove the error of ray.at(t).
                 let p = s.center + s.radius * n;
                 let uv = Vec2::new(
-                    (n.z.atan2(n.x) / std::f32::consts::TAU).rem_euclid(1.0),
-                    n.y.clamp(-1.0, 1.0).acos() / std::f32::consts::PI,
+                    (math::atan2(n.z, n.x) / std::f32::consts::TAU).rem_euclid(1.0),
+                    math::acos(n.y.clamp(-1.0, 1.0)) / std::f32::consts::PI,
                 );
                 SurfaceHit { p, ng: n, ns: n, uv, material: s.material, prim: hit.prim, t: hit.t }
             }

@@ -12,6 +12,7 @@ use glam::Vec3;
 use super::ObjError;
 use super::scan::shorten;
 use crate::material::MaterialDesc;
+use crate::math;
 use crate::texture::Texture;
 
 /// A material as read from an MTL file, its texture not yet loaded.
@@ -308,7 +309,7 @@ pub(super) fn resolve_material(
 }
 
 fn srgb_to_linear(c: f32) -> f32 {
-    if c <= 0.04045 { c / 12.92 } else { ((c + 0.055) / 1.055).powf(2.4) }
+    if c <= 0.04045 { c / 12.92 } else { math::powf((c + 0.055) / 1.055, 2.4) }
 }
 
 fn clean_texel(c: Vec3) -> Vec3 {

@@ -5,6 +5,8 @@ use std::collections::HashMap;
 
 use glam::Vec3;
 
+use crate::math;
+
 /// The polygon's normal scaled by twice its area (sum of its fan triangles' cross products;
 /// exact for planar polygons, a sensible average otherwise). Counter-clockwise = front.
 pub(super) fn polygon_normal(pts: &[Vec3]) -> Vec3 {
@@ -18,7 +20,7 @@ fn corner_angle(prev: Vec3, cur: Vec3, next: Vec3) -> f32 {
     if a == Vec3::ZERO || b == Vec3::ZERO {
         return 0.0;
     }
-    a.dot(b).clamp(-1.0, 1.0).acos()
+    math::acos(a.dot(b).clamp(-1.0, 1.0))
 }
 
 /// Accumulated vertex normals, keyed by (smoothing group, output position index).

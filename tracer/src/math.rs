@@ -1,0 +1,137 @@
+//! The transcendental functions the renderer's results depend on, computed the same way
+//! on every machine.
+//!
+//! A farm merges units rendered on different machines, and the image must not depend on
+//! which machine rendered which unit. `f32::sin`, `powf` and the like call the
+//! platform's C library, whose results are not specified to the bit: glibc, musl and
+//! macOS differ, and glibc itself picks an FMA or an SSE2 build at run time. Every
+//! function here is the `libm` crate's (a Rust port of musl / FreeBSD msun): plain IEEE
+//! arithmetic, with only correctly rounded operations (`sqrt`, `fma`) taken from the
+//! hardware, so the bits are the same on every target and instruction set.
+//!
+//! Only what sample values and scene data depend on goes through here; tests and
+//! statistics may use `std`'s functions.
+
+/// `sin(x)` and `cos(x)`.
+#[inline]
+pub fn sin_cos(x: f32) -> (f32, f32) {
+    core_math::sincosf(x)
+}
+
+#[inline]
+pub fn sin(x: f32) -> f32 {
+    core_math::sinf(x)
+}
+
+#[inline]
+pub fn cos(x: f32) -> f32 {
+    core_math::cosf(x)
+}
+
+#[inline]
+pub fn tan(x: f32) -> f32 {
+    core_math::tanf(x)
+}
+
+/// `acos(x)`, NaN outside `[-1, 1]`.
+#[inline]
+pub fn acos(x: f32) -> f32 {
+    core_math::acosf(x)
+}
+
+/// The angle of `(x, y)`, as `y.atan2(x)`.
+#[inline]
+pub fn atan2(y: f32, x: f32) -> f32 {
+    core_math::atan2f(y, x)
+}
+
+/// `x^y`.
+#[inline]
+pub fn powf(x: f32, y: f32) -> f32 {
+    core_math::powf(x, y)
+}
+
+#[inline]
+pub fn exp(x: f32) -> f32 {
+    core_math::expf(x)
+}
+
+/// `e^x - 1`, precise for small `x`.
+#[inline]
+pub fn exp_m1(x: f32) -> f32 {
+    core_math::expm1f(x)
+}
+
+/// Natural logarithm.
+#[inline]
+pub fn ln(x: f32) -> f32 {
+    core_math::logf(x)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// `|got - reference|` in ulps of an f32 of magnitude `max(|reference|, floor)`: near
+    /// a zero of a function (sin at pi) a relative error says little, so `floor` is 1
+    /// there.
+    fn ulps(got: f32, reference: f64, floor: f64) -> f64 {
+        let scale = reference.abs().max(floor).max(f32::MIN_POSITIVE as f64);
+        let ulp = 2f64.powi(scale.log2().floor() as i32 - 23);
+        (got as f64 - reference).abs() / ulp
+    }
+
+    /// Correctly rounded over the ranges the renderer uses: within half an ulp of the f64
+    /// result (itself far more precise). That is what makes the bits platform-free, and
+    /// it also catches a mix-up of two functions or a call to a less precise library.
+    #[test]
+    fn accurate_against_f64() {
+        let mut worst = (0.0f64, "");
+        let mut check = |what, got: f32, reference: f64, floor| {
+            let e = ulps(got, reference, floor);
+            if e > worst.0 {
+                worst = (e, what);
+            }
+        };
+        for i in 1..20_000 {
+            let u = i as f32 / 20_000.0;
+            let (uf, phi) = (u as f64, std::f32::consts::TAU * u);
+            let (s, c) = sin_cos(phi);
+            assert_eq!((s, c), (sin(phi), cos(phi)));
+            check("sin", s, (phi as f64).sin(), 1.0);
+            check("cos", c, (phi as f64).cos(), 1.0);
+            let x = 2.0 * u - 1.0;
+            check("acos", acos(x), (x as f64).acos(), 0.0);
+            check("atan2", atan2(x, 0.5 - u), (x as f64).atan2((0.5 - u) as f64), 1.0);
+            let (a, b) = (1.5 * u, -20.0 * u);
+            check("tan", tan(a), (a as f64).tan(), 0.0);
+            check("ln", ln(u), uf.ln(), 0.0);
+            check("exp", exp(b), (b as f64).exp(), 0.0);
+            check("exp_m1", exp_m1(-u), (-u as f64).exp_m1(), 0.0);
+            check("powf", powf(u, 37.5), uf.powf(37.5), 0.0);
+        }
+        assert!(worst.0 <= 0.5 + 1e-6, "{} is off by {} ulps", worst.1, worst.0);
+    }
+
+    /// Pinned results: the same bits on every platform is what this module is for, so a
+    /// change of implementation (another `libm`, or a call back to the C library's) shows
+    /// here on whichever machine runs the tests.
+    #[test]
+    fn the_same_bits_everywhere() {
+        let got = [
+            sin_cos(1.234_567).0.to_bits(),
+            sin_cos(1.234_567).1.to_bits(),
+            tan(0.342_9).to_bits(),
+            acos(-0.777).to_bits(),
+            atan2(-0.3, -0.91).to_bits(),
+            powf(0.913, 117.0).to_bits(),
+            exp(-3.75).to_bits(),
+            exp_m1(-1e-3).to_bits(),
+            ln(0.0061).to_bits(),
+        ];
+        assert_eq!(got, PINNED, "{got:#010x?}");
+    }
+
+    const PINNED: [u32; 9] =
+        [0x3f71aa57, 0x3ea8ec91, 0x3eb6c91d, 0x401d7bd2, 0xc034ae5e, 0x37c6f647, 0x3cc0a84a, 0xba8301a9, 0xc0a32ed4];
+}
