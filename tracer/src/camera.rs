@@ -122,6 +122,7 @@ impl Camera {
 }
 
 #[cfg(test)]
+#[allow(clippy::disallowed_methods)] // values checked, not platform-free bits
 mod tests {
     use super::*;
 

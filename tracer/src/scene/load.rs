@@ -175,7 +175,10 @@ fn assemble(file: &SceneFile, name: &str, base: &Path) -> Result<Scene, SceneErr
             return Err(invalid(field("rotate_y"), "must be finite".into()));
         }
         let translate = finite3(field("translate"), m.translate.unwrap_or([0.0; 3]))?;
-        let linear = Mat3::from_rotation_y(angle.to_radians()) * Mat3::from_diagonal(scale);
+        // As glam's `Mat3::from_rotation_y`, with the platform-free sine and cosine.
+        let (sin, cos) = math::sin_cos(angle.to_radians());
+        let rotation = Mat3::from_cols(Vec3::new(cos, 0.0, -sin), Vec3::Y, Vec3::new(sin, 0.0, cos));
+        let linear = rotation * Mat3::from_diagonal(scale);
         b.add_model(model, linear, translate);
     }
 
@@ -441,6 +444,25 @@ mod tests {
             let i = hit.prim as usize;
             assert_eq!(si.material, g.material(i));
             assert_eq!(s.lights.light_of_prim(hit.prim).is_some(), si.material == 1);
+        }
+    }
+
+    /// `scale`, then `rotate_y` (degrees, counter-clockwise seen from +y, as glam's
+    /// `Mat3::from_rotation_y`), then `translate`.
+    #[test]
+    fn mesh_transform_scales_rotates_then_translates() {
+        let dir = std::env::temp_dir().join(format!("tilefarm-transform-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        std::fs::write(dir.join("tri.obj"), "v 1 0 0\nv 0 0 1\nv 0 1 0\nf 1 2 3\n").unwrap();
+        let text = "[camera]\nposition = [0, 0, 10]\nlook_at = [0, 0, 0]\nfov = 40\nwidth = 8\nheight = 8\n\
+                    [[mesh]]\nobj = \"tri.obj\"\nscale = 2\nrotate_y = 90\ntranslate = [1, 2, 3]\n";
+        let scene = scene_from_toml(text, "transform.toml", &dir).unwrap();
+        std::fs::remove_dir_all(&dir).unwrap();
+        let got = *scene.geometry.triangle(0);
+        // x -> -z, z -> x (a quarter turn about +y), after doubling; then moved.
+        let want = [Vec3::new(1.0, 2.0, 1.0), Vec3::new(3.0, 2.0, 3.0), Vec3::new(1.0, 4.0, 3.0)];
+        for (g, w) in got.iter().zip(want) {
+            assert!((*g - w).abs().max_element() < 1e-6, "{got:?} vs {want:?}");
         }
     }
 }
