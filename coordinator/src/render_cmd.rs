@@ -270,6 +270,7 @@ async fn execute(plan: Plan, args: &RunArgs) -> anyhow::Result<()> {
         farm: Mutex::new(Farm::new(args.farm.config()?)),
         store: Mutex::new(store),
         defaults: JobDefaults::default(),
+        changed: tokio::sync::Notify::new(),
     });
     let resumed = restore.as_ref().map_or(0, |s| s.units_done() as u64);
     let (earlier_samples, earlier_rays) = restore.as_ref().map_or((0, 0), |s| (s.samples_done(), s.job.rays));
@@ -301,6 +302,7 @@ async fn execute(plan: Plan, args: &RunArgs) -> anyhow::Result<()> {
         tokio::select! {
             _ = &mut stop => break Err(anyhow::anyhow!("interrupted")),
             _ = tokio::time::sleep(Duration::from_millis(100)) => {}
+            _ = shared.changed.notified() => {}
         }
         let status = shared.farm().status(&job, Instant::now())?;
         bar.update(&status);
@@ -439,7 +441,9 @@ fn in_process_thread(shared: &Shared, job: &str, me: crate::job::WorkerId, stop:
         });
         match rendered {
             Ok(r) => {
-                if let Err(e) = shared.farm().submit(me, job, &r, Instant::now()) {
+                let applied = shared.farm().submit(me, job, &r, Instant::now());
+                shared.changed.notify_one();
+                if let Err(e) = applied {
                     tracing::error!("in-process result rejected: {e}");
                 }
             }
@@ -451,6 +455,7 @@ fn in_process_thread(shared: &Shared, job: &str, me: crate::job::WorkerId, stop:
                 if let Ok(en) = shared.farm().entry_mut(job) {
                     en.job.fail(format!("a render thread panicked (a tilefarm bug; please report it): {msg}"));
                 }
+                shared.changed.notify_one();
                 return;
             }
         }

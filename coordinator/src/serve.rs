@@ -81,6 +81,7 @@ pub fn run(args: ServeArgs) -> anyhow::Result<()> {
         farm: Mutex::new(Farm::new(config)),
         store: Mutex::new(store),
         defaults: JobDefaults::default(),
+        changed: tokio::sync::Notify::new(),
     });
     let ckpt_root = args.checkpoint.as_ref().map(|d| d.join("job-checkpoints"));
     if let Some(root) = &ckpt_root {

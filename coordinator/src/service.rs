@@ -35,6 +35,10 @@ pub struct Shared {
     pub farm: Mutex<Farm>,
     pub store: Mutex<AssetStore>,
     pub defaults: JobDefaults,
+    /// Signalled when a unit's result has been applied or a job has failed, so that
+    /// `render`, which follows its job, sees the end at once instead of at its next
+    /// poll (it still polls every 100 ms for everything else, such as lapsed leases).
+    pub changed: tokio::sync::Notify,
 }
 
 impl Shared {
@@ -255,6 +259,7 @@ impl proto::farm_server::Farm for FarmService {
             rays: r.rays,
         };
         let applied = self.0.farm().submit(r.worker_id, &r.job_id, &result, Instant::now());
+        self.0.changed.notify_one();
         match applied {
             Ok(a) => Ok(Response::new(proto::SubmitReply { accepted: a == Applied::Merged })),
             Err(e) => {
