@@ -6,10 +6,11 @@
 //! steradian; the disk pdf is per unit area of the unit disk. Every function is total:
 //! inputs on the closed square \[0,1\]² and degenerate parameters give finite results.
 
+use std::f32::consts::{FRAC_PI_2, FRAC_PI_4, PI};
+
 use glam::{Vec2, Vec3};
 
 use crate::math;
-use std::f32::consts::{FRAC_PI_2, FRAC_PI_4, PI};
 
 pub const INV_PI: f32 = std::f32::consts::FRAC_1_PI;
 pub const INV_2PI: f32 = 0.5 * std::f32::consts::FRAC_1_PI;
