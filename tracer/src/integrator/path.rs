@@ -4,16 +4,23 @@
 //! Depth follows Mitsuba 3's `path` integrator: `max_depth` counts path segments from
 //! the camera, so 1 shows only emitters seen directly, 2 adds direct lighting, and -1 is
 //! unlimited (paths end by Russian roulette, which starts at depth 5 and is unbiased).
+//!
+//! A path is a [`PathState`] advanced one vertex at a time by [`PathState::scatter`],
+//! between two ray queries that the caller answers: the closest hit of the path's next
+//! segment, and the visibility of the light sample that next-event estimation took
+//! there ([`ShadowQuery`]). [`li`] answers them one path at a time; the eight-lane
+//! renderer (`integrator/packet.rs`) answers eight paths' queries at once. Both run the
+//! same code per path, so a sample's radiance is the same bits either way.
 
 use glam::{Vec2, Vec3};
 
 use super::RayCount;
+use crate::accel::Hit;
 use crate::bsdf::Bsdf;
 use crate::geometry::{Frame, Ray, offset_origin};
-use crate::light::LightSample;
 use crate::sampler::Sampler;
 use crate::sampling::{power_heuristic, uniform_sphere_pdf};
-use crate::scene::{Scene, SurfaceHit};
+use crate::scene::Scene;
 
 /// Which estimators to combine. The default (MIS) is the renderer; the one-sided
 /// variants exist to test that all three converge to the same answer.
@@ -44,31 +51,96 @@ impl Options {
 
 /// Radiance arriving at the camera along `ray`.
 #[inline(always)]
-pub fn li(scene: &Scene, mut ray: Ray, sampler: &mut Sampler, count: &mut RayCount, opt: &Options) -> Vec3 {
-    let mut l = Vec3::ZERO;
-    let mut beta = Vec3::ONE;
-    // State of the previous scattering event, for MIS weights of emitters hit next.
-    let mut prev_pdf = 0.0f32;
-    let mut prev_delta = true;
-    let mut prev_p = ray.origin;
-    let mut depth: u32 = 0;
-    let unlimited = opt.max_depth < 0;
-    let (use_nee, use_bsdf_hits) = match opt.strategy {
-        Strategy::Mis => (true, true),
-        Strategy::LightOnly => (true, false),
-        Strategy::BsdfOnly => (false, true),
-    };
-
+pub fn li(scene: &Scene, ray: Ray, sampler: &mut Sampler, count: &mut RayCount, opt: &Options) -> Vec3 {
+    let mut path = PathState::new(ray);
     loop {
         count.rays += 1;
-        let Some(hit) = scene.intersect(&ray, f32::INFINITY) else {
+        let hit = scene.intersect(&path.ray, f32::INFINITY);
+        let (shadow, go_on) = path.scatter(scene, hit, sampler, opt);
+        if let Some(q) = shadow {
+            path.add_light(&q, transmittance(scene, &q, count));
+        }
+        if !go_on {
+            return path.radiance();
+        }
+    }
+}
+
+/// A light sample of next-event estimation waiting for its shadow ray: its contribution
+/// is `unshadowed · (tr · weight / pdf)` for transmittance `tr` along `ray`.
+#[derive(Clone, Copy, Debug)]
+pub struct ShadowQuery {
+    /// The shadow ray and the distance it must get through; `None` when the light
+    /// sample lies at the shading point itself (visible without a ray).
+    pub ray: Option<(Ray, f32)>,
+    unshadowed: Vec3,
+    weight: f32,
+    pdf: f32,
+}
+
+/// One path between two ray queries.
+#[derive(Clone, Copy, Debug)]
+pub struct PathState {
+    /// The segment whose closest hit [`PathState::scatter`] needs next.
+    pub ray: Ray,
+    l: Vec3,
+    beta: Vec3,
+    // State of the previous scattering event, for MIS weights of emitters hit next.
+    prev_pdf: f32,
+    prev_delta: bool,
+    prev_p: Vec3,
+    depth: u32,
+}
+
+impl PathState {
+    /// A path starting with the camera ray `ray`.
+    #[inline(always)]
+    pub fn new(ray: Ray) -> Self {
+        Self { ray, l: Vec3::ZERO, beta: Vec3::ONE, prev_pdf: 0.0, prev_delta: true, prev_p: ray.origin, depth: 0 }
+    }
+
+    /// The radiance gathered so far (all of it once the path has ended).
+    #[inline(always)]
+    pub fn radiance(&self) -> Vec3 {
+        self.l
+    }
+
+    /// Adds a light sample's contribution with transmittance `tr` (0: blocked).
+    #[inline(always)]
+    pub fn add_light(&mut self, q: &ShadowQuery, tr: f32) {
+        if tr > 0.0 {
+            self.l += q.unshadowed * (tr * q.weight / q.pdf);
+        }
+    }
+
+    /// Everything the path does at `hit`, the closest hit of [`PathState::ray`]:
+    /// emission found there, next-event estimation, BSDF sampling and Russian
+    /// roulette. Returns the light sample whose shadow ray the caller must answer (by
+    /// [`PathState::add_light`], before the next call) and whether the path goes on,
+    /// with [`PathState::ray`] its next segment.
+    #[inline(always)]
+    pub fn scatter(
+        &mut self,
+        scene: &Scene,
+        hit: Option<Hit>,
+        sampler: &mut Sampler,
+        opt: &Options,
+    ) -> (Option<ShadowQuery>, bool) {
+        let (use_nee, use_bsdf_hits) = match opt.strategy {
+            Strategy::Mis => (true, true),
+            Strategy::LightOnly => (true, false),
+            Strategy::BsdfOnly => (false, true),
+        };
+        let ray = self.ray;
+        let Some(hit) = hit else {
             if let Some(env) = scene.lights.environment() {
-                let w = emitter_weight(depth, prev_delta, opt.strategy, prev_pdf, || {
+                let prev_p = self.prev_p;
+                let w = emitter_weight(self.depth, self.prev_delta, opt.strategy, self.prev_pdf, || {
                     scene.lights.pmf_at(prev_p, env) * uniform_sphere_pdf()
                 });
-                l += beta * scene.background * w;
+                self.l += self.beta * scene.background * w;
             }
-            break;
+            return (None, false);
         };
         let si = scene.interaction(&ray, &hit);
         let material = &scene.materials[si.material as usize];
@@ -76,25 +148,26 @@ pub fn li(scene: &Scene, mut ray: Ray, sampler: &mut Sampler, count: &mut RayCou
         // Stochastic opacity (`d < 1`, `Ni = 1`): pass straight through with probability
         // 1 - d. Not a scattering event, so depth and the MIS state are unchanged.
         if material.opacity < 1.0 && sampler.next_1d() >= material.opacity {
-            ray.origin = offset_origin(si.p, si.ng, ray.dir);
-            continue;
+            self.ray.origin = offset_origin(si.p, si.ng, ray.dir);
+            return (None, true);
         }
 
         let wo = -ray.dir;
         // One-sided emission: only the front face emits.
         if material.is_emissive() && si.ng.dot(wo) > 0.0 {
-            let w = emitter_weight(depth, prev_delta, opt.strategy, prev_pdf, || {
+            let prev_p = self.prev_p;
+            let w = emitter_weight(self.depth, self.prev_delta, opt.strategy, self.prev_pdf, || {
                 // What NEE at prev_p would have had for this light (0 if it never could).
                 scene.lights.light_of_prim(hit.prim).map_or(0.0, |li| {
                     scene.lights.pmf_at(prev_p, li) * scene.lights.lights[li].pdf_li(prev_p, ray.dir, si.p)
                 })
             });
-            l += beta * material.emission * w;
+            self.l += self.beta * material.emission * w;
         }
 
-        depth += 1;
-        if !unlimited && depth >= opt.max_depth as u32 {
-            break;
+        self.depth += 1;
+        if opt.max_depth >= 0 && self.depth >= opt.max_depth as u32 {
+            return (None, false);
         }
 
         let bsdf = material.bsdf_at(si.uv, &scene.textures);
@@ -108,6 +181,7 @@ pub fn li(scene: &Scene, mut ray: Ray, sampler: &mut Sampler, count: &mut RayCou
         // Next-event estimation. One 2D sample both picks the light (x, then rescaled
         // within the light's interval) and the point on it, so the points stay
         // stratified across the lights together.
+        let mut shadow = None;
         if use_nee && !bsdf.is_delta() {
             let u = sampler.next_2d();
             if let Some((light_index, pmf, ux)) = scene.lights.select_at(si.p, u.x) {
@@ -118,20 +192,28 @@ pub fn li(scene: &Scene, mut ray: Ray, sampler: &mut Sampler, count: &mut RayCou
                         let wi_local = frame.to_local(ls.wi);
                         let (f, bsdf_pdf) = bsdf.eval_pdf(wo_local, wi_local);
                         if f.max_element() > 0.0 {
-                            let tr = transmittance(scene, &si, ng, &ls, count);
-                            if tr > 0.0 {
-                                if ls.delta {
-                                    l += beta * f * ls.li * (tr / pmf);
-                                } else {
-                                    let light_pdf = pmf * ls.pdf;
-                                    let w = if use_bsdf_hits {
-                                        power_heuristic(1.0, light_pdf, 1.0, bsdf_pdf)
+                            let (weight, pdf) = if ls.delta {
+                                (1.0, pmf)
+                            } else {
+                                let light_pdf = pmf * ls.pdf;
+                                let w =
+                                    if use_bsdf_hits { power_heuristic(1.0, light_pdf, 1.0, bsdf_pdf) } else { 1.0 };
+                                (w, light_pdf)
+                            };
+                            let origin = offset_origin(si.p, ng, ls.wi);
+                            let ray = match ls.target {
+                                Some(q) => {
+                                    let d = q - origin;
+                                    let dist = d.length();
+                                    if dist <= 0.0 {
+                                        None
                                     } else {
-                                        1.0
-                                    };
-                                    l += beta * f * ls.li * (tr * w / light_pdf);
+                                        Some((Ray::new(origin, d / dist), dist * (1.0 - 1e-5)))
+                                    }
                                 }
-                            }
+                                None => Some((Ray::new(origin, ls.wi), f32::INFINITY)),
+                            };
+                            shadow = Some(ShadowQuery { ray, unshadowed: self.beta * f * ls.li, weight, pdf });
                         }
                     }
                 }
@@ -147,32 +229,32 @@ pub fn li(scene: &Scene, mut ray: Ray, sampler: &mut Sampler, count: &mut RayCou
             Bsdf::Glass { .. } => (sampler.next_1d(), Vec2::ZERO),
         };
         let Some(bs) = bsdf.sample(wo_local, u_lobe, u) else {
-            break;
+            return (shadow, false);
         };
         let wi = frame.to_world(bs.wi);
         // A reflection that dips below the geometric surface (possible with shading
         // normals) would leak light through it.
         if two_sided && ng.dot(wi) <= 0.0 {
-            break;
+            return (shadow, false);
         }
-        beta *= bs.weight;
-        if !(beta.max_element() > 0.0) || !beta.is_finite() {
-            break;
+        self.beta *= bs.weight;
+        if !(self.beta.max_element() > 0.0) || !self.beta.is_finite() {
+            return (shadow, false);
         }
-        prev_pdf = bs.pdf;
-        prev_delta = bs.delta;
-        prev_p = si.p;
-        ray = Ray::new(offset_origin(si.p, ng, wi), wi);
+        self.prev_pdf = bs.pdf;
+        self.prev_delta = bs.delta;
+        self.prev_p = si.p;
+        self.ray = Ray::new(offset_origin(si.p, ng, wi), wi);
 
-        if depth >= opt.rr_depth {
-            let q = beta.max_element().min(0.95);
+        if self.depth >= opt.rr_depth {
+            let q = self.beta.max_element().min(0.95);
             if sampler.next_1d() >= q {
-                break;
+                return (shadow, false);
             }
-            beta /= q;
+            self.beta /= q;
         }
+        (shadow, true)
     }
-    l
 }
 
 /// The weight of emission found by BSDF sampling (or seen from the camera), given the
@@ -200,23 +282,15 @@ fn emitter_weight(
 /// materials in the scene, the product of (1 - d) over the surfaces crossed (the
 /// expected value of the opacity coin flips, so the estimate stays unbiased).
 #[inline(always)]
-fn transmittance(scene: &Scene, si: &SurfaceHit, ng: Vec3, ls: &LightSample, count: &mut RayCount) -> f32 {
-    let mut origin = offset_origin(si.p, ng, ls.wi);
-    let (dir, mut tmax) = match ls.target {
-        Some(q) => {
-            let d = q - origin;
-            let dist = d.length();
-            if dist <= 0.0 {
-                return 1.0;
-            }
-            (d / dist, dist * (1.0 - 1e-5))
-        }
-        None => (ls.wi, f32::INFINITY),
+pub fn transmittance(scene: &Scene, q: &ShadowQuery, count: &mut RayCount) -> f32 {
+    let Some((ray, tmax)) = q.ray else {
+        return 1.0;
     };
     if !scene.has_cutouts {
         count.rays += 1;
-        return if scene.occluded(&Ray::new(origin, dir), tmax) { 0.0 } else { 1.0 };
+        return if scene.occluded(&ray, tmax) { 0.0 } else { 1.0 };
     }
+    let (mut origin, dir, mut tmax) = (ray.origin, ray.dir, tmax);
     let mut tr = 1.0f32;
     // Bounded: each step moves past one surface; a pathological stack ends as blocked.
     for _ in 0..256 {
