@@ -97,13 +97,19 @@ impl Lanes {
 /// The arithmetic of the lane pass, the same for every width: the corners relative to
 /// the origin, sheared; the edge functions; `det`, `t·det` and `tmax·det`. `$p` holds the
 /// nine permuted coordinate vectors (see [`watertight_avx2`]), the rest name one width's
-/// `set1`, `sub`, `mul` and `add`.
+/// `set1`, `sub`, `mul` and `add`. The `@lanes` form takes the shear `[sx, sy, sz]`, the
+/// permuted origin `[ox, oy, oz]` and `tmax` as vectors, one ray per lane (see
+/// `accel/packet.rs`); the other broadcasts one ray's.
 macro_rules! lane_arithmetic {
     ($p:expr, $shear:expr, $tmax:expr, $set1:ident, $sub:ident, $mul:ident, $add:ident) => {{
-        let p = $p;
         let (_, [sx, sy, sz], [ox, oy, oz]) = $shear.parts();
-        let (ox, oy, oz) = ($set1(ox), $set1(oy), $set1(oz));
-        let (sx, sy, sz) = ($set1(sx), $set1(sy), $set1(sz));
+        lane_arithmetic!(@lanes $p, [$set1(sx), $set1(sy), $set1(sz)], [$set1(ox), $set1(oy), $set1(oz)],
+            $set1($tmax), $sub, $mul, $add)
+    }};
+    (@lanes $p:expr, $s:expr, $o:expr, $tmax:expr, $sub:ident, $mul:ident, $add:ident) => {{
+        let p = $p;
+        let [sx, sy, sz] = $s;
+        let [ox, oy, oz] = $o;
         let (a_x, a_y, a_z) = ($sub(p[0], ox), $sub(p[1], oy), $sub(p[2], oz));
         let (b_x, b_y, b_z) = ($sub(p[3], ox), $sub(p[4], oy), $sub(p[5], oz));
         let (c_x, c_y, c_z) = ($sub(p[6], ox), $sub(p[7], oy), $sub(p[8], oz));
@@ -118,10 +124,11 @@ macro_rules! lane_arithmetic {
         let w = $sub($mul(bx, ay), $mul(by, ax));
         let det = $add($add(u, v), w);
         let t_scaled = $add($add($mul(u, $mul(sz, a_z)), $mul(v, $mul(sz, b_z))), $mul(w, $mul(sz, c_z)));
-        let limit = $mul($set1($tmax), det);
+        let limit = $mul($tmax, det);
         (u, v, w, det, t_scaled, limit)
     }};
 }
+pub(crate) use lane_arithmetic;
 
 /// The eight-lane pass in AVX2 from the corners' coordinates on the shear's permuted
 /// axes: `p[3 v + j]` holds corner `v`'s coordinate on axis `k_j` (`(kx, ky, kz)` of
@@ -141,6 +148,34 @@ pub(crate) fn watertight_avx2(
     use core::arch::x86_64::*;
     let (u, v, w, det, t_scaled, limit) =
         lane_arithmetic!(p, shear, tmax, _mm256_set1_ps, _mm256_sub_ps, _mm256_mul_ps, _mm256_add_ps);
+    let (keep, zero) = watertight_masks_avx2(u, v, w, det, t_scaled, limit);
+    // SAFETY: `Lanes` is 64-byte aligned and its rows are [f32; 16] (the first eight
+    // are written).
+    unsafe {
+        _mm256_store_ps(out.v.as_mut_ptr(), v);
+        _mm256_store_ps(out.w.as_mut_ptr(), w);
+        _mm256_store_ps(out.det.as_mut_ptr(), det);
+        _mm256_store_ps(out.t_scaled.as_mut_ptr(), t_scaled);
+    }
+    (_mm256_movemask_ps(keep) as u32, _mm256_movemask_ps(zero) as u32)
+}
+
+/// The verdicts of the lane pass from its arithmetic, as lane masks: `keep`, the lanes
+/// whose triangle the scalar test may accept with the pass's `tmax` or that have an edge
+/// function exactly zero, and `zero`, the latter (a subset of `keep`). Comparisons use
+/// the predicates of Rust's operators: ordered for `<`, `>`, `<=`, `>=`, `==`.
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2")]
+#[inline]
+pub(crate) fn watertight_masks_avx2(
+    u: core::arch::x86_64::__m256,
+    v: core::arch::x86_64::__m256,
+    w: core::arch::x86_64::__m256,
+    det: core::arch::x86_64::__m256,
+    t_scaled: core::arch::x86_64::__m256,
+    limit: core::arch::x86_64::__m256,
+) -> (core::arch::x86_64::__m256, core::arch::x86_64::__m256) {
+    use core::arch::x86_64::*;
     let z = _mm256_setzero_ps();
     let or = |a, b| _mm256_or_ps(a, b);
     let and = |a, b| _mm256_and_ps(a, b);
@@ -162,15 +197,7 @@ pub(crate) fn watertight_avx2(
     // !mixed & det != 0 & !out_neg & !out_pos, as and-nots of the rejections.
     let rejected = or(or(mixed, _mm256_cmp_ps::<_CMP_EQ_OQ>(det, z)), or(out_neg, out_pos));
     let keep = or(zero, _mm256_andnot_ps(rejected, _mm256_castsi256_ps(_mm256_set1_epi32(-1))));
-    // SAFETY: `Lanes` is 64-byte aligned and its rows are [f32; 16] (the first eight
-    // are written).
-    unsafe {
-        _mm256_store_ps(out.v.as_mut_ptr(), v);
-        _mm256_store_ps(out.w.as_mut_ptr(), w);
-        _mm256_store_ps(out.det.as_mut_ptr(), det);
-        _mm256_store_ps(out.t_scaled.as_mut_ptr(), t_scaled);
-    }
-    (_mm256_movemask_ps(keep) as u32, _mm256_movemask_ps(zero) as u32)
+    (keep, zero)
 }
 
 /// [`watertight_avx2`] for sixteen lanes in AVX-512: the same predicates, as mask

@@ -5,6 +5,8 @@
 pub mod kdtree;
 mod lanes;
 pub mod packed;
+#[cfg(target_arch = "x86_64")]
+pub mod packet;
 
 pub use kdtree::{BuildParams, KdTree, KdTreeStats};
 

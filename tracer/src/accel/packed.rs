@@ -50,6 +50,12 @@ struct Block {
     p: [[[f32; LANES]; 3]; 3],
 }
 
+/// One triangle's corners, each padded to four floats: what a 16-byte load broadcasts
+/// to the lanes of a packet query (`accel/packet.rs`).
+#[derive(Clone, Copy, Debug)]
+#[repr(C, align(16))]
+pub(super) struct Corners4(pub(super) [[f32; 4]; 3]);
+
 /// Eight spheres: `c[axis][lane]` and `r[lane]`.
 #[derive(Clone, Copy, Debug)]
 #[repr(C, align(32))]
@@ -77,6 +83,9 @@ pub struct PackedTriangles {
     sphere_blocks: Vec<SphereBlock>,
     spheres: usize,
     simd: Simd,
+    /// The triangles again, one by one, and the spheres (center, radius): for packets.
+    corners4: Vec<Corners4>,
+    sphere_list: Vec<(Vec3, f32)>,
 }
 
 impl PackedTriangles {
@@ -85,9 +94,11 @@ impl PackedTriangles {
     /// must hold every primitive of the set the queries will pass.
     pub fn new(corners: impl ExactSizeIterator<Item = [Vec3; 3]>, spheres: &[(Vec3, f32)], bounds: Aabb) -> Self {
         let len = corners.len();
+        let mut corners4 = Vec::with_capacity(len);
         let mut blocks = vec![Block { p: [[[0.0; LANES]; 3]; 3] }; len.div_ceil(LANES)];
         let mut boxes = vec![Aabb::EMPTY; blocks.len()];
         for (i, tri) in corners.enumerate() {
+            corners4.push(Corners4(tri.map(|p| [p.x, p.y, p.z, 0.0])));
             boxes[i / LANES] = tri.iter().fold(boxes[i / LANES], |b, &p| b.union(Aabb::new(p, p)));
             let b = &mut blocks[i / LANES];
             for (v, corner) in tri.iter().enumerate() {
@@ -109,7 +120,18 @@ impl PackedTriangles {
             }
             b.r[i % LANES] = r;
         }
-        Self { blocks, len, bounds, boxes, tail, sphere_blocks, spheres: spheres.len(), simd: Simd::detect() }
+        Self {
+            blocks,
+            len,
+            bounds,
+            boxes,
+            tail,
+            sphere_blocks,
+            spheres: spheres.len(),
+            simd: Simd::detect(),
+            corners4,
+            sphere_list: spheres.to_vec(),
+        }
     }
 
     /// The packed triangles of `geo` when brute force beats its kd-tree: at most
@@ -131,11 +153,30 @@ impl PackedTriangles {
         self.len == 0
     }
 
-    /// Bytes allocated for the triangle blocks, their boxes and the sphere blocks.
+    /// Bytes allocated for the triangle blocks, their boxes, the sphere blocks and the
+    /// packet queries' copies.
     pub fn bytes(&self) -> usize {
         self.blocks.capacity() * size_of::<Block>()
             + self.boxes.capacity() * size_of::<Aabb>()
             + self.sphere_blocks.capacity() * size_of::<SphereBlock>()
+            + self.corners4.capacity() * size_of::<Corners4>()
+            + self.sphere_list.capacity() * size_of::<(Vec3, f32)>()
+    }
+
+    /// The triangles' corners one by one, in index order.
+    pub(super) fn corners4(&self) -> &[Corners4] {
+        &self.corners4
+    }
+
+    /// The spheres (center, radius), primitives `len()..`.
+    pub(super) fn sphere_list(&self) -> &[(Vec3, f32)] {
+        &self.sphere_list
+    }
+
+    /// Whether the packet queries of `accel/packet.rs` may run: the CPU has AVX2 and
+    /// `TILEFARM_SIMD` does not ask for the baseline.
+    pub fn packets(&self) -> bool {
+        self.simd != Simd::Baseline
     }
 
     /// The block test's instruction set, for reports (`TILEFARM_SIMD` can lower it).
@@ -521,28 +562,28 @@ fn sphere_candidates(b: &SphereBlock, ray: &Ray, a: f32) -> u32 {
 }
 
 #[cfg(test)]
-mod tests {
+pub(super) mod tests {
     use super::*;
     use crate::accel::{brute_force_intersect, brute_force_occluded};
     use crate::scene::{Sphere, Tri, TriangleMesh};
 
-    struct Rng(u64);
+    pub(crate) struct Rng(pub(crate) u64);
     impl Rng {
-        fn f(&mut self) -> f32 {
+        pub(crate) fn f(&mut self) -> f32 {
             self.0 = self.0.wrapping_add(0x9E37_79B9_7F4A_7C15);
             let mut z = self.0;
             z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
             z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
             ((z ^ (z >> 31)) >> 40) as f32 / (1u64 << 24) as f32
         }
-        fn v(&mut self) -> Vec3 {
+        pub(crate) fn v(&mut self) -> Vec3 {
             Vec3::new(self.f(), self.f(), self.f()) * 2.0 - 1.0
         }
     }
 
     /// Random triangles, a closed grid of quads sharing edges and vertices (rays through
     /// them exercise the exact-zero path), duplicates, and a few spheres.
-    fn scene(r: &mut Rng, n: usize, spheres: usize) -> Geometry {
+    pub(crate) fn scene(r: &mut Rng, n: usize, spheres: usize) -> Geometry {
         let mut mesh = TriangleMesh::default();
         let none = [crate::scene::NONE; 3];
         let tri = |mesh: &mut TriangleMesh, p: [Vec3; 3]| {

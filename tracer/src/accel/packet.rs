@@ -1,0 +1,471 @@
+//! Eight rays at once against a small scene's primitives, by brute force: the ray
+//! queries of the eight-path renderer (`integrator/packet.rs`).
+//!
+//! [`PackedTriangles`]' one-ray queries test a ray against eight triangles at a time and
+//! then finish the lanes that pass one by one; most of a query's instructions are that
+//! per-ray work around the block tests. Here each lane is a ray, and the primitives come
+//! one at a time, broadcast to all lanes: the shear, the loop and the finishing step are
+//! shared by eight rays, and the whole test stays in vectors. Brute force does not care
+//! whether the rays are coherent.
+//!
+//! Exactness. Lane `l` runs brute force's loop for its own ray: every primitive in index
+//! order, tested with the lane's current `tmax`, with the scalar tests' IEEE operations
+//! in the same order (for triangles, the corners permuted by the lane's own shear; for
+//! spheres, [`intersect_sphere`]'s operations), so each lane's answer is exactly
+//! [`brute_force_intersect`] / [`brute_force_occluded`] of its ray, whichever rays share
+//! the packet. A lane with an edge function exactly zero runs the scalar test itself (it
+//! switches to double precision there).
+//!
+//! [`intersect_sphere`]: crate::geometry::sphere::intersect_sphere
+//! [`brute_force_intersect`]: super::brute_force_intersect
+//! [`brute_force_occluded`]: super::brute_force_occluded
+
+use core::arch::x86_64::*;
+
+use glam::Vec3;
+
+use super::lanes::{lane_arithmetic, watertight_masks_avx2};
+use super::packed::PackedTriangles;
+use super::{Hit, Primitives, RayPrecomp};
+use crate::geometry::Ray;
+
+/// Rays in a packet.
+pub const PACKET: usize = 8;
+
+/// Eight rays, structure of arrays, with the distance each query may reach. Lanes not in
+/// `active` are ignored (their values need not be rays).
+#[derive(Clone, Copy, Debug)]
+#[repr(C, align(32))]
+pub struct RayPacket {
+    pub origin: [[f32; PACKET]; 3],
+    pub dir: [[f32; PACKET]; 3],
+    pub tmax: [f32; PACKET],
+    /// Bit `l` set: lane `l` holds a ray.
+    pub active: u32,
+}
+
+impl Default for RayPacket {
+    fn default() -> Self {
+        // Inactive lanes hold a harmless ray, so their arithmetic makes no NaNs.
+        Self {
+            origin: [[0.0; PACKET]; 3],
+            dir: [[0.0; PACKET], [0.0; PACKET], [1.0; PACKET]],
+            tmax: [0.0; PACKET],
+            active: 0,
+        }
+    }
+}
+
+impl RayPacket {
+    /// Puts `ray` with `tmax` in lane `l` and marks it active.
+    #[inline(always)]
+    pub fn set(&mut self, l: usize, ray: &Ray, tmax: f32) {
+        for a in 0..3 {
+            self.origin[a][l] = ray.origin[a];
+            self.dir[a][l] = ray.dir[a];
+        }
+        self.tmax[l] = tmax;
+        self.active |= 1 << l;
+    }
+
+    /// The ray of lane `l`.
+    #[inline(always)]
+    pub fn ray(&self, l: usize) -> Ray {
+        Ray::new(
+            Vec3::new(self.origin[0][l], self.origin[1][l], self.origin[2][l]),
+            Vec3::new(self.dir[0][l], self.dir[1][l], self.dir[2][l]),
+        )
+    }
+}
+
+/// The closest hits of a packet: lane `l`'s is valid if bit `l` of `found` is set.
+#[derive(Clone, Copy, Debug)]
+#[repr(C, align(32))]
+pub struct PacketHits {
+    pub t: [f32; PACKET],
+    pub u: [f32; PACKET],
+    pub v: [f32; PACKET],
+    pub prim: [u32; PACKET],
+    pub found: u32,
+}
+
+impl PacketHits {
+    /// Lane `l`'s hit, as the one-ray query returns it.
+    #[inline(always)]
+    pub fn get(&self, l: usize) -> Option<Hit> {
+        (self.found & (1 << l) != 0).then(|| Hit { t: self.t[l], prim: self.prim[l], u: self.u[l], v: self.v[l] })
+    }
+}
+
+/// Each lane's ray, as vectors: the world-space origin and direction (spheres), and the
+/// watertight test's shear ([`crate::geometry::triangle::RayShear::for_ray`], computed
+/// with the same operations) with its axis permutation as `vpermps` indices.
+struct Lanes8 {
+    o: [__m256; 3],
+    d: [__m256; 3],
+    k: [__m256i; 3],
+    s: [__m256; 3],
+    ko: [__m256; 3],
+}
+
+/// Picks `v[idx]` per lane for `idx` in 0..3.
+#[target_feature(enable = "avx2")]
+#[inline]
+fn select3(idx: __m256i, v: &[__m256; 3]) -> __m256 {
+    let is0 = _mm256_castsi256_ps(_mm256_cmpeq_epi32(idx, _mm256_setzero_si256()));
+    let is1 = _mm256_castsi256_ps(_mm256_cmpeq_epi32(idx, _mm256_set1_epi32(1)));
+    _mm256_blendv_ps(_mm256_blendv_ps(v[2], v[1], is1), v[0], is0)
+}
+
+impl Lanes8 {
+    /// `RayShear::for_ray` for every lane: the axis of the largest |direction| component
+    /// (first of equals, NaN as its comparisons say) becomes z, the other two follow
+    /// cyclically and swap when that component is negative.
+    #[target_feature(enable = "avx2")]
+    #[inline]
+    fn new(rays: &RayPacket) -> Self {
+        // SAFETY: `RayPacket` is 32-byte aligned and its rows are [f32; 8] at multiples
+        // of 32 bytes.
+        let ld = |row: &[f32; PACKET]| unsafe { _mm256_load_ps(row.as_ptr()) };
+        let o = [ld(&rays.origin[0]), ld(&rays.origin[1]), ld(&rays.origin[2])];
+        let d = [ld(&rays.dir[0]), ld(&rays.dir[1]), ld(&rays.dir[2])];
+        let abs = |x| _mm256_andnot_ps(_mm256_set1_ps(-0.0), x);
+        let (ax, ay, az) = (abs(d[0]), abs(d[1]), abs(d[2]));
+        let ge = |a, b| _mm256_castps_si256(_mm256_cmp_ps::<_CMP_GE_OQ>(a, b));
+        let z0 = _mm256_and_si256(ge(ax, ay), ge(ax, az));
+        let z1 = _mm256_andnot_si256(z0, ge(ay, az));
+        let pick = |a: i32, b: i32, c: i32| {
+            let v = _mm256_blendv_epi8(_mm256_set1_epi32(c), _mm256_set1_epi32(b), z1);
+            _mm256_blendv_epi8(v, _mm256_set1_epi32(a), z0)
+        };
+        // kz = 0, 1, 2 gives (kx, ky) = (1, 2), (2, 0), (0, 1).
+        let kz = pick(0, 1, 2);
+        let (kx, ky) = (pick(1, 2, 0), pick(2, 0, 1));
+        let dz = select3(kz, &d);
+        let neg = _mm256_castps_si256(_mm256_cmp_ps::<_CMP_LT_OQ>(dz, _mm256_setzero_ps()));
+        let (kx, ky) = (_mm256_blendv_epi8(kx, ky, neg), _mm256_blendv_epi8(ky, kx, neg));
+        let sz = _mm256_div_ps(_mm256_set1_ps(1.0), dz);
+        let s = [_mm256_mul_ps(select3(kx, &d), sz), _mm256_mul_ps(select3(ky, &d), sz), sz];
+        let ko = [select3(kx, &o), select3(ky, &o), select3(kz, &o)];
+        Self { o, d, k: [kx, ky, kz], s, ko }
+    }
+}
+
+impl PackedTriangles {
+    /// Closest hits of the packet's active lanes: lane by lane exactly
+    /// [`super::brute_force_intersect`]`(prims, ray, tmax)`. Only on CPUs with AVX2
+    /// (`integrator/packet.rs` checks).
+    ///
+    /// # Safety
+    /// The CPU must support AVX2.
+    #[target_feature(enable = "avx2")]
+    pub unsafe fn intersect8<P: Primitives>(&self, prims: &P, rays: &RayPacket) -> PacketHits {
+        let best = self.each8(prims, rays, false);
+        let mut out = PacketHits { t: [0.0; PACKET], u: [0.0; PACKET], v: [0.0; PACKET], prim: [0; PACKET], found: 0 };
+        best.store(&mut out);
+        out.found &= rays.active;
+        out
+    }
+
+    /// Which active lanes hit anything: lane by lane exactly
+    /// [`super::brute_force_occluded`]`(prims, ray, tmax)`.
+    ///
+    /// # Safety
+    /// The CPU must support AVX2.
+    #[target_feature(enable = "avx2")]
+    pub unsafe fn occluded8<P: Primitives>(&self, prims: &P, rays: &RayPacket) -> u32 {
+        let best = self.each8(prims, rays, true);
+        _mm256_movemask_ps(best.found) as u32 & rays.active
+    }
+
+    /// Brute force's loop for every lane. `any`: stop a lane at its first hit (and the
+    /// query when every active lane has one); otherwise keep the nearest. (`best` is a
+    /// local that never has its address taken: in memory, the compiler turned its blends
+    /// into masked stores, which cost a third of the query on AMD Zen 3.)
+    #[target_feature(enable = "avx2")]
+    #[inline]
+    fn each8<P: Primitives>(&self, prims: &P, rays: &RayPacket, any: bool) -> Best {
+        let mut best = Best::new(rays);
+        let r = Lanes8::new(rays);
+        let active = rays.active & ((1 << PACKET) - 1);
+        // Lanes still searching; as a vector for the blends.
+        let mut open = active;
+        let lane_bits = _mm256_setr_epi32(1, 2, 4, 8, 16, 32, 64, 128);
+        let open_mask = |open: u32| {
+            _mm256_castsi256_ps(_mm256_cmpeq_epi32(
+                _mm256_and_si256(_mm256_set1_epi32(open as i32), lane_bits),
+                lane_bits,
+            ))
+        };
+        let mut open_v = open_mask(open);
+        for (i, tri) in self.corners4().iter().enumerate() {
+            // SAFETY: each row of `Corners4` is four floats, 16-byte aligned.
+            let ld = |v: usize| unsafe { _mm256_broadcast_ps(&*tri.0[v].as_ptr().cast::<__m128>()) };
+            let (p0, p1, p2) = (ld(0), ld(1), ld(2));
+            let perm = |p, k| _mm256_permutevar8x32_ps(p, k);
+            let [kx, ky, kz] = r.k;
+            let p = [
+                perm(p0, kx),
+                perm(p0, ky),
+                perm(p0, kz),
+                perm(p1, kx),
+                perm(p1, ky),
+                perm(p1, kz),
+                perm(p2, kx),
+                perm(p2, ky),
+                perm(p2, kz),
+            ];
+            let (u, v, w, det, t_scaled, limit) =
+                lane_arithmetic!(@lanes p, r.s, r.ko, best.tmax, _mm256_sub_ps, _mm256_mul_ps, _mm256_add_ps);
+            let (keep, zero) = watertight_masks_avx2(u, v, w, det, t_scaled, limit);
+            let zero = _mm256_and_ps(zero, open_v);
+            // The scalar test's last step for the other kept lanes, all at once.
+            let fin = _mm256_and_ps(_mm256_andnot_ps(zero, keep), open_v);
+            let inv_det = _mm256_div_ps(_mm256_set1_ps(1.0), det);
+            let t = _mm256_mul_ps(t_scaled, inv_det);
+            let ok = _mm256_and_ps(
+                fin,
+                _mm256_and_ps(
+                    _mm256_cmp_ps::<_CMP_GT_OQ>(t, _mm256_setzero_ps()),
+                    _mm256_cmp_ps::<_CMP_LT_OQ>(t, best.tmax),
+                ),
+            );
+            best.take(ok, t, _mm256_mul_ps(v, inv_det), _mm256_mul_ps(w, inv_det), i as u32);
+            let zero = _mm256_movemask_ps(zero) as u32;
+            if zero != 0 {
+                best = best.scalar(prims, rays, i as u32, zero);
+            }
+            if any {
+                open = active & !(_mm256_movemask_ps(best.found) as u32);
+                if open == 0 {
+                    return best;
+                }
+                open_v = open_mask(open);
+            }
+        }
+        for (j, &(c, radius)) in self.sphere_list().iter().enumerate() {
+            let i = (self.len() + j) as u32;
+            // `intersect_sphere(ray, c, radius, 0.0, tmax)`, glam's scalar Vec3 order:
+            // dot products summed x, y, then z.
+            let f = [
+                _mm256_sub_ps(r.o[0], _mm256_set1_ps(c.x)),
+                _mm256_sub_ps(r.o[1], _mm256_set1_ps(c.y)),
+                _mm256_sub_ps(r.o[2], _mm256_set1_ps(c.z)),
+            ];
+            let dot = |a: &[__m256; 3], b: &[__m256; 3]| {
+                _mm256_add_ps(
+                    _mm256_add_ps(_mm256_mul_ps(a[0], b[0]), _mm256_mul_ps(a[1], b[1])),
+                    _mm256_mul_ps(a[2], b[2]),
+                )
+            };
+            let a = dot(&r.d, &r.d);
+            let b = _mm256_xor_ps(dot(&f, &r.d), _mm256_set1_ps(-0.0));
+            let s = _mm256_div_ps(b, a);
+            let l = [
+                _mm256_add_ps(f[0], _mm256_mul_ps(s, r.d[0])),
+                _mm256_add_ps(f[1], _mm256_mul_ps(s, r.d[1])),
+                _mm256_add_ps(f[2], _mm256_mul_ps(s, r.d[2])),
+            ];
+            let r2 = _mm256_set1_ps(radius * radius);
+            let disc = _mm256_mul_ps(a, _mm256_sub_ps(r2, dot(&l, &l)));
+            // `disc < 0` returns None; NaN goes on (and fails every test below).
+            let cand = _mm256_and_ps(_mm256_cmp_ps::<_CMP_NLT_UQ>(disc, _mm256_setzero_ps()), open_v);
+            if _mm256_movemask_ps(cand) == 0 {
+                continue;
+            }
+            let sq = _mm256_sqrt_ps(disc);
+            let q = _mm256_blendv_ps(
+                _mm256_sub_ps(b, sq),
+                _mm256_add_ps(b, sq),
+                _mm256_cmp_ps::<_CMP_GE_OQ>(b, _mm256_setzero_ps()),
+            );
+            let t0 = _mm256_div_ps(q, a);
+            let t1 = _mm256_blendv_ps(
+                t0,
+                _mm256_div_ps(_mm256_sub_ps(dot(&f, &f), r2), q),
+                _mm256_cmp_ps::<_CMP_NEQ_UQ>(q, _mm256_setzero_ps()),
+            );
+            let swap = _mm256_cmp_ps::<_CMP_GT_OQ>(t0, t1);
+            let (t0, t1) = (_mm256_blendv_ps(t0, t1, swap), _mm256_blendv_ps(t1, t0, swap));
+            let within = |t| {
+                _mm256_and_ps(
+                    _mm256_cmp_ps::<_CMP_GT_OQ>(t, _mm256_setzero_ps()),
+                    _mm256_cmp_ps::<_CMP_LT_OQ>(t, best.tmax),
+                )
+            };
+            let (ok0, ok1) = (within(t0), within(t1));
+            let t = _mm256_blendv_ps(t1, t0, ok0);
+            let ok = _mm256_and_ps(cand, _mm256_or_ps(ok0, ok1));
+            best.take(ok, t, _mm256_setzero_ps(), _mm256_setzero_ps(), i);
+            if any {
+                open = active & !(_mm256_movemask_ps(best.found) as u32);
+                if open == 0 {
+                    return best;
+                }
+                open_v = open_mask(open);
+            }
+        }
+        // Primitives after the packed ones (none in a scene's set): lane by lane.
+        let rest = (self.len() + self.sphere_list().len()) as u32..prims.len() as u32;
+        for i in rest {
+            let open = if any { active & !(_mm256_movemask_ps(best.found) as u32) } else { active };
+            best = best.scalar(prims, rays, i, open);
+        }
+        best
+    }
+}
+
+/// Each lane's nearest hit so far.
+struct Best {
+    tmax: __m256,
+    u: __m256,
+    v: __m256,
+    prim: __m256i,
+    found: __m256,
+}
+
+impl Best {
+    /// No hits yet, within the packet's `tmax`.
+    #[target_feature(enable = "avx2")]
+    #[inline]
+    fn new(rays: &RayPacket) -> Self {
+        Best {
+            // SAFETY: `RayPacket` is 32-byte aligned and `tmax` is at a multiple of 32 bytes.
+            tmax: unsafe { _mm256_load_ps(rays.tmax.as_ptr()) },
+            u: _mm256_setzero_ps(),
+            v: _mm256_setzero_ps(),
+            prim: _mm256_setzero_si256(),
+            found: _mm256_setzero_ps(),
+        }
+    }
+
+    /// Takes the hits of lanes `ok`.
+    #[target_feature(enable = "avx2")]
+    #[inline]
+    fn take(&mut self, ok: __m256, t: __m256, u: __m256, v: __m256, prim: u32) {
+        self.tmax = _mm256_blendv_ps(self.tmax, t, ok);
+        self.u = _mm256_blendv_ps(self.u, u, ok);
+        self.v = _mm256_blendv_ps(self.v, v, ok);
+        self.prim = _mm256_blendv_epi8(self.prim, _mm256_set1_epi32(prim as i32), _mm256_castps_si256(ok));
+        self.found = _mm256_or_ps(self.found, ok);
+    }
+
+    #[target_feature(enable = "avx2")]
+    #[inline]
+    fn store(&self, out: &mut PacketHits) {
+        // SAFETY: `PacketHits` is 32-byte aligned and its rows are eight lanes at
+        // multiples of 32 bytes.
+        unsafe {
+            _mm256_store_ps(out.t.as_mut_ptr(), self.tmax);
+            _mm256_store_ps(out.u.as_mut_ptr(), self.u);
+            _mm256_store_ps(out.v.as_mut_ptr(), self.v);
+            _mm256_store_si256(out.prim.as_mut_ptr().cast(), self.prim);
+        }
+        out.found = _mm256_movemask_ps(self.found) as u32;
+    }
+
+    /// The scalar test of primitive `i` for each lane of `lanes`, with its current tmax.
+    /// (By value: a reference would keep the caller's `Best` in memory.)
+    #[cold]
+    #[inline(never)]
+    #[target_feature(enable = "avx2")]
+    fn scalar<P: Primitives>(mut self, prims: &P, rays: &RayPacket, i: u32, mut lanes: u32) -> Self {
+        let mut out = PacketHits { t: [0.0; PACKET], u: [0.0; PACKET], v: [0.0; PACKET], prim: [0; PACKET], found: 0 };
+        self.store(&mut out);
+        while lanes != 0 {
+            let l = lanes.trailing_zeros() as usize;
+            lanes &= lanes - 1;
+            let ray = rays.ray(l);
+            if let Some(h) = prims.intersect(i, &ray, &RayPrecomp::new(&ray), out.t[l]) {
+                (out.t[l], out.u[l], out.v[l], out.prim[l]) = (h.t, h.u, h.v, i);
+                out.found |= 1 << l;
+            }
+        }
+        let bits = _mm256_setr_epi32(1, 2, 4, 8, 16, 32, 64, 128);
+        // SAFETY: as in `store`.
+        unsafe {
+            self.tmax = _mm256_load_ps(out.t.as_ptr());
+            self.u = _mm256_load_ps(out.u.as_ptr());
+            self.v = _mm256_load_ps(out.v.as_ptr());
+            self.prim = _mm256_load_si256(out.prim.as_ptr().cast());
+        }
+        self.found =
+            _mm256_castsi256_ps(_mm256_cmpeq_epi32(_mm256_and_si256(_mm256_set1_epi32(out.found as i32), bits), bits));
+        self
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::accel::packed::tests::{Rng, scene};
+    use crate::accel::{brute_force_intersect, brute_force_occluded};
+
+    /// Every active lane's answer is brute force's for its ray, bit for bit, whatever
+    /// the other lanes hold: random rays, rays aimed exactly at the grid's vertices and
+    /// edges (edge functions exactly zero), tmax at and around hit distances, and
+    /// partly active packets.
+    #[test]
+    fn every_lane_is_brute_force() {
+        if !std::is_x86_feature_detected!("avx2") {
+            return;
+        }
+        let mut r = Rng(17);
+        let (mut hits, mut sphere_hits, mut blocked, mut compared) = (0, 0, 0, 0);
+        for (n, spheres) in [(0, 11), (1, 3), (9, 0), (40, 11), (100, 5)] {
+            let geo = scene(&mut r, n, spheres);
+            let packed = PackedTriangles::for_small_scene(&geo).expect("small");
+            for k in 0..1500 {
+                let mut rays = RayPacket::default();
+                let mut expected = [None; PACKET];
+                for (l, expected) in expected.iter_mut().enumerate() {
+                    // Some lanes inactive, holding garbage that must not matter.
+                    if (k + l) % 7 == 3 {
+                        let o = r.v();
+                        rays.set(l, &Ray::new(o, Vec3::new(f32::NAN, 0.0, 1.0)), 1.0);
+                        rays.active &= !(1 << l);
+                        continue;
+                    }
+                    let o = r.v() * 2.0;
+                    let m = k * PACKET + l;
+                    let target = if m.is_multiple_of(4) {
+                        Vec3::new((m / 4 % 9) as f32 * 0.25 - 1.0, (m / 36 % 9) as f32 * 0.25 - 1.0, 0.25)
+                    } else {
+                        r.v()
+                    };
+                    let ray = Ray::new(o, (target - o).normalize());
+                    let mut tmax =
+                        if m.is_multiple_of(3) { f32::INFINITY } else { (target - o).length() * (0.5 + r.f()) };
+                    // Every fifth lane: tmax at or next to its own nearest hit.
+                    if m % 5 == 1
+                        && let Some(h) = brute_force_intersect(&geo, &ray, tmax)
+                    {
+                        tmax = [h.t, h.t.next_up(), h.t.next_down()][m / 5 % 3];
+                    }
+                    rays.set(l, &ray, tmax);
+                    *expected = Some((brute_force_intersect(&geo, &ray, tmax), brute_force_occluded(&geo, &ray, tmax)));
+                }
+                // SAFETY: AVX2 was detected above.
+                let (got, occluded) = unsafe { (packed.intersect8(&geo, &rays), packed.occluded8(&geo, &rays)) };
+                for (l, e) in expected.iter().enumerate() {
+                    let Some((hit, occ)) = *e else {
+                        assert_eq!(got.found & (1 << l), 0, "inactive lane {l} reported");
+                        assert_eq!(occluded & (1 << l), 0, "inactive lane {l} reported");
+                        continue;
+                    };
+                    assert_eq!(got.get(l), hit, "n {n} packet {k} lane {l}");
+                    assert_eq!(occluded & (1 << l) != 0, occ, "n {n} packet {k} lane {l}");
+                    compared += 1;
+                    hits += usize::from(hit.is_some());
+                    sphere_hits += usize::from(hit.is_some_and(|h| h.prim as usize >= geo.triangle_count()));
+                    blocked += usize::from(occ);
+                }
+            }
+        }
+        // Hits and misses, triangles and spheres, blocked and free all covered.
+        assert!(compared > 30000, "{compared}");
+        assert!(hits > compared / 4 && hits < compared * 9 / 10, "{hits} of {compared}");
+        assert!(sphere_hits > 1000, "{sphere_hits}");
+        assert!(blocked > compared / 4 && blocked < compared * 9 / 10, "{blocked} of {compared}");
+    }
+}
