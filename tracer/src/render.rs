@@ -8,7 +8,7 @@ use glam::Vec2;
 use rayon::prelude::*;
 
 use crate::film::{Accumulation, Image, SampleRange, Tile};
-use crate::integrator::{Integrator, RayCount, li};
+use crate::integrator::{Integrator, RayCount, li, path_options};
 use crate::sampler::Sampler;
 use crate::scene::Scene;
 
@@ -53,7 +53,7 @@ fn render_unit_avx2_gfni(
     tile: Tile,
     samples: SampleRange,
 ) -> (Accumulation, RayCount) {
-    render_unit_loop(scene, integrator, tile, samples)
+    render_unit_simd(scene, integrator, tile, samples)
 }
 
 /// The render loop for CPUs with AVX2 but no GFNI (see [`render_unit_avx2_gfni`]).
@@ -65,6 +65,28 @@ fn render_unit_avx2(
     tile: Tile,
     samples: SampleRange,
 ) -> (Accumulation, RayCount) {
+    render_unit_simd(scene, integrator, tile, samples)
+}
+
+/// The AVX2 variants' body: eight paths at a time (`integrator/packet.rs`) where the
+/// scene is traced by brute force and the integrator is a path tracer, else the loop
+/// below. Both give the same bits.
+///
+/// Only called from functions compiled with AVX2, on CPUs that have it.
+#[cfg(target_arch = "x86_64")]
+#[inline(always)]
+fn render_unit_simd(
+    scene: &Scene,
+    integrator: Integrator,
+    tile: Tile,
+    samples: SampleRange,
+) -> (Accumulation, RayCount) {
+    if let (Some(packed), Some(opt)) = (&scene.packed, path_options(integrator, scene))
+        && packed.packets()
+    {
+        // SAFETY: the callers run on CPUs with AVX2 (checked in `render_unit_counted`).
+        return unsafe { crate::integrator::packet::render_unit(scene, packed, &opt, tile, samples) };
+    }
     render_unit_loop(scene, integrator, tile, samples)
 }
 
@@ -151,37 +173,125 @@ pub fn render_image(
 mod tests {
     use super::*;
 
-    /// The instruction-set variants of the loop give the baseline's bits.
+    /// The bundled scenes, plus one with what they lack: stochastic opacity on triangles
+    /// and spheres, a thin lens, an environment, spot, point and directional lights, an
+    /// emissive sphere, glass and a mirror.
+    fn test_scenes() -> Vec<(String, Scene)> {
+        let dir = std::env::temp_dir().join(format!("tilefarm-render-variants-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        std::fs::write(
+            dir.join("m.mtl"),
+            "newmtl floor\nKd 0.6 0.6 0.5\nKs 0.2 0.2 0.2\nNs 40\n\
+             newmtl screen\nKd 0.3 0.7 0.3\nd 0.5\n\
+             newmtl lamp\nKd 0 0 0\nKe 4 4 3\n",
+        )
+        .unwrap();
+        std::fs::write(
+            dir.join("m.obj"),
+            "mtllib m.mtl\nv -3 0 -3\nv 3 0 -3\nv 3 0 3\nv -3 0 3\nv -1 0 1\nv 1 0 1\nv 1 2 1\nv -1 2 1\n\
+             v -0.5 3 -0.5\nv 0.5 3 -0.5\nv 0.5 3 0.5\nv -0.5 3 0.5\n\
+             usemtl floor\nf 1 4 3 2\nusemtl screen\nf 5 6 7 8\nusemtl lamp\nf 9 10 11 12\n",
+        )
+        .unwrap();
+        let toml = r#"
+[camera]
+position = [0.5, 1.5, -6.0]
+look_at = [0.0, 0.8, 0.0]
+fov = 45
+width = 64
+height = 48
+aperture = 0.05
+focus_distance = 6.0
+[render]
+max_depth = 7
+seed = 3
+[[mesh]]
+obj = "m.obj"
+[[sphere]]
+center = [-1.5, 0.6, -0.5]
+radius = 0.6
+ks = [1.0, 1.0, 1.0]
+ni = 1.5
+illum = 7
+[[sphere]]
+center = [1.5, 0.5, -0.8]
+radius = 0.5
+ks = [0.9, 0.9, 0.9]
+illum = 3
+[[sphere]]
+center = [0.0, 0.4, -1.5]
+radius = 0.4
+kd = [0.5, 0.2, 0.2]
+d = 0.4
+[[sphere]]
+center = [2.0, 2.5, 1.0]
+radius = 0.2
+ke = [20.0, 15.0, 10.0]
+[[light]]
+type = "point"
+position = [-2.0, 3.0, -2.0]
+intensity = [5.0, 5.0, 5.0]
+[[light]]
+type = "spot"
+position = [2.0, 3.0, -2.0]
+direction = [-0.5, -1.0, 0.5]
+intensity = [20.0, 10.0, 5.0]
+cone_angle = 30
+falloff_start = 20
+[[light]]
+type = "directional"
+direction = [0.3, -1.0, 0.2]
+irradiance = [0.5, 0.5, 0.6]
+[background]
+radiance = [0.1, 0.15, 0.2]
+"#;
+        let extra = crate::scene::scene_from_toml(toml, "variants.toml", &dir).unwrap();
+        let _ = std::fs::remove_dir_all(&dir);
+        assert!(extra.has_cutouts && extra.camera.has_lens() && extra.packed.is_some());
+        let mut scenes = vec![("variants.toml".to_string(), extra)];
+        // Every bundled scene, so that every material and light kind is covered.
+        let bundled = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../scenes");
+        for dir in std::fs::read_dir(&bundled).unwrap() {
+            let path = dir.unwrap().path().join("scene.toml");
+            if path.exists() {
+                scenes.push((path.display().to_string(), crate::scene::load_scene(&path).unwrap()));
+            }
+        }
+        assert!(scenes.len() >= 7, "only {} bundled scenes found", scenes.len() - 1);
+        scenes
+    }
+
+    /// The instruction-set variants of the render loop, and with them the eight-path
+    /// renderer of `integrator/packet.rs` (for the scenes traced by brute force: all but
+    /// the cup), give the baseline loop's bits, for every path integrator and an AOV.
     #[cfg(target_arch = "x86_64")]
     #[test]
     fn loop_variants_are_the_baseline_loop() {
         if !std::is_x86_feature_detected!("avx2") {
             return;
         }
-        // Every bundled scene, so that every material and light kind is covered.
-        let scenes = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../scenes");
-        let mut seen = 0;
-        for dir in std::fs::read_dir(&scenes).unwrap() {
-            let path = dir.unwrap().path().join("scene.toml");
-            if !path.exists() {
-                continue;
-            }
-            seen += 1;
-            let mut scene = crate::scene::load_scene(&path).unwrap();
+        let integrators = [Integrator::Path, Integrator::PathLightOnly, Integrator::PathBsdfOnly, Integrator::Normals];
+        let mut in_packets = 0;
+        for (name, mut scene) in test_scenes() {
+            in_packets += usize::from(scene.packed.as_ref().is_some_and(|p| p.packets()));
             (scene.camera.width, scene.camera.height) = (24, 16);
-            let tile = Tile::new(0, 0, 24, 16);
-            let samples = SampleRange::new(3, 11);
-            let base = render_unit_loop(&scene, Integrator::Path, tile, samples);
-            // SAFETY: AVX2 was detected above.
-            let avx2 = unsafe { render_unit_avx2(&scene, Integrator::Path, tile, samples) };
-            assert_eq!(base, avx2, "{}", path.display());
-            if std::is_x86_feature_detected!("gfni") {
-                // SAFETY: AVX2 and GFNI were detected.
-                let gfni = unsafe { render_unit_avx2_gfni(&scene, Integrator::Path, tile, samples) };
-                assert_eq!(base, gfni, "{}", path.display());
+            // A tile whose pixel count is not a multiple of eight, and a sample range
+            // that starts at neither zero nor a multiple of eight.
+            let tile = Tile::new(1, 2, 23, 13);
+            let samples = SampleRange::new(3, 14);
+            for integrator in integrators {
+                let base = render_unit_loop(&scene, integrator, tile, samples);
+                // SAFETY: AVX2 was detected above.
+                let avx2 = unsafe { render_unit_avx2(&scene, integrator, tile, samples) };
+                assert_eq!(base, avx2, "{name} {integrator:?}");
+                if std::is_x86_feature_detected!("gfni") {
+                    // SAFETY: AVX2 and GFNI were detected.
+                    let gfni = unsafe { render_unit_avx2_gfni(&scene, integrator, tile, samples) };
+                    assert_eq!(base, gfni, "{name} {integrator:?}");
+                }
+                assert!(base.0.sums.iter().any(|s| *s != [0; 3]), "nothing rendered in {name}");
             }
-            assert!(base.0.sums.iter().any(|s| *s != [0; 3]), "nothing rendered in {}", path.display());
         }
-        assert!(seen >= 6, "only {seen} bundled scenes found");
+        assert!(in_packets >= 6, "only {in_packets} scenes traced in packets");
     }
 }

@@ -2,6 +2,8 @@
 //! based estimator; the others are the AOVs a user (and a denoiser) needs.
 
 pub mod aov;
+#[cfg(target_arch = "x86_64")]
+pub(crate) mod packet;
 pub mod path;
 
 use glam::Vec3;
@@ -68,12 +70,20 @@ pub struct RayCount {
 /// the sampler's code is compiled for each instruction set; see `render.rs`.)
 #[inline(always)]
 pub fn li(integrator: Integrator, scene: &Scene, ray: Ray, sampler: &mut Sampler, count: &mut RayCount) -> Vec3 {
+    match path_options(integrator, scene) {
+        Some(options) => path::li(scene, ray, sampler, count, &options),
+        None => aov::li(integrator, scene, ray, count),
+    }
+}
+
+/// The path integrator's options for `integrator`, or `None` for an AOV.
+#[inline(always)]
+pub(crate) fn path_options(integrator: Integrator, scene: &Scene) -> Option<path::Options> {
     let strategy = match integrator {
         Integrator::Path => path::Strategy::Mis,
         Integrator::PathLightOnly => path::Strategy::LightOnly,
         Integrator::PathBsdfOnly => path::Strategy::BsdfOnly,
-        aov => return aov::li(aov, scene, ray, count),
+        Integrator::Normals | Integrator::Albedo | Integrator::Depth => return None,
     };
-    let options = path::Options { strategy, ..path::Options::from_scene(scene) };
-    path::li(scene, ray, sampler, count, &options)
+    Some(path::Options { strategy, ..path::Options::from_scene(scene) })
 }

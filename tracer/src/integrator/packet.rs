@@ -1,0 +1,128 @@
+//! Eight paths in flight: the path integrator for scenes traced by brute force
+//! ([`PackedTriangles`]), with the ray queries of eight paths answered together by the
+//! packet queries of `accel/packet.rs`.
+//!
+//! Each lane holds one sample's [`PathState`]. A round traces the closest hits of all
+//! lanes' segments at once, lets each path [`scatter`](PathState::scatter) at its hit
+//! (the same code as the one-path [`li`](super::path::li)), traces the shadow rays of
+//! all lanes' light samples at once, and adds their contributions. A path that ends
+//! leaves its radiance in the film and its lane takes the tile's next sample. Every
+//! sample runs exactly the scalar integrator's operations and the packet queries give
+//! exactly the one-ray queries' answers, so each sample's radiance is the same bits as
+//! with [`li`](super::path::li), and the film's fixed-point sums do not depend on the
+//! order in which samples end.
+
+use glam::Vec2;
+
+use super::RayCount;
+use super::path::{Options, PathState, ShadowQuery, transmittance};
+use crate::accel::packed::PackedTriangles;
+use crate::accel::packet::{PACKET, RayPacket};
+use crate::film::{Accumulation, SampleRange, Tile};
+use crate::sampler::Sampler;
+use crate::scene::Scene;
+
+/// One lane's sample: its path, its random numbers, its pixel (index within the tile),
+/// and the light sample waiting for this round's shadow ray.
+struct Lane {
+    path: PathState,
+    sampler: Sampler,
+    pixel: usize,
+    shadow: Option<ShadowQuery>,
+}
+
+/// Every sample of every pixel of `tile` with the path integrator, eight at a time.
+/// Inlined into the render loop's instruction-set variants (`render.rs`), like [`li`].
+///
+/// # Safety
+/// The CPU must support AVX2 (the packet queries use it).
+///
+/// [`li`]: super::path::li
+#[inline(always)]
+pub(crate) unsafe fn render_unit(
+    scene: &Scene,
+    packed: &PackedTriangles,
+    opt: &Options,
+    tile: Tile,
+    samples: SampleRange,
+) -> (Accumulation, RayCount) {
+    let mut acc = Accumulation::new(tile);
+    let mut count = RayCount::default();
+    let cam = &scene.camera;
+    let seed = scene.settings.seed;
+    let per_pixel = u64::from(samples.len());
+    let total = tile.pixel_count() as u64 * per_pixel;
+    let mut next = 0u64;
+    let mut lanes: [Option<Lane>; PACKET] = Default::default();
+    loop {
+        // Empty lanes take the next samples, pixel by pixel.
+        for lane in lanes.iter_mut().filter(|l| l.is_none()) {
+            if next == total {
+                break;
+            }
+            let (pixel, s) = ((next / per_pixel) as u32, (next % per_pixel) as u32);
+            next += 1;
+            let (x, y) = (tile.x0 + pixel % tile.width, tile.y0 + pixel / tile.width);
+            let mut sampler = Sampler::new(seed, x, y, samples.start + s);
+            // Box filter: uniform positions within the pixel (as `render.rs`'s loop).
+            let film = Vec2::new(x as f32, y as f32) + sampler.next_2d();
+            let lens = if cam.has_lens() { sampler.next_2d() } else { Vec2::ZERO };
+            let ray = cam.generate_ray(film, lens);
+            *lane = Some(Lane { path: PathState::new(ray), sampler, pixel: pixel as usize, shadow: None });
+        }
+
+        let mut rays = RayPacket::default();
+        for (l, lane) in lanes.iter().enumerate() {
+            if let Some(lane) = lane {
+                rays.set(l, &lane.path.ray, f32::INFINITY);
+            }
+        }
+        if rays.active == 0 {
+            return (acc, count);
+        }
+        count.rays += u64::from(rays.active.count_ones());
+        // SAFETY: the caller guarantees AVX2.
+        let hits = unsafe { packed.intersect8(&scene.geometry, &rays) };
+
+        let mut shadow = RayPacket::default();
+        let mut ended = 0u32;
+        for (l, slot) in lanes.iter_mut().enumerate() {
+            let Some(lane) = slot else { continue };
+            let (query, go_on) = lane.path.scatter(scene, hits.get(l), &mut lane.sampler, opt);
+            if let Some(q) = query {
+                match q.ray {
+                    // Stochastic opacity needs a walk through the surfaces: one lane alone.
+                    Some((ray, tmax)) if !scene.has_cutouts => {
+                        shadow.set(l, &ray, tmax);
+                        lane.shadow = Some(q);
+                    }
+                    _ => lane.path.add_light(&q, transmittance(scene, &q, &mut count)),
+                }
+            }
+            if !go_on {
+                ended |= 1 << l;
+            }
+        }
+
+        if shadow.active != 0 {
+            count.rays += u64::from(shadow.active.count_ones());
+            // SAFETY: the caller guarantees AVX2.
+            let blocked = unsafe { packed.occluded8(&scene.geometry, &shadow) };
+            for (l, slot) in lanes.iter_mut().enumerate() {
+                if let Some(lane) = slot
+                    && let Some(q) = lane.shadow.take()
+                {
+                    lane.path.add_light(&q, if blocked & (1 << l) != 0 { 0.0 } else { 1.0 });
+                }
+            }
+        }
+
+        while ended != 0 {
+            let l = ended.trailing_zeros() as usize;
+            ended &= ended - 1;
+            if let Some(lane) = lanes[l].take() {
+                acc.add_sample(lane.pixel, lane.path.radiance());
+            }
+        }
+    }
+}
