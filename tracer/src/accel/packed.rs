@@ -584,11 +584,16 @@ pub(super) mod tests {
     /// Random triangles, a closed grid of quads sharing edges and vertices (rays through
     /// them exercise the exact-zero path), duplicates, and a few spheres.
     pub(crate) fn scene(r: &mut Rng, n: usize, spheres: usize) -> Geometry {
+        scaled_scene(r, n, spheres, 1.0)
+    }
+
+    /// [`scene`] with every coordinate (and radius) multiplied by `scale`.
+    pub(crate) fn scaled_scene(r: &mut Rng, n: usize, spheres: usize, scale: f32) -> Geometry {
         let mut mesh = TriangleMesh::default();
         let none = [crate::scene::NONE; 3];
         let tri = |mesh: &mut TriangleMesh, p: [Vec3; 3]| {
             let base = mesh.positions.len() as u32;
-            mesh.positions.extend_from_slice(&p);
+            mesh.positions.extend(p.map(|q| q * scale));
             mesh.tris.push(Tri { v: [base, base + 1, base + 2], n: none, uv: none, material: 0 });
         };
         for _ in 0..n {
@@ -606,7 +611,9 @@ pub(super) mod tests {
         let dup = mesh.corners(3);
         tri(&mut mesh, dup);
         // `spheres` of them (eleven: a full block of eight and a partial one).
-        let spheres = (0..spheres).map(|_| Sphere { center: r.v(), radius: 0.05 + 0.2 * r.f(), material: 0 }).collect();
+        let spheres = (0..spheres)
+            .map(|_| Sphere { center: r.v() * scale, radius: (0.05 + 0.2 * r.f()) * scale, material: 0 })
+            .collect();
         Geometry::new(mesh, spheres)
     }
 

@@ -24,7 +24,7 @@ use core::arch::x86_64::*;
 
 use glam::Vec3;
 
-use super::lanes::{lane_arithmetic, watertight_masks_avx2};
+use super::lanes::lane_arithmetic;
 use super::packed::PackedTriangles;
 use super::{Hit, Primitives, RayPrecomp};
 use crate::geometry::Ray;
@@ -153,29 +153,30 @@ impl Lanes8 {
 
 impl PackedTriangles {
     /// Closest hits of the packet's active lanes: lane by lane exactly
-    /// [`super::brute_force_intersect`]`(prims, ray, tmax)`. Only on CPUs with AVX2
-    /// (`integrator/packet.rs` checks).
-    ///
-    /// # Safety
-    /// The CPU must support AVX2.
-    #[target_feature(enable = "avx2")]
-    pub unsafe fn intersect8<P: Primitives>(&self, prims: &P, rays: &RayPacket) -> PacketHits {
-        let best = self.each8(prims, rays, false);
+    /// [`super::brute_force_intersect`]`(prims, ray, tmax)`. Only where
+    /// [`PackedTriangles::packets`] says so (the CPU has AVX2); panics elsewhere.
+    #[inline]
+    pub fn intersect8<P: Primitives>(&self, prims: &P, rays: &RayPacket) -> PacketHits {
+        assert!(self.packets(), "packet queries need AVX2");
+        // SAFETY: `packets()` holds only where the CPU reported AVX2.
+        let best = unsafe { self.each8(prims, rays, false) };
         let mut out = PacketHits { t: [0.0; PACKET], u: [0.0; PACKET], v: [0.0; PACKET], prim: [0; PACKET], found: 0 };
-        best.store(&mut out);
+        // SAFETY: as above.
+        unsafe { best.store(&mut out) };
         out.found &= rays.active;
         out
     }
 
     /// Which active lanes hit anything: lane by lane exactly
-    /// [`super::brute_force_occluded`]`(prims, ray, tmax)`.
-    ///
-    /// # Safety
-    /// The CPU must support AVX2.
-    #[target_feature(enable = "avx2")]
-    pub unsafe fn occluded8<P: Primitives>(&self, prims: &P, rays: &RayPacket) -> u32 {
-        let best = self.each8(prims, rays, true);
-        _mm256_movemask_ps(best.found) as u32 & rays.active
+    /// [`super::brute_force_occluded`]`(prims, ray, tmax)`. As [`Self::intersect8`],
+    /// only where [`PackedTriangles::packets`] says so.
+    #[inline]
+    pub fn occluded8<P: Primitives>(&self, prims: &P, rays: &RayPacket) -> u32 {
+        assert!(self.packets(), "packet queries need AVX2");
+        // SAFETY: `packets()` holds only where the CPU reported AVX2.
+        let best = unsafe { self.each8(prims, rays, true) };
+        // SAFETY: as above.
+        (unsafe { _mm256_movemask_ps(best.found) }) as u32 & rays.active
     }
 
     /// Brute force's loop for every lane. `any`: stop a lane at its first hit (and the
@@ -217,19 +218,16 @@ impl PackedTriangles {
             ];
             let (u, v, w, det, t_scaled, limit) =
                 lane_arithmetic!(@lanes p, r.s, r.ko, best.tmax, _mm256_sub_ps, _mm256_mul_ps, _mm256_add_ps);
-            let (keep, zero) = watertight_masks_avx2(u, v, w, det, t_scaled, limit);
+            let z = _mm256_setzero_ps();
+            let zero = _mm256_or_ps(
+                _mm256_or_ps(_mm256_cmp_ps::<_CMP_EQ_OQ>(u, z), _mm256_cmp_ps::<_CMP_EQ_OQ>(v, z)),
+                _mm256_cmp_ps::<_CMP_EQ_OQ>(w, z),
+            );
             let zero = _mm256_and_ps(zero, open_v);
-            // The scalar test's last step for the other kept lanes, all at once.
-            let fin = _mm256_and_ps(_mm256_andnot_ps(zero, keep), open_v);
             let inv_det = _mm256_div_ps(_mm256_set1_ps(1.0), det);
             let t = _mm256_mul_ps(t_scaled, inv_det);
-            let ok = _mm256_and_ps(
-                fin,
-                _mm256_and_ps(
-                    _mm256_cmp_ps::<_CMP_GT_OQ>(t, _mm256_setzero_ps()),
-                    _mm256_cmp_ps::<_CMP_LT_OQ>(t, best.tmax),
-                ),
-            );
+            let ok =
+                _mm256_andnot_ps(zero, _mm256_and_ps(open_v, verdict(u, v, w, det, t_scaled, limit, t, best.tmax)));
             best.take(ok, t, _mm256_mul_ps(v, inv_det), _mm256_mul_ps(w, inv_det), i as u32);
             let zero = _mm256_movemask_ps(zero) as u32;
             if zero != 0 {
@@ -315,6 +313,43 @@ impl PackedTriangles {
     }
 }
 
+/// The lanes where the scalar watertight test (`intersect_triangle_corners`) returns a
+/// hit at `t = t_scaled · (1 / det)`, given that no edge function is zero (those lanes
+/// run the scalar test). It is the scalar test's sequence of rejections, shortened:
+///
+/// * Mixed signs of `u, v, w` reject. With all three nonzero and finite, that is their
+///   sign bits differing. A NaN or infinite edge function makes `det` NaN or infinite,
+///   and then `t` is NaN or ±0 (or ±inf for a subnormal `det`, which the `t` range
+///   fails too), so the `t` test below rejects whatever the signs say.
+/// * `det == 0` cannot happen for nonzero edge functions of one sign.
+/// * `t·det` outside `(0, tmax·det]` (signs following `det`) rejects: with `det`'s sign
+///   bit flipped into both sides, that is `!(t_scaled' > limit')` (unordered, as the
+///   scalar `>` rejects only when ordered), plus `t_scaled' <= 0`, which implies
+///   `!(t > 0)` as `1 / det` has `det`'s sign.
+/// * Then `0 < t < tmax`.
+#[allow(clippy::too_many_arguments)]
+#[target_feature(enable = "avx2")]
+#[inline]
+fn verdict(
+    u: __m256,
+    v: __m256,
+    w: __m256,
+    det: __m256,
+    t_scaled: __m256,
+    limit: __m256,
+    t: __m256,
+    tmax: __m256,
+) -> __m256 {
+    let mixed = _mm256_castsi256_ps(_mm256_srai_epi32::<31>(_mm256_castps_si256(_mm256_or_ps(
+        _mm256_xor_ps(u, v),
+        _mm256_xor_ps(u, w),
+    ))));
+    let sign = _mm256_and_ps(det, _mm256_set1_ps(-0.0));
+    let within = _mm256_cmp_ps::<_CMP_NGT_UQ>(_mm256_xor_ps(t_scaled, sign), _mm256_xor_ps(limit, sign));
+    let t_ok = _mm256_and_ps(_mm256_cmp_ps::<_CMP_GT_OQ>(t, _mm256_setzero_ps()), _mm256_cmp_ps::<_CMP_LT_OQ>(t, tmax));
+    _mm256_andnot_ps(mixed, _mm256_and_ps(within, t_ok))
+}
+
 /// Each lane's nearest hit so far.
 struct Best {
     tmax: __m256,
@@ -398,23 +433,26 @@ impl Best {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::accel::packed::tests::{Rng, scene};
+    use crate::accel::packed::tests::{Rng, scaled_scene};
     use crate::accel::{brute_force_intersect, brute_force_occluded};
 
     /// Every active lane's answer is brute force's for its ray, bit for bit, whatever
     /// the other lanes hold: random rays, rays aimed exactly at the grid's vertices and
-    /// edges (edge functions exactly zero), tmax at and around hit distances, and
-    /// partly active packets.
+    /// edges (edge functions exactly zero), tmax at and around hit distances, partly
+    /// active packets; and scenes so large that `t·det` overflows (2e13) or so small
+    /// that it is subnormal (1e-13) or the edge functions underflow to zero (1e-20).
     #[test]
     fn every_lane_is_brute_force() {
-        if !std::is_x86_feature_detected!("avx2") {
-            return;
-        }
         let mut r = Rng(17);
         let (mut hits, mut sphere_hits, mut blocked, mut compared) = (0, 0, 0, 0);
-        for (n, spheres) in [(0, 11), (1, 3), (9, 0), (40, 11), (100, 5)] {
-            let geo = scene(&mut r, n, spheres);
+        let cases = [(0, 11, 1.0), (1, 3, 1.0), (9, 0, 1.0), (40, 11, 1.0), (100, 5, 1.0)];
+        let extreme = [(40, 11, 2e13), (40, 11, 1e-13), (40, 11, 1e-20)];
+        for (n, spheres, scale) in cases.into_iter().chain(extreme) {
+            let geo = scaled_scene(&mut r, n, spheres, scale);
             let packed = PackedTriangles::for_small_scene(&geo).expect("small");
+            if !packed.packets() {
+                return;
+            }
             for k in 0..1500 {
                 let mut rays = RayPacket::default();
                 let mut expected = [None; PACKET];
@@ -426,12 +464,12 @@ mod tests {
                         rays.active &= !(1 << l);
                         continue;
                     }
-                    let o = r.v() * 2.0;
+                    let o = r.v() * 2.0 * scale;
                     let m = k * PACKET + l;
                     let target = if m.is_multiple_of(4) {
-                        Vec3::new((m / 4 % 9) as f32 * 0.25 - 1.0, (m / 36 % 9) as f32 * 0.25 - 1.0, 0.25)
+                        Vec3::new((m / 4 % 9) as f32 * 0.25 - 1.0, (m / 36 % 9) as f32 * 0.25 - 1.0, 0.25) * scale
                     } else {
-                        r.v()
+                        r.v() * scale
                     };
                     let ray = Ray::new(o, (target - o).normalize());
                     let mut tmax =
@@ -445,16 +483,18 @@ mod tests {
                     rays.set(l, &ray, tmax);
                     *expected = Some((brute_force_intersect(&geo, &ray, tmax), brute_force_occluded(&geo, &ray, tmax)));
                 }
-                // SAFETY: AVX2 was detected above.
-                let (got, occluded) = unsafe { (packed.intersect8(&geo, &rays), packed.occluded8(&geo, &rays)) };
+                let (got, occluded) = (packed.intersect8(&geo, &rays), packed.occluded8(&geo, &rays));
                 for (l, e) in expected.iter().enumerate() {
                     let Some((hit, occ)) = *e else {
                         assert_eq!(got.found & (1 << l), 0, "inactive lane {l} reported");
                         assert_eq!(occluded & (1 << l), 0, "inactive lane {l} reported");
                         continue;
                     };
-                    assert_eq!(got.get(l), hit, "n {n} packet {k} lane {l}");
-                    assert_eq!(occluded & (1 << l) != 0, occ, "n {n} packet {k} lane {l}");
+                    assert_eq!(got.get(l), hit, "n {n} scale {scale} packet {k} lane {l}");
+                    assert_eq!(occluded & (1 << l) != 0, occ, "n {n} scale {scale} packet {k} lane {l}");
+                    if scale != 1.0 {
+                        continue;
+                    }
                     compared += 1;
                     hits += usize::from(hit.is_some());
                     sphere_hits += usize::from(hit.is_some_and(|h| h.prim as usize >= geo.triangle_count()));
