@@ -211,6 +211,8 @@ fn bench_scene(name: &str, scene: &Scene, args: &BenchArgs) {
         })
         .collect();
     println!("primary rays: {primary_rate:.2} Mrays/s ({} of {} hit)", points.len(), primary.len());
+    let packet_rays: Vec<(Ray, f32)> = primary.iter().map(|r| (*r, f32::INFINITY)).collect();
+    packet_rate(scene, "primary", repeat, &packet_rays, false);
     if points.is_empty() {
         return;
     }
@@ -232,6 +234,7 @@ fn bench_scene(name: &str, scene: &Scene, args: &BenchArgs) {
         blocked = shadow.iter().filter(|(r, t)| scene.occluded(r, *t)).count();
     });
     println!("shadow rays (any hit): {shadow_rate:.2} Mrays/s ({blocked} blocked)");
+    packet_rate(scene, "shadow", repeat, &shadow, true);
 
     // Diffuse bounce rays: cosine-distributed around the normals of visible points.
     let bounce: Vec<Ray> = (0..args.rays)
@@ -247,6 +250,8 @@ fn bench_scene(name: &str, scene: &Scene, args: &BenchArgs) {
         nhit = bounce.iter().filter(|r| scene.intersect(r, f32::INFINITY).is_some()).count();
     });
     println!("diffuse bounce rays (closest hit): {bounce_rate:.2} Mrays/s ({nhit} hit)");
+    let packet_rays: Vec<(Ray, f32)> = bounce.iter().map(|r| (*r, f32::INFINITY)).collect();
+    packet_rate(scene, "diffuse bounce", repeat, &packet_rays, false);
 
     // Full render, all threads.
     let spp = args.spp.max(1);
@@ -271,6 +276,44 @@ fn bench_scene(name: &str, scene: &Scene, args: &BenchArgs) {
         samples as f64 / secs / 1e6,
         rays as f64 / secs / 1e6
     );
+}
+
+/// For scenes that the renderer traces in packets of eight (brute force with AVX2,
+/// `tracer::accel::packet`): the same rays, eight at a time in the order given, as the
+/// path renderer traces them (each packet's rays from eight independent paths).
+fn packet_rate(scene: &Scene, what: &str, repeat: usize, rays: &[(Ray, f32)], any_hit: bool) {
+    #[cfg(target_arch = "x86_64")]
+    if let Some(packed) = scene.packed.as_ref().filter(|p| p.packets()) {
+        use tracer::accel::packet::{PACKET, RayPacket};
+        let packets: Vec<RayPacket> = rays
+            .chunks(PACKET)
+            .map(|c| {
+                let mut p = RayPacket::default();
+                for (l, (r, t)) in c.iter().enumerate() {
+                    p.set(l, r, *t);
+                }
+                p
+            })
+            .collect();
+        let mut n = 0u32;
+        let r = rate(repeat, rays.len(), || {
+            n = packets
+                .iter()
+                .map(|p| {
+                    if any_hit {
+                        packed.occluded8(&scene.geometry, p)
+                    } else {
+                        packed.intersect8(&scene.geometry, p).found
+                    }
+                })
+                .map(u32::count_ones)
+                .sum();
+        });
+        let verdict = if any_hit { "blocked" } else { "hit" };
+        println!("  {what} rays in packets of {PACKET}: {r:.2} Mrays/s ({n} {verdict})");
+    }
+    #[cfg(not(target_arch = "x86_64"))]
+    let _ = (scene, what, repeat, rays, any_hit);
 }
 
 /// Median throughput in Mrays/s of `f`, which traces `n` rays.

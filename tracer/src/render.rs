@@ -84,8 +84,7 @@ fn render_unit_simd(
     if let (Some(packed), Some(opt)) = (&scene.packed, path_options(integrator, scene))
         && packed.packets()
     {
-        // SAFETY: the callers run on CPUs with AVX2 (checked in `render_unit_counted`).
-        return unsafe { crate::integrator::packet::render_unit(scene, packed, &opt, tile, samples) };
+        return crate::integrator::packet::render_unit(scene, packed, &opt, tile, samples);
     }
     render_unit_loop(scene, integrator, tile, samples)
 }

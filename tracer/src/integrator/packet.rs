@@ -33,13 +33,11 @@ struct Lane {
 
 /// Every sample of every pixel of `tile` with the path integrator, eight at a time.
 /// Inlined into the render loop's instruction-set variants (`render.rs`), like [`li`].
-///
-/// # Safety
-/// The CPU must support AVX2 (the packet queries use it).
+/// Only where `packed.packets()` (the packet queries panic elsewhere).
 ///
 /// [`li`]: super::path::li
 #[inline(always)]
-pub(crate) unsafe fn render_unit(
+pub(crate) fn render_unit(
     scene: &Scene,
     packed: &PackedTriangles,
     opt: &Options,
@@ -81,8 +79,7 @@ pub(crate) unsafe fn render_unit(
             return (acc, count);
         }
         count.rays += u64::from(rays.active.count_ones());
-        // SAFETY: the caller guarantees AVX2.
-        let hits = unsafe { packed.intersect8(&scene.geometry, &rays) };
+        let hits = packed.intersect8(&scene.geometry, &rays);
 
         let mut shadow = RayPacket::default();
         let mut ended = 0u32;
@@ -106,8 +103,7 @@ pub(crate) unsafe fn render_unit(
 
         if shadow.active != 0 {
             count.rays += u64::from(shadow.active.count_ones());
-            // SAFETY: the caller guarantees AVX2.
-            let blocked = unsafe { packed.occluded8(&scene.geometry, &shadow) };
+            let blocked = packed.occluded8(&scene.geometry, &shadow);
             for (l, slot) in lanes.iter_mut().enumerate() {
                 if let Some(lane) = slot
                     && let Some(q) = lane.shadow.take()
