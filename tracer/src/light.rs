@@ -13,7 +13,7 @@ use glam::{Vec2, Vec3};
 use crate::geometry::{Frame, offset_origin};
 use crate::math;
 use crate::sampler::ONE_MINUS_EPSILON;
-use crate::sampling::{sample_uniform_sphere, sample_uniform_triangle, uniform_sphere_pdf};
+use crate::sampling::{sample_uniform_sphere, sample_uniform_triangle, select, select_bits, uniform_sphere_pdf};
 
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub enum Light {
@@ -261,21 +261,18 @@ impl Importance {
     }
 
     /// Selection weight at `p`: power / distance², zero exactly where the light cannot
-    /// contribute (behind a one-sided emitter, inside an emitting sphere).
+    /// contribute (behind a one-sided emitter, inside an emitting sphere). The zeros are
+    /// selects, not early returns: which side of a light a shading point lies on is
+    /// random, and a branch on it mispredicted.
     #[inline]
     fn weight(&self, p: Vec3) -> f32 {
         if self.min_d2 == 0.0 {
             return self.power;
         }
-        if self.normal != Vec3::ZERO && p.dot(self.normal) <= self.plane {
-            return 0.0;
-        }
+        let behind = self.normal != Vec3::ZERO && p.dot(self.normal) <= self.plane;
         let d2 = (p - self.center).length_squared();
-        if d2 <= self.inside_r2 {
-            return 0.0;
-        }
         let w = self.power / d2.max(self.min_d2);
-        if w.is_finite() { w } else { 0.0 }
+        select(behind || d2 <= self.inside_r2 || !w.is_finite(), 0.0, w)
     }
 }
 
@@ -384,20 +381,25 @@ impl LightSet {
             return None;
         }
         let target = u * total;
-        let mut below = 0.0f32;
-        let mut last = None;
+        // The first light with weight whose interval [below, below + w) holds `target`;
+        // if rounding left `target` past the last sum, the last light with weight. By
+        // selects over every light rather than an early exit: which interval a random
+        // `target` falls in is random, and the exit branch mispredicted.
+        let (mut below, mut chosen_below) = (0.0f32, 0.0f32);
+        let (mut chosen, mut last) = (u32::MAX, u32::MAX);
         for (i, &wi) in w[..self.importance.len()].iter().enumerate() {
-            if wi <= 0.0 {
-                continue;
-            }
-            if target < below + wi {
-                return Some((i, wi / total, ((target - below) / wi).clamp(0.0, ONE_MINUS_EPSILON)));
-            }
-            below += wi;
-            last = Some(i);
+            let with_weight = wi > 0.0;
+            let here = with_weight && chosen == u32::MAX && target < below + wi;
+            chosen = select_bits(here, i as u32, chosen);
+            chosen_below = select(here, below, chosen_below);
+            last = select_bits(with_weight, i as u32, last);
+            below = select(with_weight, below + wi, below);
         }
-        // Rounding left `target` past the last sum: the last light with weight takes it.
-        let i = last?;
+        if chosen != u32::MAX {
+            let i = chosen as usize;
+            return Some((i, w[i] / total, ((target - chosen_below) / w[i]).clamp(0.0, ONE_MINUS_EPSILON)));
+        }
+        let i = (last != u32::MAX).then_some(last as usize)?;
         Some((i, w[i] / total, ONE_MINUS_EPSILON))
     }
 
