@@ -12,23 +12,25 @@
 //! with [`li`](super::path::li), and the film's fixed-point sums do not depend on the
 //! order in which samples end.
 
-use glam::Vec2;
+use glam::{Vec2, Vec3};
 
 use super::RayCount;
 use super::path::{Options, PathState, ShadowQuery, transmittance};
 use crate::accel::packed::PackedTriangles;
 use crate::accel::packet::{PACKET, RayPacket};
 use crate::film::{Accumulation, SampleRange, Tile};
+use crate::geometry::Ray;
 use crate::sampler::Sampler;
+use crate::sampling::select;
 use crate::scene::Scene;
 
-/// One lane's sample: its path, its random numbers, its pixel (index within the tile),
-/// and the light sample waiting for this round's shadow ray.
+/// One lane's sample: its path, its random numbers and its pixel (index within the
+/// tile).
+#[derive(Clone)]
 struct Lane {
     path: PathState,
     sampler: Sampler,
     pixel: usize,
-    shadow: Option<ShadowQuery>,
 }
 
 /// Every sample of every pixel of `tile` with the path integrator, eight at a time.
@@ -51,13 +53,19 @@ pub(crate) fn render_unit(
     let per_pixel = u64::from(samples.len());
     let total = tile.pixel_count() as u64 * per_pixel;
     let mut next = 0u64;
-    let mut lanes: [Option<Lane>; PACKET] = Default::default();
+    // Lanes are arrays with a mask of the live ones, not options: which lanes hold a
+    // path, have a shadow ray or end is random, and branches on it mispredict.
+    let idle =
+        Lane { path: PathState::new(Ray::new(Vec3::ZERO, Vec3::Z)), sampler: Sampler::new(0, 0, 0, 0), pixel: 0 };
+    let mut lanes: [Lane; PACKET] = std::array::from_fn(|_| idle.clone());
+    let mut live = 0u32;
+    let mut queries: [Option<ShadowQuery>; PACKET] = [None; PACKET];
     loop {
-        // Empty lanes take the next samples, pixel by pixel.
-        for lane in lanes.iter_mut().filter(|l| l.is_none()) {
-            if next == total {
-                break;
-            }
+        // Idle lanes take the next samples, pixel by pixel.
+        let mut idle = !live & ((1 << PACKET) - 1);
+        while idle != 0 && next < total {
+            let l = idle.trailing_zeros() as usize;
+            idle &= idle - 1;
             let (pixel, s) = ((next / per_pixel) as u32, (next % per_pixel) as u32);
             next += 1;
             let (x, y) = (tile.x0 + pixel % tile.width, tile.y0 + pixel / tile.width);
@@ -66,59 +74,60 @@ pub(crate) fn render_unit(
             let film = Vec2::new(x as f32, y as f32) + sampler.next_2d();
             let lens = if cam.has_lens() { sampler.next_2d() } else { Vec2::ZERO };
             let ray = cam.generate_ray(film, lens);
-            *lane = Some(Lane { path: PathState::new(ray), sampler, pixel: pixel as usize, shadow: None });
+            lanes[l] = Lane { path: PathState::new(ray), sampler, pixel: pixel as usize };
+            live |= 1 << l;
         }
-
-        let mut rays = RayPacket::default();
-        for (l, lane) in lanes.iter().enumerate() {
-            if let Some(lane) = lane {
-                rays.set(l, &lane.path.ray, f32::INFINITY);
-            }
-        }
-        if rays.active == 0 {
+        if live == 0 {
             return (acc, count);
         }
-        count.rays += u64::from(rays.active.count_ones());
+
+        // Idle lanes hold an old ray, which is harmless; the mask leaves them out.
+        let mut rays = RayPacket::default();
+        for (l, lane) in lanes.iter().enumerate() {
+            rays.set(l, &lane.path.ray, f32::INFINITY);
+        }
+        rays.active = live;
+        count.rays += u64::from(live.count_ones());
         let hits = packed.intersect8(&scene.geometry, &rays);
 
         let mut shadow = RayPacket::default();
         let mut ended = 0u32;
-        for (l, slot) in lanes.iter_mut().enumerate() {
-            let Some(lane) = slot else { continue };
+        for (l, lane) in lanes.iter_mut().enumerate() {
+            if live & (1 << l) == 0 {
+                continue;
+            }
             let (query, go_on) = lane.path.scatter(scene, hits.get(l), &mut lane.sampler, opt);
+            ended |= u32::from(!go_on) << l;
             if let Some(q) = query {
                 match q.ray {
                     // Stochastic opacity needs a walk through the surfaces: one lane alone.
                     Some((ray, tmax)) if !scene.has_cutouts => {
                         shadow.set(l, &ray, tmax);
-                        lane.shadow = Some(q);
+                        queries[l] = Some(q);
                     }
                     _ => lane.path.add_light(&q, transmittance(scene, &q, &mut count)),
                 }
-            }
-            if !go_on {
-                ended |= 1 << l;
             }
         }
 
         if shadow.active != 0 {
             count.rays += u64::from(shadow.active.count_ones());
             let blocked = packed.occluded8(&scene.geometry, &shadow);
-            for (l, slot) in lanes.iter_mut().enumerate() {
-                if let Some(lane) = slot
-                    && let Some(q) = lane.shadow.take()
-                {
-                    lane.path.add_light(&q, if blocked & (1 << l) != 0 { 0.0 } else { 1.0 });
+            let mut waiting = shadow.active;
+            while waiting != 0 {
+                let l = waiting.trailing_zeros() as usize;
+                waiting &= waiting - 1;
+                if let Some(q) = queries[l].take() {
+                    lanes[l].path.add_light(&q, select(blocked & (1 << l) != 0, 0.0, 1.0));
                 }
             }
         }
 
+        live &= !ended;
         while ended != 0 {
             let l = ended.trailing_zeros() as usize;
             ended &= ended - 1;
-            if let Some(lane) = lanes[l].take() {
-                acc.add_sample(lane.pixel, lane.path.radiance());
-            }
+            acc.add_sample(lanes[l].pixel, lanes[l].path.radiance());
         }
     }
 }
