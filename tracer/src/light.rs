@@ -10,10 +10,11 @@ use std::f32::consts::PI;
 
 use glam::{Vec2, Vec3};
 
-use crate::geometry::{Frame, offset_origin};
+use crate::geometry::{Frame, FrameW, offset_origin, offset_origin_wide};
 use crate::math;
 use crate::sampler::ONE_MINUS_EPSILON;
-use crate::sampling::{sample_uniform_sphere, sample_uniform_triangle, select, select_bits, uniform_sphere_pdf};
+use crate::sampling::{sample_uniform_sphere, sample_uniform_triangle, select, select_bits, uniform_sphere_pdf, wide};
+use crate::wide::{F8, M8, U8, V2w, V3w, each};
 
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub enum Light {
@@ -438,6 +439,156 @@ impl LightSet {
     pub fn environment(&self) -> Option<usize> {
         self.environment.map(|e| e as usize)
     }
+}
+
+/// Light sampling for the eight-path integrator: [`LightSet::select_at`] and, for
+/// triangle and sphere lights, [`Light::sample_li`], lane by lane with the same
+/// operations in the same order (see `wide.rs`).
+impl LightSet {
+    /// Whether every light is one that [`LightSet::sample_li_wide`] handles (area lights,
+    /// triangles and spheres) and the selection is per point (at most
+    /// [`LOCAL_SELECTION_MAX`] lights).
+    pub fn wide_ok(&self) -> bool {
+        !self.importance.is_empty()
+            && self.lights.iter().all(|l| matches!(l, Light::Triangle { .. } | Light::Sphere { .. }))
+    }
+
+    /// [`LightSet::select_at`] at eight points: `(light, pmf, u', chosen)` per lane
+    /// (lanes not `chosen` had no light to choose). Only where [`LightSet::wide_ok`].
+    #[inline(always)]
+    pub fn select_at_wide(&self, p: V3w, u: F8) -> (U8, F8, F8, M8) {
+        let mut w = [F8::ZERO; LOCAL_SELECTION_MAX];
+        let mut total = F8::ZERO;
+        for (wi, imp) in w.iter_mut().zip(&self.importance) {
+            *wi = imp.weight_wide(p);
+            total = total + *wi;
+        }
+        let ok = total.gt(0.0) & total.is_finite();
+        let target = u * total;
+        let (mut below, mut chosen_below, mut chosen_w, mut last_w) = (F8::ZERO, F8::ZERO, F8::ZERO, F8::ZERO);
+        let none = U8::splat(u32::MAX);
+        let (mut chosen, mut last, mut found) = (none, none, M8::NONE);
+        for (i, &wi) in w[..self.importance.len()].iter().enumerate() {
+            let with_weight = wi.gt(0.0);
+            let here = with_weight & !found & target.lt(below + wi);
+            chosen = here.select_u(U8::splat(i as u32), chosen);
+            chosen_below = here.select(below, chosen_below);
+            chosen_w = here.select(wi, chosen_w);
+            found = found | here;
+            last = with_weight.select_u(U8::splat(i as u32), last);
+            last_w = with_weight.select(wi, last_w);
+            below = with_weight.select(below + wi, below);
+        }
+        // Rounding left `target` past the last sum: the last light with weight takes it.
+        let light = found.select_u(chosen, last);
+        let ux = ((target - chosen_below) / chosen_w).clamp(0.0, ONE_MINUS_EPSILON);
+        let ux = found.select(ux, F8::splat(ONE_MINUS_EPSILON));
+        (light, found.select(chosen_w, last_w) / total, ux, ok & !light.eq(none))
+    }
+
+    /// [`Light::sample_li`] of light `light[l]` at `p[l]` for the lanes of `mask`, where
+    /// every light is a triangle or a sphere ([`LightSet::wide_ok`]): `(wi, li, pdf,
+    /// target, some)`, lanes not `some` having no sample.
+    #[inline(always)]
+    pub fn sample_li_wide(&self, light: U8, p: V3w, u: V2w, mask: M8) -> (V3w, V3w, F8, V3w, M8) {
+        let zero = V3w::splat(Vec3::ZERO);
+        let (mut tri, mut sph) = (M8::NONE, M8::NONE);
+        // Triangles: p0, e1, e2, normal, area; spheres: center (in `a`), radius.
+        let (mut a, mut b, mut c, mut n) = (zero, zero, zero, zero);
+        let (mut size, mut li) = (F8::ONE, zero);
+        for l in each(mask.bits()) {
+            match self.lights[light.0[l] as usize] {
+                Light::Triangle { p0, e1, e2, normal, area, radiance, .. } => {
+                    tri.0[l] = u32::MAX;
+                    a.set(l, p0);
+                    b.set(l, e1);
+                    c.set(l, e2);
+                    n.set(l, normal);
+                    size.0[l] = area;
+                    li.set(l, radiance);
+                }
+                Light::Sphere { center, radius, radiance, .. } => {
+                    sph.0[l] = u32::MAX;
+                    a.set(l, center);
+                    size.0[l] = radius;
+                    li.set(l, radiance);
+                }
+                _ => {}
+            }
+        }
+        let (mut wi, mut pdf, mut target, mut some) = (zero, F8::ZERO, zero, M8::NONE);
+        if tri.any() {
+            // `Light::Triangle`'s arm.
+            let [_, b1, b2] = wide::sample_uniform_triangle(u);
+            let q = a + b1 * b + b2 * c;
+            let d = q - p;
+            let d2 = d.length_squared();
+            let w = d / d2.sqrt();
+            let cos_l = -w.dot(n);
+            let ok = tri & d2.ne(0.0) & !cos_l.le(0.0);
+            wi = ok.select3(w, wi);
+            pdf = ok.select(d2 / (cos_l * size), pdf);
+            target = ok.select3(offset_origin_wide(q, n, -w), target);
+            some = some | ok;
+        }
+        if sph.any() {
+            // `Light::Sphere`'s arm.
+            let (w, q, pdf_s, ok) = sample_sphere_cone_wide(p, a, size, u, sph);
+            let normal = (q - a) / size;
+            wi = ok.select3(w, wi);
+            pdf = ok.select(pdf_s, pdf);
+            target = ok.select3(offset_origin_wide(q, normal, -w), target);
+            some = some | ok;
+        }
+        (wi, li, pdf, target, some)
+    }
+}
+
+impl Importance {
+    /// [`Importance::weight`] at eight points.
+    #[inline(always)]
+    fn weight_wide(&self, p: V3w) -> F8 {
+        if self.min_d2 == 0.0 {
+            return F8::splat(self.power);
+        }
+        let behind = if self.normal != Vec3::ZERO { p.dot(V3w::splat(self.normal)).le(self.plane) } else { M8::NONE };
+        let d2 = (p - V3w::splat(self.center)).length_squared();
+        let w = self.power / d2.max(self.min_d2);
+        (behind | d2.le(self.inside_r2) | !w.is_finite()).select(F8::ZERO, w)
+    }
+}
+
+/// [`sample_sphere_cone`] lane by lane, for the lanes of `mask`: `(wi, point, pdf, some)`.
+#[inline(always)]
+fn sample_sphere_cone_wide(p: V3w, center: V3w, radius: F8, u: V2w, mask: M8) -> (V3w, V3w, F8, M8) {
+    let to_center = center - p;
+    let d2 = to_center.length_squared();
+    let r2 = radius * radius;
+    let some = mask & !d2.le(r2);
+    let dist = d2.sqrt();
+    let inv_dist = 1.0 / dist;
+    let inv_sin_max = dist / radius;
+    let sin_max = radius * inv_dist;
+    let sin2_max = sin_max * sin_max;
+    let cos_max = (1.0 - sin2_max).max(0.0).sqrt();
+    let cos_t = (cos_max - 1.0) * u.x + 1.0;
+    let sin2_t = (1.0 - cos_t * cos_t).max(0.0);
+    // Small cones: Taylor expansion keeps precision (sin² ≈ 1 - cos²).
+    let small = sin2_max.lt(0.00068523);
+    let sin2_t = small.select(sin2_max * u.x, sin2_t);
+    let cos_t = small.select((1.0 - sin2_t).sqrt(), cos_t);
+    let one_minus_cos_max = small.select(sin2_max / 2.0, 1.0 - cos_max);
+    let s = sin2_t * inv_sin_max;
+    let cos_alpha = s + cos_t * (1.0 - s * inv_sin_max).max(0.0).sqrt();
+    let sin_alpha = (1.0 - cos_alpha * cos_alpha).max(0.0).sqrt();
+    let phi = 2.0 * PI * u.y;
+    let frame = FrameW::from_normal(to_center * inv_dist);
+    let (sin_phi, cos_phi) = wide::sin_cos(phi, some);
+    let w = V3w::new(sin_alpha * cos_phi, sin_alpha * sin_phi, cos_alpha);
+    let n = frame.to_world(-w);
+    let q = center + radius * n;
+    let wi = (q - p).normalize();
+    (wi, q, 1.0 / (2.0 * PI * one_minus_cos_max), some)
 }
 
 #[cfg(test)]

@@ -245,9 +245,62 @@ irradiance = [0.5, 0.5, 0.6]
 radiance = [0.1, 0.15, 0.2]
 "#;
         let extra = crate::scene::scene_from_toml(toml, "variants.toml", &dir).unwrap();
-        let _ = std::fs::remove_dir_all(&dir);
         assert!(extra.has_cutouts && extra.camera.has_lens() && extra.packed.is_some());
-        let mut scenes = vec![("variants.toml".to_string(), extra)];
+        // For the eight-path renderer's wide route: an open box lit by a triangle lamp
+        // and a sphere light only, with diffuse and glossy surfaces and spheres (its
+        // lanes), a mirror sphere and a smooth-shaded triangle (lanes it leaves to the
+        // one-path code), and unlimited depth (long paths, Russian roulette).
+        std::fs::write(
+            dir.join("w.mtl"),
+            "newmtl wall\nKd 0.8 0.75 0.7\nnewmtl shiny\nKd 0.2 0.3 0.2\nKs 0.5 0.5 0.5\nNs 60\n\
+             newmtl lamp\nKd 0.5 0.5 0.5\nKe 3 3 2.5\n",
+        )
+        .unwrap();
+        std::fs::write(
+            dir.join("w.obj"),
+            "mtllib w.mtl\nv -2 0 -2\nv 2 0 -2\nv 2 0 2\nv -2 0 2\nv -2 3 -2\nv 2 3 -2\nv 2 3 2\nv -2 3 2\n\
+             v -0.5 2.99 -0.5\nv 0.5 2.99 -0.5\nv 0.5 2.99 0.5\nv -0.5 2.99 0.5\n\
+             v -1 0.01 0\nv 0 0.01 1.5\nv 1 1.5 1\nvn 0.3 1 0.1\nvn -0.2 1 0.3\nvn 0.5 0.5 -0.2\n\
+             usemtl shiny\nf 1 4 3 2\nusemtl wall\nf 4 8 7 3\nf 1 5 8 4\nf 2 3 7 6\nf 5 6 7 8\n\
+             usemtl lamp\nf 9 10 11 12\nusemtl shiny\nf 13//1 14//2 15//3\n",
+        )
+        .unwrap();
+        let toml = r#"
+[camera]
+position = [0.0, 1.5, -7.0]
+look_at = [0.0, 1.2, 0.0]
+fov = 40
+width = 64
+height = 48
+[render]
+max_depth = -1
+seed = 5
+[[mesh]]
+obj = "w.obj"
+[[sphere]]
+center = [-0.9, 0.5, -0.3]
+radius = 0.5
+kd = [0.3, 0.3, 0.7]
+ks = [0.4, 0.4, 0.4]
+ns = 200
+[[sphere]]
+center = [0.9, 0.4, 0.4]
+radius = 0.4
+kd = [0.7, 0.6, 0.2]
+[[sphere]]
+center = [0.2, 0.3, -1.2]
+radius = 0.3
+ks = [0.9, 0.9, 0.9]
+illum = 3
+[[sphere]]
+center = [1.5, 2.5, 1.5]
+radius = 0.1
+ke = [30.0, 25.0, 20.0]
+"#;
+        let wide = crate::scene::scene_from_toml(toml, "wide.toml", &dir).unwrap();
+        let _ = std::fs::remove_dir_all(&dir);
+        assert!(wide.lights.wide_ok() && wide.lights.lights.len() == 3 && wide.packed.is_some());
+        let mut scenes = vec![("variants.toml".to_string(), extra), ("wide.toml".to_string(), wide)];
         // Every bundled scene, so that every material and light kind is covered.
         let bundled = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../scenes");
         for dir in std::fs::read_dir(&bundled).unwrap() {
@@ -256,7 +309,7 @@ radiance = [0.1, 0.15, 0.2]
                 scenes.push((path.display().to_string(), crate::scene::load_scene(&path).unwrap()));
             }
         }
-        assert!(scenes.len() >= 7, "only {} bundled scenes found", scenes.len() - 1);
+        assert!(scenes.len() >= 8, "only {} bundled scenes found", scenes.len() - 2);
         scenes
     }
 
@@ -291,6 +344,6 @@ radiance = [0.1, 0.15, 0.2]
                 assert!(base.0.sums.iter().any(|s| *s != [0; 3]), "nothing rendered in {name}");
             }
         }
-        assert!(in_packets >= 6, "only {in_packets} scenes traced in packets");
+        assert!(in_packets >= 7, "only {in_packets} scenes traced in packets");
     }
 }

@@ -35,6 +35,8 @@
 
 use glam::Vec2;
 
+use crate::wide::{F8, M8, U8, V2w, W, lanes};
+
 /// Number of dimension slots (each `next_1d` or `next_2d` call is one) served by scrambled Sobol;
 /// later slots use the hash fallback.
 pub const SOBOL_DIMENSIONS: u32 = 64;
@@ -130,10 +132,10 @@ impl Sampler {
         d
     }
 
-    /// Key `part` (1 or 2) of Sobol slot `d`: SplitMix64 output number `2d + part` of the pixel key.
+    /// Key `part` (1 or 2) of Sobol slot `d`.
     #[inline]
     fn slot_key(&self, d: u32, part: u64) -> u64 {
-        mix64(self.pixel_key.wrapping_add((2 * u64::from(d) + part).wrapping_mul(GAMMA)))
+        slot_key(self.pixel_key, d, part)
     }
 
     /// Counter-based fallback for slots past [`SOBOL_DIMENSIONS`]: SplitMix64 output number
@@ -143,6 +145,91 @@ impl Sampler {
     fn fallback_hash(&self, d: u32) -> u64 {
         let counter = (u64::from(d) << 32) | u64::from(self.index_reversed);
         mix64(self.pixel_key.wrapping_add(counter.wrapping_mul(GAMMA)))
+    }
+}
+
+/// Key `part` (1 or 2) of Sobol slot `d` of a pixel: SplitMix64 output number `2d + part` of
+/// the pixel key.
+#[inline(always)]
+fn slot_key(pixel_key: u64, d: u32, part: u64) -> u64 {
+    mix64(pixel_key.wrapping_add((2 * u64::from(d) + part).wrapping_mul(GAMMA)))
+}
+
+/// Eight samplers, one per lane, for the eight-path integrator: [`Sampler`]'s state as
+/// arrays, and its draws for several lanes at once, each lane taking its own next slot.
+/// Lane by lane the same operations as [`Sampler::next_1d`] and [`Sampler::next_2d`]
+/// (which the compiler vectorises), so the same numbers.
+#[derive(Clone, Debug)]
+pub struct SamplerLanes {
+    pixel_key: [u64; W],
+    index_reversed: U8,
+    dimension: U8,
+}
+
+impl Default for SamplerLanes {
+    fn default() -> Self {
+        Self { pixel_key: [0; W], index_reversed: U8::splat(0), dimension: U8::splat(0) }
+    }
+}
+
+impl SamplerLanes {
+    /// Lane `l` becomes `s`.
+    #[inline(always)]
+    pub fn set(&mut self, l: usize, s: &Sampler) {
+        self.pixel_key[l] = s.pixel_key;
+        self.index_reversed.0[l] = s.index_reversed;
+        self.dimension.0[l] = s.dimension;
+    }
+
+    /// Lane `l`'s sampler.
+    #[inline(always)]
+    pub fn get(&self, l: usize) -> Sampler {
+        Sampler {
+            pixel_key: self.pixel_key[l],
+            index_reversed: self.index_reversed.0[l],
+            dimension: self.dimension.0[l],
+        }
+    }
+
+    /// The slots the lanes of `mask` take (their dimension counters move on), and the
+    /// mask of those past [`SOBOL_DIMENSIONS`] (drawn by the scalar fallback).
+    #[inline(always)]
+    fn take(&mut self, mask: M8) -> (U8, u32) {
+        let d = self.dimension;
+        self.dimension = mask.select_u(d.map(|x| x.saturating_add(1)), d);
+        (d, (mask & d.ge(U8::splat(SOBOL_DIMENSIONS))).bits())
+    }
+
+    /// [`Sampler::next_1d`] for the lanes of `mask` (the others' values are unspecified).
+    #[inline(always)]
+    pub fn next_1d(&mut self, mask: M8) -> F8 {
+        let (d, deep) = self.take(mask);
+        let key: [u64; W] = lanes(|l| slot_key(self.pixel_key[l], d.0[l], 1));
+        let shuffled_rev = U8(lanes(|l| laine_karras(self.index_reversed.0[l], key[l] as u32)));
+        let x = U8(lanes(|l| laine_karras(shuffled_rev.0[l].reverse_bits(), (key[l] >> 32) as u32).reverse_bits()));
+        let mut u = F8(lanes(|l| unit_f32(x.0[l])));
+        for l in crate::wide::each(deep) {
+            u.0[l] = unit_f32(self.get(l).fallback_hash(d.0[l]) as u32);
+        }
+        u
+    }
+
+    /// [`Sampler::next_2d`] for the lanes of `mask` (the others' values are unspecified).
+    #[inline(always)]
+    pub fn next_2d(&mut self, mask: M8) -> V2w {
+        let (d, deep) = self.take(mask);
+        let key: [u64; W] = lanes(|l| slot_key(self.pixel_key[l], d.0[l], 1));
+        let key_y: [u64; W] = lanes(|l| slot_key(self.pixel_key[l], d.0[l], 2));
+        let shuffled_rev = U8(lanes(|l| laine_karras(self.index_reversed.0[l], key[l] as u32)));
+        let shuffled = shuffled_rev.map(u32::reverse_bits);
+        let x = U8(lanes(|l| laine_karras(shuffled.0[l], (key[l] >> 32) as u32).reverse_bits()));
+        let y = U8(lanes(|l| laine_karras(sobol1_reversed(shuffled.0[l]), key_y[l] as u32).reverse_bits()));
+        let mut u = V2w { x: F8(lanes(|l| unit_f32(x.0[l]))), y: F8(lanes(|l| unit_f32(y.0[l]))) };
+        for l in crate::wide::each(deep) {
+            let h = self.get(l).fallback_hash(d.0[l]);
+            (u.x.0[l], u.y.0[l]) = (unit_f32(h as u32), unit_f32((h >> 32) as u32));
+        }
+        u
     }
 }
 
@@ -247,6 +334,43 @@ mod tests {
             sbb += (y - mb) * (y - mb);
         }
         sab / (saa * sbb).sqrt()
+    }
+
+    /// Eight lanes drawing under random masks give, lane by lane, the scalar sampler's
+    /// numbers, also past the Sobol slots (the hash fallback).
+    #[test]
+    fn lanes_draw_what_the_scalar_sampler_draws() {
+        let mut lanes = SamplerLanes::default();
+        let mut scalar: Vec<Sampler> = (0..W as u32).map(|l| Sampler::new(SEED, 3 + l, 7 * l, l * 1000 + 5)).collect();
+        for (l, s) in scalar.iter().enumerate() {
+            lanes.set(l, s);
+        }
+        let mut h = 12345u32;
+        for step in 0..200 {
+            h = h.wrapping_mul(0x9e37_79b9).wrapping_add(0x7f4a_7c15);
+            let bits = (h >> 7) & 0xff;
+            let mask = M8::from_bits(bits);
+            if step % 3 == 0 {
+                let u = lanes.next_1d(mask);
+                for l in crate::wide::each(bits) {
+                    assert_eq!(u.0[l].to_bits(), scalar[l].next_1d().to_bits(), "step {step} lane {l}");
+                }
+            } else {
+                let u = lanes.next_2d(mask);
+                for l in crate::wide::each(bits) {
+                    let v = scalar[l].next_2d();
+                    assert_eq!(
+                        (u.x.0[l].to_bits(), u.y.0[l].to_bits()),
+                        (v.x.to_bits(), v.y.to_bits()),
+                        "step {step} lane {l}"
+                    );
+                }
+            }
+            for (l, s) in scalar.iter().enumerate() {
+                assert_eq!(lanes.get(l).dimension(), s.dimension(), "step {step} lane {l}");
+            }
+        }
+        assert!(scalar.iter().all(|s| s.dimension() > SOBOL_DIMENSIONS), "the fallback is reached");
     }
 
     #[test]

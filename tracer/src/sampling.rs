@@ -191,6 +191,97 @@ pub fn power_heuristic(nf: f32, f_pdf: f32, ng: f32, g_pdf: f32) -> f32 {
     if f2 + g2 > 0.0 && (f2 + g2).is_finite() { f2 / (f2 + g2) } else { 0.0 }
 }
 
+/// The warps of the eight-path integrator: each is its scalar namesake (without
+/// `_wide`) lane by lane, with the same operations in the same order (see `wide.rs`).
+pub mod wide {
+    use std::f32::consts::{FRAC_PI_2, FRAC_PI_4, PI};
+
+    use super::{INV_2PI, INV_PI};
+    use crate::math;
+    use crate::wide::{F8, M8, V2w, V3w, W, lanes};
+
+    /// `math::sin_cos` for the lanes of `mask`, lane by lane (CORE-MATH is scalar); the
+    /// other lanes get `(0, 1)`.
+    #[inline(always)]
+    pub fn sin_cos(x: F8, mask: M8) -> (F8, F8) {
+        let sc: [(f32, f32); W] = lanes(|l| if mask.0[l] != 0 { math::sin_cos(x.0[l]) } else { (0.0, 1.0) });
+        (F8(lanes(|l| sc[l].0)), F8(lanes(|l| sc[l].1)))
+    }
+
+    /// For the lanes of `mask` (the others' values are unspecified).
+    #[inline(always)]
+    pub fn spherical_direction(sin_theta: F8, cos_theta: F8, phi: F8, mask: M8) -> V3w {
+        let (sin_phi, cos_phi) = sin_cos(phi, mask);
+        V3w::new(sin_theta * cos_phi, sin_theta * sin_phi, cos_theta)
+    }
+
+    /// For the lanes of `mask` (the others' values are unspecified).
+    #[inline(always)]
+    pub fn sample_uniform_disk_concentric(u: V2w, mask: M8) -> V2w {
+        let o = V2w { x: 2.0 * u.x - 1.0, y: 2.0 * u.y - 1.0 };
+        let center = o.x.eq(0.0) & o.y.eq(0.0);
+        let wide = o.x.abs().gt(o.y.abs());
+        let (r, other) = (wide.select(o.x, o.y), wide.select(o.y, o.x));
+        let q = FRAC_PI_4 * (other / r);
+        let theta = wide.select(q, FRAC_PI_2 - q);
+        let (sin, cos) = sin_cos(theta, mask & !center);
+        V2w { x: center.select(F8::ZERO, r * cos), y: center.select(F8::ZERO, r * sin) }
+    }
+
+    /// For the lanes of `mask` (the others' values are unspecified).
+    #[inline(always)]
+    pub fn sample_cosine_hemisphere(u: V2w, mask: M8) -> V3w {
+        let d = sample_uniform_disk_concentric(u, mask);
+        let z = (1.0 - (d.x * d.x + d.y * d.y)).max(0.0).sqrt();
+        V3w::new(d.x, d.y, z)
+    }
+
+    #[inline(always)]
+    pub fn cosine_hemisphere_pdf(cos_theta: F8) -> F8 {
+        cos_theta.max(0.0) * INV_PI
+    }
+
+    /// Barycentrics `[b0, b1, b2]`.
+    #[inline(always)]
+    pub fn sample_uniform_triangle(u: V2w) -> [F8; 3] {
+        let lower = u.x.lt(u.y);
+        let half = 0.5 * lower.select(u.x, u.y);
+        let rest = lower.select(u.y, u.x) - half;
+        let (b0, b1) = (lower.select(half, rest), lower.select(rest, half));
+        [b0, b1, (1.0 - b0 - b1).max(0.0)]
+    }
+
+    #[inline(always)]
+    pub fn power_heuristic(nf: f32, f_pdf: F8, ng: f32, g_pdf: F8) -> F8 {
+        let f = nf * f_pdf;
+        let g = ng * g_pdf;
+        let (f2, g2) = (f * f, g * g);
+        let sum = f2 + g2;
+        let ok = sum.gt(0.0) & sum.is_finite();
+        f.is_infinite().select(F8::ONE, ok.select(f2 / sum, F8::ZERO))
+    }
+
+    /// For the lanes of `mask` (the others' values are unspecified).
+    #[inline(always)]
+    pub fn power_cosine_pdf(cos_theta: F8, exponent: F8, mask: M8) -> F8 {
+        let n = exponent.max(0.0);
+        let c = cos_theta.min(1.0);
+        let pow = F8(lanes(|l| if mask.0[l] != 0 { math::powf(c.0[l], n.0[l]) } else { 0.0 }));
+        cos_theta.le(0.0).select(F8::ZERO, (n + 1.0) * INV_2PI * pow)
+    }
+
+    /// For the lanes of `mask` (the others' values are unspecified).
+    #[inline(always)]
+    pub fn sample_power_cosine(u: V2w, exponent: F8, mask: M8) -> V3w {
+        let inv_np1 = 1.0 / (exponent.max(0.0) + 1.0);
+        let on = |f: fn(f32) -> f32, x: F8| F8(lanes(|l| if mask.0[l] != 0 { f(x.0[l]) } else { 0.0 }));
+        let log_cos = on(math::ln, u.x) * inv_np1;
+        let cos_theta = on(math::exp, log_cos);
+        let sin_theta = (-on(math::exp_m1, 2.0 * log_cos)).clamp(0.0, 1.0).sqrt();
+        spherical_direction(sin_theta, cos_theta, 2.0 * PI * u.y, mask)
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

@@ -24,8 +24,9 @@
 //! small n), f is symmetric in (wo, wi) (reciprocal), and the sampled specular weight
 //! ks · cos θi / max(cos θo, cos θi) is bounded by ks, so the lobe has no fireflies.
 
-use super::{BsdfSample, reflect_about, same_hemisphere, to_side_of};
-use crate::sampling::{cosine_hemisphere_pdf, power_cosine_pdf, sample_cosine_hemisphere, sample_power_cosine};
+use super::{BsdfSample, reflect_about, reflect_about_wide, same_hemisphere, to_side_of, to_side_of_wide};
+use crate::sampling::{cosine_hemisphere_pdf, power_cosine_pdf, sample_cosine_hemisphere, sample_power_cosine, wide};
+use crate::wide::{F8, M8, V2w, V3w, W};
 use glam::{Vec2, Vec3};
 use std::f32::consts::FRAC_1_PI;
 
@@ -148,5 +149,76 @@ impl BlinnPhong {
         }
         let weight = f / pdf;
         weight.is_finite().then_some(BsdfSample { wi, weight, pdf, delta: false })
+    }
+}
+
+/// Eight normalised Blinn-Phong BSDFs, lane by lane [`BlinnPhong`]'s (the eight-path
+/// integrator's), from [`BlinnPhong::new`]'s values.
+#[derive(Clone, Copy, Debug)]
+pub struct BlinnPhongW {
+    kd: V3w,
+    ks: V3w,
+    exponent: F8,
+    spec_prob: F8,
+}
+
+impl BlinnPhongW {
+    /// Lane `l` is `of(l)`.
+    #[inline(always)]
+    pub fn from_fn(of: impl Fn(usize) -> BlinnPhong) -> Self {
+        let b: [BlinnPhong; W] = std::array::from_fn(of);
+        Self {
+            kd: V3w::from_fn(|l| b[l].kd),
+            ks: V3w::from_fn(|l| b[l].ks),
+            exponent: F8(std::array::from_fn(|l| b[l].exponent)),
+            spec_prob: F8(std::array::from_fn(|l| b[l].spec_prob)),
+        }
+    }
+
+    /// [`BlinnPhong::specular`] for the lanes of `mask`.
+    #[inline(always)]
+    fn specular(&self, wo: V3w, wi: V3w, mask: M8) -> (F8, F8) {
+        let sum = wo + wi;
+        let len = sum.length();
+        let h = sum / len;
+        let wo_dot_h = 0.5 * len;
+        let pdf = wide::power_cosine_pdf(h.z, self.exponent, mask) / (4.0 * wo_dot_h);
+        let none = len.is_nan() | len.le(0.0) | !pdf.is_finite();
+        (none.select(F8::ZERO, pdf), none.select(F8::ZERO, wi.z / wo.z.max(wi.z)))
+    }
+
+    /// [`BlinnPhong::eval_pdf`] for the lanes of `mask`.
+    #[inline(always)]
+    pub fn eval_pdf(&self, wo: V3w, wi: V3w, mask: M8) -> (V3w, F8) {
+        let same = (wo.z * wi.z).gt(0.0);
+        let flip = wo.z.signum();
+        let (wo, wi) = (V3w::new(wo.x * 1.0, wo.y * 1.0, wo.z * flip), V3w::new(wi.x * 1.0, wi.y * 1.0, wi.z * flip));
+        let (pdf_s, ratio) = self.specular(wo, wi, mask & same);
+        let f = self.kd * (FRAC_1_PI * wi.z) + self.ks * (pdf_s * ratio);
+        let pdf = (1.0 - self.spec_prob) * wide::cosine_hemisphere_pdf(wi.z) + self.spec_prob * pdf_s;
+        (same.select3(f, V3w::splat(Vec3::ZERO)), same.select(pdf, F8::ZERO))
+    }
+
+    /// [`BlinnPhong::sample`] for the lanes of `mask`: `(wi, weight, pdf, valid)`.
+    #[inline(always)]
+    pub fn sample(&self, wo: V3w, u_lobe: F8, u: V2w, mask: M8) -> (V3w, V3w, F8, M8) {
+        let none = wo.z.eq(0.0) | !wo.is_finite() | (self.kd + self.ks).max_element().le(0.0);
+        let wo_up = V3w::new(wo.x, wo.y, wo.z.abs());
+        let spec = u_lobe.lt(self.spec_prob);
+        let (on_spec, on_diffuse) = (mask & spec, mask & !spec);
+        let mut wi_up = V3w::splat(Vec3::ZERO);
+        if on_spec.any() {
+            let h = wide::sample_power_cosine(u, self.exponent, on_spec);
+            wi_up = on_spec.select3(reflect_about_wide(wo_up, h).normalize_or_zero(), wi_up);
+        }
+        if on_diffuse.any() {
+            wi_up = on_diffuse.select3(wide::sample_cosine_hemisphere(u, on_diffuse), wi_up);
+        }
+        let none = none | wi_up.z.le(0.0);
+        let wi = to_side_of_wide(wo, wi_up);
+        let (f, pdf) = self.eval_pdf(wo, wi, mask & !none);
+        let none = none | !(pdf.gt(0.0) & pdf.is_finite());
+        let weight = f / pdf;
+        (wi, weight, pdf, mask & !(none | !weight.is_finite()))
     }
 }

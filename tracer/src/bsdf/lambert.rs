@@ -1,7 +1,8 @@
 //! Lambertian reflection: f = kd/π on the side of the surface `wo` is on.
 
-use super::{BsdfSample, same_hemisphere, to_side_of};
-use crate::sampling::{cosine_hemisphere_pdf, sample_cosine_hemisphere};
+use super::{BsdfSample, same_hemisphere, to_side_of, to_side_of_wide};
+use crate::sampling::{cosine_hemisphere_pdf, sample_cosine_hemisphere, wide};
+use crate::wide::{F8, M8, V2w, V3w};
 use glam::{Vec2, Vec3};
 use std::f32::consts::FRAC_1_PI;
 
@@ -38,5 +39,33 @@ impl Lambert {
         let pdf = cosine_hemisphere_pdf(wi.z.abs());
         // wi.z = 0 only on the disk's rim: a zero-probability event with pdf 0.
         (pdf > 0.0).then_some(BsdfSample { wi, weight: self.kd, pdf, delta: false })
+    }
+}
+
+/// Eight Lambertian BSDFs, lane by lane [`Lambert`]'s (the eight-path integrator's).
+#[derive(Clone, Copy, Debug)]
+pub struct LambertW {
+    pub kd: V3w,
+}
+
+impl LambertW {
+    #[inline(always)]
+    pub fn eval(&self, wo: V3w, wi: V3w) -> V3w {
+        let same = (wo.z * wi.z).gt(0.0);
+        same.select3(self.kd * (FRAC_1_PI * wi.z.abs()), V3w::splat(Vec3::ZERO))
+    }
+
+    #[inline(always)]
+    pub fn pdf(&self, wo: V3w, wi: V3w) -> F8 {
+        let same = (wo.z * wi.z).gt(0.0);
+        same.select(wide::cosine_hemisphere_pdf(wi.z.abs()), F8::ZERO)
+    }
+
+    /// For the lanes of `mask`: `(wi, pdf, valid)`; the weight is `kd`.
+    #[inline(always)]
+    pub fn sample(&self, wo: V3w, u: V2w, mask: M8) -> (V3w, F8, M8) {
+        let wi = to_side_of_wide(wo, wide::sample_cosine_hemisphere(u, mask));
+        let pdf = wide::cosine_hemisphere_pdf(wi.z.abs());
+        (wi, pdf, mask & wo.z.ne(0.0) & pdf.gt(0.0))
     }
 }

@@ -28,6 +28,8 @@ use glam::{Vec2, Vec3};
 use lambert::Lambert;
 use mirror::SpecularReflection;
 
+use crate::wide::V3w;
+
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub enum Bsdf {
     /// Lambertian reflection, two-sided.
@@ -138,6 +140,18 @@ pub(crate) fn to_side_of(wo: Vec3, w: Vec3) -> Vec3 {
 }
 
 /// Mirror reflection about the shading normal.
+/// [`to_side_of`] lane by lane.
+#[inline(always)]
+pub(crate) fn to_side_of_wide(wo: V3w, w: V3w) -> V3w {
+    V3w::new(w.x, w.y, wo.z.lt(0.0).select(-w.z, w.z))
+}
+
+/// [`reflect_about`] lane by lane.
+#[inline(always)]
+pub(crate) fn reflect_about_wide(wo: V3w, h: V3w) -> V3w {
+    2.0 * wo.dot(h) * h - wo
+}
+
 #[inline]
 pub(crate) fn reflect(wo: Vec3) -> Vec3 {
     Vec3::new(-wo.x, -wo.y, wo.z)

@@ -1,5 +1,7 @@
 use glam::Vec3;
 
+use crate::wide::{F8, V3w};
+
 /// An orthonormal basis with `n` as the local z axis, used for shading ("local space").
 #[derive(Clone, Copy, Debug)]
 pub struct Frame {
@@ -27,6 +29,37 @@ impl Frame {
 
     #[inline]
     pub fn to_world(&self, v: Vec3) -> Vec3 {
+        self.s * v.x + self.t * v.y + self.n * v.z
+    }
+}
+
+/// Eight frames, lane by lane [`Frame`]'s (the eight-path integrator's).
+#[derive(Clone, Copy, Debug)]
+pub struct FrameW {
+    pub s: V3w,
+    pub t: V3w,
+    pub n: V3w,
+}
+
+impl FrameW {
+    /// [`Frame::from_normal`], lane by lane.
+    #[inline(always)]
+    pub fn from_normal(n: V3w) -> Self {
+        let sign = F8::ONE.copysign(n.z);
+        let a = -1.0 / (sign + n.z);
+        let b = n.x * n.y * a;
+        let s = V3w::new(1.0 + sign * n.x * n.x * a, sign * b, -sign * n.x);
+        let t = V3w::new(b, sign + n.y * n.y * a, -n.y);
+        Self { s, t, n }
+    }
+
+    #[inline(always)]
+    pub fn to_local(&self, v: V3w) -> V3w {
+        V3w::new(v.dot(self.s), v.dot(self.t), v.dot(self.n))
+    }
+
+    #[inline(always)]
+    pub fn to_world(&self, v: V3w) -> V3w {
         self.s * v.x + self.t * v.y + self.n * v.z
     }
 }

@@ -8,5 +8,5 @@ pub mod sphere;
 pub mod triangle;
 
 pub use aabb::Aabb;
-pub use frame::Frame;
-pub use ray::{Ray, offset_origin};
+pub use frame::{Frame, FrameW};
+pub use ray::{Ray, offset_origin, offset_origin_wide};

@@ -1,5 +1,7 @@
 use glam::Vec3;
 
+use crate::wide::{F8, V3w};
+
 /// A ray `origin + t * dir`. `dir` need not be normalised for intersection, but the
 /// integrators always pass unit directions so that `t` is a distance.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -27,5 +29,13 @@ impl Ray {
 pub fn offset_origin(p: Vec3, geometric_normal: Vec3, dir: Vec3) -> Vec3 {
     let eps = 2e-5 * p.abs().max_element().max(1.0);
     let side = if geometric_normal.dot(dir) >= 0.0 { 1.0 } else { -1.0 };
+    p + geometric_normal * (eps * side)
+}
+
+/// [`offset_origin`] lane by lane.
+#[inline(always)]
+pub fn offset_origin_wide(p: V3w, geometric_normal: V3w, dir: V3w) -> V3w {
+    let eps = 2e-5 * p.abs().max_element().max(1.0);
+    let side = geometric_normal.dot(dir).ge(0.0).select(F8::ONE, F8::splat(-1.0));
     p + geometric_normal * (eps * side)
 }

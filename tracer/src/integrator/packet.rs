@@ -2,35 +2,148 @@
 //! ([`PackedTriangles`]), with the ray queries of eight paths answered together by the
 //! packet queries of `accel/packet.rs`.
 //!
-//! Each lane holds one sample's [`PathState`]. A round traces the closest hits of all
-//! lanes' segments at once, lets each path [`scatter`](PathState::scatter) at its hit
-//! (the same code as the one-path [`li`](super::path::li)), traces the shadow rays of
-//! all lanes' light samples at once, and adds their contributions. A path that ends
-//! leaves its radiance in the film and its lane takes the tile's next sample. Every
-//! sample runs exactly the scalar integrator's operations and the packet queries give
-//! exactly the one-ray queries' answers, so each sample's radiance is the same bits as
-//! with [`li`](super::path::li), and the film's fixed-point sums do not depend on the
-//! order in which samples end.
+//! Each lane holds one sample's path. A round traces the closest hits of all lanes'
+//! segments at once, lets the paths scatter at their hits, traces the shadow rays of all
+//! lanes' light samples at once, and adds their contributions. A path that ends leaves
+//! its radiance in the film and its lane takes the tile's next sample.
+//!
+//! Scattering takes one of two routes per lane. The common case, a diffuse or glossy
+//! surface without texture in a scene lit by triangle and sphere lights, runs eight
+//! lanes at once ([`scatter_wide`]): the one-path code's operations in the same order,
+//! on the eight-lane types of `wide.rs`, with each step's wide twin next to its scalar
+//! original. Every other lane runs the one-path [`PathState::scatter`] itself. Either
+//! way a sample's radiance is the same bits as with [`li`](super::path::li) (the
+//! render-variant test in `render.rs` holds them equal), and the film's fixed-point sums
+//! do not depend on the order in which samples end.
 
 use glam::{Vec2, Vec3};
 
 use super::RayCount;
-use super::path::{Options, PathState, ShadowQuery, transmittance};
+use super::path::{Options, PathState, ShadowQuery, Strategy, emitter_weight, transmittance};
 use crate::accel::packed::PackedTriangles;
-use crate::accel::packet::{PACKET, RayPacket};
+use crate::accel::packet::{PACKET, PacketHits, RayPacket};
+use crate::bsdf::Bsdf;
+use crate::bsdf::blinn_phong::{BlinnPhong, BlinnPhongW};
+use crate::bsdf::lambert::LambertW;
 use crate::film::{Accumulation, SampleRange, Tile};
-use crate::geometry::Ray;
-use crate::sampler::Sampler;
-use crate::sampling::select;
+use crate::geometry::{FrameW, Ray, offset_origin_wide};
+use crate::sampler::{Sampler, SamplerLanes};
+use crate::sampling::wide;
 use crate::scene::Scene;
+use crate::wide::{F8, M8, U8, V2w, V3w, each};
 
-/// One lane's sample: its path, its random numbers and its pixel (index within the
-/// tile).
-#[derive(Clone)]
-struct Lane {
-    path: PathState,
-    sampler: Sampler,
-    pixel: usize,
+/// Eight paths' state: lane by lane a [`PathState`].
+struct Paths {
+    origin: V3w,
+    dir: V3w,
+    l: V3w,
+    beta: V3w,
+    prev_pdf: F8,
+    prev_delta: M8,
+    prev_p: V3w,
+    depth: U8,
+}
+
+impl Paths {
+    #[inline(always)]
+    fn get(&self, l: usize) -> PathState {
+        PathState {
+            ray: Ray::new(self.origin.get(l), self.dir.get(l)),
+            l: self.l.get(l),
+            beta: self.beta.get(l),
+            prev_pdf: self.prev_pdf.0[l],
+            prev_delta: self.prev_delta.0[l] != 0,
+            prev_p: self.prev_p.get(l),
+            depth: self.depth.0[l],
+        }
+    }
+
+    #[inline(always)]
+    fn set(&mut self, l: usize, s: &PathState) {
+        self.origin.set(l, s.ray.origin);
+        self.dir.set(l, s.ray.dir);
+        self.l.set(l, s.l);
+        self.beta.set(l, s.beta);
+        self.prev_pdf.0[l] = s.prev_pdf;
+        self.prev_delta.0[l] = u32::from(s.prev_delta).wrapping_neg();
+        self.prev_p.set(l, s.prev_p);
+        self.depth.0[l] = s.depth;
+    }
+}
+
+/// Eight lanes' light samples waiting for shadow rays: lane by lane a [`ShadowQuery`].
+struct Shadows {
+    /// Lanes with a light sample.
+    pending: u32,
+    /// Of those, the lanes with a shadow ray (the others' samples lie at the shading
+    /// point itself and are visible without one).
+    traced: u32,
+    origin: V3w,
+    dir: V3w,
+    tmax: F8,
+    unshadowed: V3w,
+    weight: F8,
+    pdf: F8,
+}
+
+impl Shadows {
+    #[inline(always)]
+    fn put(&mut self, l: usize, q: &ShadowQuery) {
+        self.pending |= 1 << l;
+        if let Some((ray, tmax)) = q.ray {
+            self.traced |= 1 << l;
+            self.origin.set(l, ray.origin);
+            self.dir.set(l, ray.dir);
+            self.tmax.0[l] = tmax;
+        }
+        self.unshadowed.set(l, q.unshadowed);
+        self.weight.0[l] = q.weight;
+        self.pdf.0[l] = q.pdf;
+    }
+
+    #[inline(always)]
+    fn get(&self, l: usize) -> ShadowQuery {
+        ShadowQuery {
+            ray: (self.traced & (1 << l) != 0).then(|| (Ray::new(self.origin.get(l), self.dir.get(l)), self.tmax.0[l])),
+            unshadowed: self.unshadowed.get(l),
+            weight: self.weight.0[l],
+            pdf: self.pdf.0[l],
+        }
+    }
+}
+
+/// What the wide route needs of a material.
+#[derive(Clone, Copy)]
+struct WideMaterial {
+    /// Diffuse or glossy, opaque, untextured: the wide route takes it.
+    ok: bool,
+    /// The Blinn-Phong lobes of a glossy material; `None` for a diffuse one.
+    glossy: Option<BlinnPhong>,
+    kd: Vec3,
+    emissive: bool,
+}
+
+impl WideMaterial {
+    fn of(scene: &Scene) -> Vec<WideMaterial> {
+        let plain = scene.lights.wide_ok() && !scene.has_cutouts;
+        scene
+            .materials
+            .iter()
+            .map(|m| {
+                let (kind_ok, glossy, kd) = match m.bsdf {
+                    Bsdf::Diffuse { kd } => (true, None, kd),
+                    Bsdf::Glossy { kd, ks, exponent } => (true, Some(BlinnPhong::new(kd, ks, exponent)), Vec3::ZERO),
+                    _ => (false, None, Vec3::ZERO),
+                };
+                WideMaterial {
+                    ok: plain && kind_ok && m.opacity >= 1.0 && m.kd_texture.is_none(),
+                    glossy,
+                    kd,
+                    emissive: m.is_emissive(),
+                }
+            })
+            .collect()
+    }
 }
 
 /// Every sample of every pixel of `tile` with the path integrator, eight at a time.
@@ -50,16 +163,26 @@ pub(crate) fn render_unit(
     let mut count = RayCount::default();
     let cam = &scene.camera;
     let seed = scene.settings.seed;
+    let materials = WideMaterial::of(scene);
     let per_pixel = u64::from(samples.len());
     let total = tile.pixel_count() as u64 * per_pixel;
     let mut next = 0u64;
-    // Lanes are arrays with a mask of the live ones, not options: which lanes hold a
-    // path, have a shadow ray or end is random, and branches on it mispredict.
-    let idle =
-        Lane { path: PathState::new(Ray::new(Vec3::ZERO, Vec3::Z)), sampler: Sampler::new(0, 0, 0, 0), pixel: 0 };
-    let mut lanes: [Lane; PACKET] = std::array::from_fn(|_| idle.clone());
+    let zero = V3w::splat(Vec3::ZERO);
+    let mut paths = Paths {
+        origin: zero,
+        dir: V3w::splat(Vec3::Z),
+        l: zero,
+        beta: zero,
+        prev_pdf: F8::ZERO,
+        prev_delta: M8::NONE,
+        prev_p: zero,
+        depth: U8::splat(0),
+    };
+    let mut samplers = SamplerLanes::default();
+    let mut pixels = [0usize; PACKET];
+    // Lanes holding a path. Lanes are arrays with masks, not options: which lanes hold
+    // a path, have a shadow ray or end is random, and branches on it mispredict.
     let mut live = 0u32;
-    let mut queries: [Option<ShadowQuery>; PACKET] = [None; PACKET];
     loop {
         // Idle lanes take the next samples, pixel by pixel.
         let mut idle = !live & ((1 << PACKET) - 1);
@@ -73,8 +196,9 @@ pub(crate) fn render_unit(
             // Box filter: uniform positions within the pixel (as `render.rs`'s loop).
             let film = Vec2::new(x as f32, y as f32) + sampler.next_2d();
             let lens = if cam.has_lens() { sampler.next_2d() } else { Vec2::ZERO };
-            let ray = cam.generate_ray(film, lens);
-            lanes[l] = Lane { path: PathState::new(ray), sampler, pixel: pixel as usize };
+            paths.set(l, &PathState::new(cam.generate_ray(film, lens)));
+            samplers.set(l, &sampler);
+            pixels[l] = pixel as usize;
             live |= 1 << l;
         }
         if live == 0 {
@@ -82,52 +206,249 @@ pub(crate) fn render_unit(
         }
 
         // Idle lanes hold an old ray, which is harmless; the mask leaves them out.
-        let mut rays = RayPacket::default();
-        for (l, lane) in lanes.iter().enumerate() {
-            rays.set(l, &lane.path.ray, f32::INFINITY);
-        }
-        rays.active = live;
+        let rays = RayPacket {
+            origin: [paths.origin.x.0, paths.origin.y.0, paths.origin.z.0],
+            dir: [paths.dir.x.0, paths.dir.y.0, paths.dir.z.0],
+            tmax: [f32::INFINITY; PACKET],
+            active: live,
+        };
         count.rays += u64::from(live.count_ones());
         let hits = packed.intersect8(&scene.geometry, &rays);
 
-        let mut shadow = RayPacket::default();
-        let mut ended = 0u32;
-        for (l, lane) in lanes.iter_mut().enumerate() {
-            if live & (1 << l) == 0 {
-                continue;
-            }
-            let (query, go_on) = lane.path.scatter(scene, hits.get(l), &mut lane.sampler, opt);
-            ended |= u32::from(!go_on) << l;
-            if let Some(q) = query {
-                match q.ray {
-                    // Stochastic opacity needs a walk through the surfaces: one lane alone.
-                    Some((ray, tmax)) if !scene.has_cutouts => {
-                        shadow.set(l, &ray, tmax);
-                        queries[l] = Some(q);
-                    }
-                    _ => lane.path.add_light(&q, transmittance(scene, &q, &mut count)),
-                }
-            }
+        let mut shadows = Shadows {
+            pending: 0,
+            traced: 0,
+            origin: zero,
+            dir: zero,
+            tmax: F8::ZERO,
+            unshadowed: zero,
+            weight: F8::ZERO,
+            pdf: F8::ONE,
+        };
+        let go_on = scatter(scene, &materials, &mut paths, &mut samplers, &hits, live, opt, &mut shadows);
+
+        // With stochastic opacity a shadow ray walks through the surfaces, one lane
+        // alone; samples at the shading point need no ray.
+        let packet = if scene.has_cutouts { 0 } else { shadows.traced };
+        for l in each(shadows.pending & !packet) {
+            let q = shadows.get(l);
+            let mut path = paths.get(l);
+            path.add_light(&q, transmittance(scene, &q, &mut count));
+            paths.set(l, &path);
+        }
+        if packet != 0 {
+            let rays = RayPacket {
+                origin: [shadows.origin.x.0, shadows.origin.y.0, shadows.origin.z.0],
+                dir: [shadows.dir.x.0, shadows.dir.y.0, shadows.dir.z.0],
+                tmax: shadows.tmax.0,
+                active: packet,
+            };
+            count.rays += u64::from(packet.count_ones());
+            let blocked = packed.occluded8(&scene.geometry, &rays);
+            // `PathState::add_light` with transmittance 1 for the lanes not blocked.
+            let lit = M8::from_bits(packet & !blocked);
+            let add = shadows.unshadowed * (1.0 * shadows.weight / shadows.pdf);
+            paths.l = lit.select3(paths.l + add, paths.l);
         }
 
-        if shadow.active != 0 {
-            count.rays += u64::from(shadow.active.count_ones());
-            let blocked = packed.occluded8(&scene.geometry, &shadow);
-            let mut waiting = shadow.active;
-            while waiting != 0 {
-                let l = waiting.trailing_zeros() as usize;
-                waiting &= waiting - 1;
-                if let Some(q) = queries[l].take() {
-                    lanes[l].path.add_light(&q, select(blocked & (1 << l) != 0, 0.0, 1.0));
-                }
-            }
+        let ended = live & !go_on;
+        for l in each(ended) {
+            acc.add_sample(pixels[l], paths.l.get(l));
         }
+        live &= go_on;
+    }
+}
 
-        live &= !ended;
-        while ended != 0 {
-            let l = ended.trailing_zeros() as usize;
-            ended &= ended - 1;
-            acc.add_sample(lanes[l].pixel, lanes[l].path.radiance());
+/// The lanes `live` scatter at their hits: the lanes the wide route takes run
+/// [`scatter_wide`], the others [`PathState::scatter`] one by one. Fills `shadows` and
+/// returns the lanes whose paths go on.
+#[allow(clippy::too_many_arguments)]
+#[inline(always)]
+fn scatter(
+    scene: &Scene,
+    materials: &[WideMaterial],
+    paths: &mut Paths,
+    samplers: &mut SamplerLanes,
+    hits: &PacketHits,
+    live: u32,
+    opt: &Options,
+    shadows: &mut Shadows,
+) -> u32 {
+    let g = &scene.geometry;
+    let ntri = g.triangle_count();
+    let (mut tri, mut sph, mut one, mut go_on) = (0u32, 0u32, 0u32, 0u32);
+    let mut material = U8::splat(0);
+    for l in each(live & hits.found) {
+        let prim = hits.prim[l] as usize;
+        let (m, sphere) = if prim < ntri { (g.material(prim), false) } else { (g.spheres[prim - ntri].material, true) };
+        material.0[l] = m;
+        let wide = materials[m as usize].ok && (sphere || g.shading_normals(prim).is_none());
+        let lane = 1 << l;
+        match (wide, sphere) {
+            (true, false) => tri |= lane,
+            (true, true) => sph |= lane,
+            (false, _) => one |= lane,
         }
     }
+    // Misses: the environment (a lane alone), or, in scenes without one, the end.
+    if scene.lights.environment().is_some() {
+        one |= live & !hits.found;
+    }
+    for l in each(one) {
+        let (mut path, mut sampler) = (paths.get(l), samplers.get(l));
+        let (q, go) = path.scatter(scene, hits.get(l), &mut sampler, opt);
+        paths.set(l, &path);
+        samplers.set(l, &sampler);
+        if let Some(q) = q {
+            shadows.put(l, &q);
+        }
+        go_on |= u32::from(go) << l;
+    }
+    if tri | sph != 0 {
+        let hit = (U8(hits.prim), F8(hits.t), F8(hits.u), F8(hits.v));
+        go_on |= scatter_wide(
+            scene,
+            materials,
+            paths,
+            samplers,
+            hit,
+            M8::from_bits(tri),
+            M8::from_bits(sph),
+            material,
+            opt,
+            shadows,
+        );
+    }
+    go_on
+}
+
+/// [`PathState::scatter`] for the lanes `tri | sph` at once: hits on triangles without
+/// shading normals and on spheres, with diffuse or glossy untextured materials, in a
+/// scene whose lights are triangles and spheres. The same steps and operations, on
+/// eight lanes (see the module comment); returns the lanes whose paths go on.
+#[allow(clippy::too_many_arguments)]
+#[inline(always)]
+fn scatter_wide(
+    scene: &Scene,
+    materials: &[WideMaterial],
+    paths: &mut Paths,
+    samplers: &mut SamplerLanes,
+    hit: (U8, F8, F8, F8),
+    tri: M8,
+    sph: M8,
+    material: U8,
+    opt: &Options,
+    shadows: &mut Shadows,
+) -> u32 {
+    let (use_nee, use_bsdf_hits) = match opt.strategy {
+        Strategy::Mis => (true, true),
+        Strategy::LightOnly => (true, false),
+        Strategy::BsdfOnly => (false, true),
+    };
+    let lanes = tri | sph;
+    let (p, ng) = scene.interaction_wide(paths.origin, paths.dir, hit, tri, sph);
+    let wo = -paths.dir;
+    let mat = |l: usize| &materials[material.0[l] as usize];
+
+    // One-sided emission: only the front face emits. (Rare: lane by lane.)
+    let front = ng.dot(wo).gt(0.0);
+    for l in each((lanes & front).bits()) {
+        if !mat(l).emissive {
+            continue;
+        }
+        let (prev_p, dir, pl) = (paths.prev_p.get(l), paths.dir.get(l), p.get(l));
+        let w = emitter_weight(paths.depth.0[l], paths.prev_delta.0[l] != 0, opt.strategy, paths.prev_pdf.0[l], || {
+            // What NEE at prev_p would have had for this light (0 if it never could).
+            scene
+                .lights
+                .light_of_prim(hit.0.0[l])
+                .map_or(0.0, |li| scene.lights.pmf_at(prev_p, li) * scene.lights.lights[li].pdf_li(prev_p, dir, pl))
+        });
+        let emission = scene.materials[material.0[l] as usize].emission;
+        paths.l.set(l, paths.l.get(l) + paths.beta.get(l) * emission * w);
+    }
+
+    paths.depth = lanes.select_u(paths.depth.map(|d| d + 1), paths.depth);
+    let alive = if opt.max_depth >= 0 { lanes & !paths.depth.ge(U8::splat(opt.max_depth as u32)) } else { lanes };
+    if !alive.any() {
+        return 0;
+    }
+    let glossy = alive & M8::from_bools(std::array::from_fn(|l| mat(l).glossy.is_some()));
+    let diffuse = alive & !glossy;
+    let lambert = LambertW { kd: V3w::from_fn(|l| mat(l).kd) };
+    let blinn_phong = glossy
+        .any()
+        .then(|| BlinnPhongW::from_fn(|l| mat(l).glossy.unwrap_or(BlinnPhong::new(Vec3::ZERO, Vec3::ZERO, 0.0))));
+    // Reflection-only surfaces are two-sided: shade the side the ray arrives from.
+    let ng = ng.dot(wo).lt(0.0).select3(-ng, ng);
+    let frame = FrameW::from_normal(ng);
+    let wo_local = frame.to_local(wo);
+
+    // Next-event estimation (`PathState::scatter`'s): one 2D sample picks the light and
+    // the point on it.
+    if use_nee {
+        let u = samplers.next_2d(alive);
+        let (light, pmf, ux, chosen) = scene.lights.select_at_wide(p, u.x);
+        let (wi, li, light_pdf, target, some) =
+            scene.lights.sample_li_wide(light, p, V2w { x: ux, y: u.y }, alive & chosen);
+        let reflects_above = ng.dot(wi).gt(0.0);
+        let cond = some & light_pdf.gt(0.0) & li.max_element().gt(0.0) & reflects_above;
+        let wi_local = frame.to_local(wi);
+        let (mut f, mut bsdf_pdf) = (lambert.eval(wo_local, wi_local), lambert.pdf(wo_local, wi_local));
+        if let Some(bp) = &blinn_phong {
+            let on = cond & glossy;
+            if on.any() {
+                let (fg, pg) = bp.eval_pdf(wo_local, wi_local, on);
+                (f, bsdf_pdf) = (glossy.select3(fg, f), glossy.select(pg, bsdf_pdf));
+            }
+        }
+        let keep = cond & f.max_element().gt(0.0);
+        if keep.any() {
+            let pdf = pmf * light_pdf;
+            let w = if use_bsdf_hits { wide::power_heuristic(1.0, pdf, 1.0, bsdf_pdf) } else { F8::ONE };
+            let origin = offset_origin_wide(p, ng, wi);
+            let d = target - origin;
+            let dist = d.length();
+            shadows.origin = keep.select3(origin, shadows.origin);
+            shadows.dir = keep.select3(d / dist, shadows.dir);
+            shadows.tmax = keep.select(dist * (1.0 - 1e-5), shadows.tmax);
+            shadows.unshadowed = keep.select3(paths.beta * f * li, shadows.unshadowed);
+            shadows.weight = keep.select(w, shadows.weight);
+            shadows.pdf = keep.select(pdf, shadows.pdf);
+            shadows.pending |= keep.bits();
+            shadows.traced |= (keep & !dist.le(0.0)).bits();
+        }
+    }
+
+    // BSDF sampling: the next segment. Lambert draws a direction; the glossy BSDF a lobe
+    // choice, then a direction.
+    let u_lobe = if glossy.any() { samplers.next_1d(glossy) } else { F8::ZERO };
+    let u = samplers.next_2d(alive);
+    let (mut wi, mut pdf, mut ok) = lambert.sample(wo_local, u, diffuse);
+    let mut weight = lambert.kd;
+    if let Some(bp) = &blinn_phong {
+        let (wg, weight_g, pg, ok_g) = bp.sample(wo_local, u_lobe, u, glossy);
+        (wi, weight, pdf, ok) =
+            (glossy.select3(wg, wi), glossy.select3(weight_g, weight), glossy.select(pg, pdf), ok | ok_g);
+    }
+    let wi = frame.to_world(wi);
+    // A reflection that dips below the geometric surface would leak light through it.
+    let beta = paths.beta * weight;
+    let go = ok & !ng.dot(wi).le(0.0) & beta.max_element().gt(0.0) & beta.is_finite();
+    paths.beta = go.select3(beta, paths.beta);
+    paths.prev_pdf = go.select(pdf, paths.prev_pdf);
+    paths.prev_delta = go.select_m(M8::NONE, paths.prev_delta);
+    paths.prev_p = go.select3(p, paths.prev_p);
+    paths.origin = go.select3(offset_origin_wide(p, ng, wi), paths.origin);
+    paths.dir = go.select3(wi, paths.dir);
+
+    // Russian roulette.
+    let rr = go & paths.depth.ge(U8::splat(opt.rr_depth));
+    if !rr.any() {
+        return go.bits();
+    }
+    let q = paths.beta.max_element().min(0.95);
+    let dies = rr & samplers.next_1d(rr).ge(q);
+    paths.beta = (rr & !dies).select3(paths.beta / q, paths.beta);
+    (go & !dies).bits()
 }

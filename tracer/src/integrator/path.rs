@@ -73,9 +73,9 @@ pub struct ShadowQuery {
     /// The shadow ray and the distance it must get through; `None` when the light
     /// sample lies at the shading point itself (visible without a ray).
     pub ray: Option<(Ray, f32)>,
-    unshadowed: Vec3,
-    weight: f32,
-    pdf: f32,
+    pub(crate) unshadowed: Vec3,
+    pub(crate) weight: f32,
+    pub(crate) pdf: f32,
 }
 
 /// One path between two ray queries.
@@ -83,13 +83,13 @@ pub struct ShadowQuery {
 pub struct PathState {
     /// The segment whose closest hit [`PathState::scatter`] needs next.
     pub ray: Ray,
-    l: Vec3,
-    beta: Vec3,
+    pub(crate) l: Vec3,
+    pub(crate) beta: Vec3,
     // State of the previous scattering event, for MIS weights of emitters hit next.
-    prev_pdf: f32,
-    prev_delta: bool,
-    prev_p: Vec3,
-    depth: u32,
+    pub(crate) prev_pdf: f32,
+    pub(crate) prev_delta: bool,
+    pub(crate) prev_p: Vec3,
+    pub(crate) depth: u32,
 }
 
 impl PathState {
@@ -260,7 +260,7 @@ impl PathState {
 /// The weight of emission found by BSDF sampling (or seen from the camera), given the
 /// pdf with which light sampling would have produced the same direction.
 #[inline]
-fn emitter_weight(
+pub(crate) fn emitter_weight(
     depth: u32,
     prev_delta: bool,
     strategy: Strategy,

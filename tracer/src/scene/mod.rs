@@ -25,6 +25,7 @@ use crate::light::LightSet;
 use crate::material::Material;
 use crate::math;
 use crate::texture::Texture;
+use crate::wide::{F8, M8, U8, V3w, each};
 
 /// Everything needed to render: immutable once built, shared by all render threads.
 pub struct Scene {
@@ -121,5 +122,44 @@ impl Scene {
                 SurfaceHit { p, ng: n, ns: n, uv, material: s.material, prim: hit.prim, t: hit.t }
             }
         }
+    }
+
+    /// [`Scene::interaction`]'s position and geometric normal at eight hits, lane by lane
+    /// with the same operations: the lanes of `tri` hit triangles without shading
+    /// normals (so the shading normal is the geometric one), those of `sph` spheres;
+    /// `prim`, `t`, `u`, `v` are the hits'. (Texture coordinates are not computed: the
+    /// eight-path integrator takes lanes whose materials have no texture.)
+    #[inline(always)]
+    pub fn interaction_wide(&self, origin: V3w, dir: V3w, hit: (U8, F8, F8, F8), tri: M8, sph: M8) -> (V3w, V3w) {
+        let (prim, t, u, v) = hit;
+        let g = &self.geometry;
+        let zero = V3w::splat(Vec3::ZERO);
+        let (mut p, mut ng) = (zero, zero);
+        if tri.any() {
+            let (mut p0, mut p1, mut p2) = (zero, zero, zero);
+            for l in each(tri.bits()) {
+                let [a, b, c] = *g.triangle(prim.0[l] as usize);
+                p0.set(l, a);
+                p1.set(l, b);
+                p2.set(l, c);
+            }
+            let b = V3w::new(1.0 - u - v, u, v);
+            let pt = b.x * p0 + b.y * p1 + b.z * p2;
+            p = tri.select3(pt, p);
+            ng = tri.select3((p1 - p0).cross(p2 - p0).normalize_or_zero(), ng);
+        }
+        if sph.any() {
+            let (mut c, mut r) = (zero, F8::ZERO);
+            for l in each(sph.bits()) {
+                let s = &g.spheres[prim.0[l] as usize - g.triangle_count()];
+                c.set(l, s.center);
+                r.0[l] = s.radius;
+            }
+            let n = (origin + t * dir - c).normalize_or_zero();
+            let n = (n.x.eq(0.0) & n.y.eq(0.0) & n.z.eq(0.0)).select3(V3w::splat(Vec3::Z), n);
+            p = sph.select3(c + r * n, p);
+            ng = sph.select3(n, ng);
+        }
+        (p, ng)
     }
 }
