@@ -11,12 +11,12 @@
 //! operations as its scalar twin gives the twin's bits in every lane; the twins sit next
 //! to each other in their modules, and tests hold them equal.
 //!
-//! Transcendental functions and table lookups have no vector form here: they run lane
-//! by lane ([`F8::map`]).
+//! Transcendental functions (CORE-MATH) have no vector form: they run lane by lane
+//! (`sampling::wide::sin_cos`, for one).
 
 use std::ops::{Add, BitAnd, BitOr, Div, Mul, Neg, Not, Sub};
 
-use glam::{Vec2, Vec3};
+use glam::Vec3;
 
 /// Lanes of a wide value.
 pub const W: usize = 8;
@@ -184,21 +184,6 @@ impl F8 {
         M8(lanes(|l| u32::from(self.0[l].to_bits() & 0x7fff_ffff == 0x7f80_0000).wrapping_neg()))
     }
 
-    /// Any function lane by lane (for what has no vector form: transcendentals, lookups).
-    #[inline(always)]
-    pub fn map(self, f: impl Fn(f32) -> f32) -> F8 {
-        F8(lanes(|l| f(self.0[l])))
-    }
-
-    #[inline(always)]
-    pub fn to_bits(self) -> U8 {
-        U8(lanes(|l| self.0[l].to_bits()))
-    }
-
-    #[inline(always)]
-    pub fn from_bits(b: U8) -> F8 {
-        F8(lanes(|l| f32::from_bits(b.0[l])))
-    }
 }
 
 impl M8 {
@@ -251,10 +236,6 @@ impl M8 {
         V3w { x: self.select(a.x, b.x), y: self.select(a.y, b.y), z: self.select(a.z, b.z) }
     }
 
-    #[inline(always)]
-    pub fn and_not(self, o: M8) -> M8 {
-        self & !o
-    }
 }
 
 impl BitAnd for M8 {
@@ -475,12 +456,5 @@ impl V3w {
     #[inline(always)]
     pub fn abs(self) -> V3w {
         V3w { x: self.x.abs(), y: self.y.abs(), z: self.z.abs() }
-    }
-}
-
-impl V2w {
-    #[inline(always)]
-    pub fn get(&self, l: usize) -> Vec2 {
-        Vec2::new(self.x.0[l], self.y.0[l])
     }
 }
