@@ -68,8 +68,8 @@ fn render_unit_avx2(
     render_unit_simd(scene, integrator, tile, samples)
 }
 
-/// The AVX2 variants' body: eight paths at a time (`integrator/packet.rs`) where the
-/// scene is traced by brute force and the integrator is a path tracer, else the loop
+/// The AVX2 variants' body: eight paths at a time (`integrator/packet.rs`) for the path
+/// integrators where that pays (see [`crate::integrator::packet::pays`]), else the loop
 /// below. Both give the same bits.
 ///
 /// Only called from functions compiled with AVX2, on CPUs that have it.
@@ -81,10 +81,10 @@ fn render_unit_simd(
     tile: Tile,
     samples: SampleRange,
 ) -> (Accumulation, RayCount) {
-    if let (Some(packed), Some(opt)) = (&scene.packed, path_options(integrator, scene))
-        && packed.packets()
+    if let Some(opt) = path_options(integrator, scene)
+        && crate::integrator::packet::pays(scene)
     {
-        return crate::integrator::packet::render_unit(scene, packed, &opt, tile, samples);
+        return crate::integrator::packet::render_unit(scene, &opt, tile, samples);
     }
     render_unit_loop(scene, integrator, tile, samples)
 }
@@ -298,9 +298,32 @@ radius = 0.1
 ke = [30.0, 25.0, 20.0]
 "#;
         let wide = crate::scene::scene_from_toml(toml, "wide.toml", &dir).unwrap();
-        let _ = std::fs::remove_dir_all(&dir);
         assert!(wide.lights.wide_ok() && wide.lights.lights.len() == 3 && wide.packed.is_some());
-        let mut scenes = vec![("variants.toml".to_string(), extra), ("wide.toml".to_string(), wide)];
+        // The same with a finely divided back wall: too many triangles for brute force,
+        // so the eight paths' rays go through the kd-tree one by one.
+        let mut grid = String::from("mtllib w.mtl\nusemtl wall\n");
+        for j in 0..=12 {
+            for i in 0..=12 {
+                grid += &format!("v {} {} 1.99\n", -2.0 + i as f32 / 3.0, j as f32 / 4.0);
+            }
+        }
+        for j in 0..12 {
+            for i in 0..12 {
+                let v = 1 + j * 13 + i;
+                grid += &format!("f {} {} {} {}\n", v, v + 13, v + 14, v + 1);
+            }
+        }
+        std::fs::write(dir.join("grid.obj"), grid).unwrap();
+        let tree =
+            crate::scene::scene_from_toml(&format!("{toml}[[mesh]]\nobj = \"grid.obj\"\n"), "wide-tree.toml", &dir)
+                .unwrap();
+        let _ = std::fs::remove_dir_all(&dir);
+        assert!(tree.packed.is_none() && crate::integrator::packet::pays(&tree));
+        let mut scenes = vec![
+            ("variants.toml".to_string(), extra),
+            ("wide.toml".to_string(), wide),
+            ("wide-tree.toml".to_string(), tree),
+        ];
         // Every bundled scene, so that every material and light kind is covered.
         let bundled = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../scenes");
         for dir in std::fs::read_dir(&bundled).unwrap() {
@@ -309,13 +332,14 @@ ke = [30.0, 25.0, 20.0]
                 scenes.push((path.display().to_string(), crate::scene::load_scene(&path).unwrap()));
             }
         }
-        assert!(scenes.len() >= 8, "only {} bundled scenes found", scenes.len() - 2);
+        assert!(scenes.len() >= 9, "only {} bundled scenes found", scenes.len() - 3);
         scenes
     }
 
     /// The instruction-set variants of the render loop, and with them the eight-path
-    /// renderer of `integrator/packet.rs` (for the scenes traced by brute force: all but
-    /// the cup), give the baseline loop's bits, for every path integrator and an AOV.
+    /// renderer of `integrator/packet.rs` (with packet queries for the scenes traced by
+    /// brute force, all but the cup), give the baseline loop's bits, for every path
+    /// integrator and an AOV.
     #[cfg(target_arch = "x86_64")]
     #[test]
     fn loop_variants_are_the_baseline_loop() {

@@ -183,7 +183,6 @@ impl F8 {
     pub fn is_infinite(self) -> M8 {
         M8(lanes(|l| u32::from(self.0[l].to_bits() & 0x7fff_ffff == 0x7f80_0000).wrapping_neg()))
     }
-
 }
 
 impl M8 {
@@ -235,7 +234,6 @@ impl M8 {
     pub fn select3(self, a: V3w, b: V3w) -> V3w {
         V3w { x: self.select(a.x, b.x), y: self.select(a.y, b.y), z: self.select(a.z, b.z) }
     }
-
 }
 
 impl BitAnd for M8 {
