@@ -1,18 +1,18 @@
-//! Eight lanes of `f32` / `u32` for the eight-path integrator (`integrator/packet.rs`):
-//! plain arrays whose operations are written lane by lane with the scalar operations
-//! themselves (`+`, `f32::max`, `f32::sqrt`, ...).
+//! Eight lanes of `f32` / `u32` for the eight-path integrator (`integrator/packet.rs`).
 //!
-//! Each operation is one straight line of eight independent lane operations, which the
-//! compiler turns into one AVX2 instruction (or a short sequence) where the caller is
-//! compiled for AVX2, and into scalar code elsewhere. Either way lane `l` of a result is
-//! exactly what the scalar operation gives for lane `l` of the inputs: vectorising
-//! preserves the semantics of every operation used here, including `f32::max`'s NaN
-//! rule and IEEE rounding. So a function written with these types in the same order of
-//! operations as its scalar twin gives the twin's bits in every lane; the twins sit next
-//! to each other in their modules, and tests hold them equal.
+//! Every operation gives, in each lane, exactly what the scalar operation of the same
+//! name gives (`+`, `<`, `f32::sqrt`, `f32::clamp`, ...), so a function written with
+//! these types in the same order of operations as its scalar twin gives the twin's bits
+//! in every lane; the twins sit next to each other in their modules, and tests hold them
+//! equal. Two deliberate limits: `max` and `min` follow `f32::max`/`min` for NaN but may
+//! differ from them on `max(0.0, -0.0)`, whose sign Rust leaves open (the callers never
+//! compare zeros of opposite sign); and transcendental functions (CORE-MATH) have no
+//! vector form, so callers run them lane by lane.
 //!
-//! Transcendental functions (CORE-MATH) have no vector form: they run lane by lane
-//! (`sampling::wide::sin_cos`, for one).
+//! On x86_64 the operations are AVX2 instructions, written with `core::arch` (the
+//! compiler's own vectoriser left plain lane loops half scalar). **They may only run
+//! where the CPU has AVX2**: the eight-path renderer runs only after detecting it, and
+//! the tests that use these types check first. Elsewhere they are lane loops.
 
 use std::ops::{Add, BitAnd, BitOr, Div, Mul, Neg, Not, Sub};
 
@@ -37,8 +37,7 @@ pub struct U8(pub [u32; W]);
 #[repr(C, align(32))]
 pub struct M8(pub [u32; W]);
 
-/// `[f(0), f(1), ..]`: a lane-by-lane map, which the compiler vectorises when `f` is
-/// straight-line code of vector-friendly operations.
+/// `[f(0), f(1), ..]`: a lane-by-lane map (for what has no vector form).
 #[inline(always)]
 pub fn lanes<T: Copy + Default, const N: usize>(f: impl Fn(usize) -> T) -> [T; N] {
     let mut r = [T::default(); N];
@@ -48,50 +47,228 @@ pub fn lanes<T: Copy + Default, const N: usize>(f: impl Fn(usize) -> T) -> [T; N
     r
 }
 
+/// The operations on 256-bit registers: AVX2 on x86_64.
+#[cfg(target_arch = "x86_64")]
+mod imp {
+    use core::arch::x86_64::*;
+
+    use super::W;
+
+    type Fx = [f32; W];
+    type Ux = [u32; W];
+
+    // SAFETY (every function here): the arrays and the registers are 32 bytes of plain
+    // data; the instructions need AVX2, which the module comment makes the callers'
+    // precondition.
+    #[inline(always)]
+    fn ps(a: Fx) -> __m256 {
+        unsafe { core::mem::transmute::<Fx, __m256>(a) }
+    }
+    #[inline(always)]
+    fn fx(a: __m256) -> Fx {
+        unsafe { core::mem::transmute::<__m256, Fx>(a) }
+    }
+    #[inline(always)]
+    fn si(a: Ux) -> __m256i {
+        unsafe { core::mem::transmute::<Ux, __m256i>(a) }
+    }
+    #[inline(always)]
+    fn ux(a: __m256i) -> Ux {
+        unsafe { core::mem::transmute::<__m256i, Ux>(a) }
+    }
+    #[inline(always)]
+    fn mask(a: __m256) -> Ux {
+        ux(unsafe { _mm256_castps_si256(a) })
+    }
+
+    macro_rules! f2 {
+        ($($name:ident => $op:ident),*) => {$(
+            #[inline(always)]
+            pub fn $name(a: Fx, b: Fx) -> Fx {
+                fx(unsafe { $op(ps(a), ps(b)) })
+            }
+        )*};
+    }
+    f2!(add => _mm256_add_ps, sub => _mm256_sub_ps, mul => _mm256_mul_ps, div => _mm256_div_ps);
+
+    macro_rules! cmp {
+        ($($name:ident => $pred:ident),*) => {$(
+            #[inline(always)]
+            pub fn $name(a: Fx, b: Fx) -> Ux {
+                mask(unsafe { _mm256_cmp_ps::<$pred>(ps(a), ps(b)) })
+            }
+        )*};
+    }
+    // Rust's `<`, `<=`, `>`, `>=`, `==` are false on NaN (ordered); `!=` is true.
+    cmp!(lt => _CMP_LT_OQ, le => _CMP_LE_OQ, gt => _CMP_GT_OQ, ge => _CMP_GE_OQ, eq => _CMP_EQ_OQ, ne => _CMP_NEQ_UQ);
+
+    #[inline(always)]
+    pub fn sqrt(a: Fx) -> Fx {
+        fx(unsafe { _mm256_sqrt_ps(ps(a)) })
+    }
+    #[inline(always)]
+    pub fn floor(a: Fx) -> Fx {
+        fx(unsafe { _mm256_floor_ps(ps(a)) })
+    }
+    /// `vmaxps` answers its second operand when either is NaN: right when `a` is NaN
+    /// (`f32::max` takes the other), fixed up when `b` is.
+    #[inline(always)]
+    pub fn max(a: Fx, b: Fx) -> Fx {
+        fx(unsafe {
+            let m = _mm256_max_ps(ps(a), ps(b));
+            _mm256_blendv_ps(m, ps(a), _mm256_cmp_ps::<_CMP_UNORD_Q>(ps(b), ps(b)))
+        })
+    }
+    #[inline(always)]
+    pub fn min(a: Fx, b: Fx) -> Fx {
+        fx(unsafe {
+            let m = _mm256_min_ps(ps(a), ps(b));
+            _mm256_blendv_ps(m, ps(a), _mm256_cmp_ps::<_CMP_UNORD_Q>(ps(b), ps(b)))
+        })
+    }
+    #[inline(always)]
+    pub fn select(m: Ux, a: Fx, b: Fx) -> Fx {
+        fx(unsafe { _mm256_blendv_ps(ps(b), ps(a), _mm256_castsi256_ps(si(m))) })
+    }
+
+    macro_rules! u2 {
+        ($($name:ident => $op:ident),*) => {$(
+            #[inline(always)]
+            pub fn $name(a: Ux, b: Ux) -> Ux {
+                ux(unsafe { $op(si(a), si(b)) })
+            }
+        )*};
+    }
+    u2!(and => _mm256_and_si256, or => _mm256_or_si256, xor => _mm256_xor_si256, eq_u => _mm256_cmpeq_epi32);
+
+    #[inline(always)]
+    pub fn select_u(m: Ux, a: Ux, b: Ux) -> Ux {
+        ux(unsafe { _mm256_blendv_epi8(si(b), si(a), si(m)) })
+    }
+    /// Unsigned `a >= b`: `max(a, b) == a`.
+    #[inline(always)]
+    pub fn ge_u(a: Ux, b: Ux) -> Ux {
+        ux(unsafe { _mm256_cmpeq_epi32(_mm256_max_epu32(si(a), si(b)), si(a)) })
+    }
+    #[inline(always)]
+    pub fn bits(m: Ux) -> u32 {
+        (unsafe { _mm256_movemask_ps(_mm256_castsi256_ps(si(m))) }) as u32
+    }
+}
+
+/// The same operations lane by lane, elsewhere.
+#[cfg(not(target_arch = "x86_64"))]
+mod imp {
+    use super::{W, lanes};
+
+    type Fx = [f32; W];
+    type Ux = [u32; W];
+
+    fn m(b: bool) -> u32 {
+        u32::from(b).wrapping_neg()
+    }
+    macro_rules! f2 {
+        ($($name:ident => $op:tt),*) => {$(
+            #[inline(always)]
+            pub fn $name(a: Fx, b: Fx) -> Fx {
+                lanes(|l| a[l] $op b[l])
+            }
+        )*};
+    }
+    f2!(add => +, sub => -, mul => *, div => /);
+    macro_rules! cmp {
+        ($($name:ident => $op:tt),*) => {$(
+            #[inline(always)]
+            pub fn $name(a: Fx, b: Fx) -> Ux {
+                lanes(|l| m(a[l] $op b[l]))
+            }
+        )*};
+    }
+    cmp!(lt => <, le => <=, gt => >, ge => >=, eq => ==, ne => !=);
+    #[inline(always)]
+    pub fn sqrt(a: Fx) -> Fx {
+        lanes(|l| a[l].sqrt())
+    }
+    #[inline(always)]
+    pub fn floor(a: Fx) -> Fx {
+        lanes(|l| a[l].floor())
+    }
+    #[inline(always)]
+    pub fn max(a: Fx, b: Fx) -> Fx {
+        lanes(|l| a[l].max(b[l]))
+    }
+    #[inline(always)]
+    pub fn min(a: Fx, b: Fx) -> Fx {
+        lanes(|l| a[l].min(b[l]))
+    }
+    #[inline(always)]
+    pub fn select(mask: Ux, a: Fx, b: Fx) -> Fx {
+        lanes(|l| f32::from_bits((a[l].to_bits() & mask[l]) | (b[l].to_bits() & !mask[l])))
+    }
+    macro_rules! u2 {
+        ($($name:ident => $f:expr),*) => {$(
+            #[inline(always)]
+            pub fn $name(a: Ux, b: Ux) -> Ux {
+                lanes(|l| $f(a[l], b[l]))
+            }
+        )*};
+    }
+    u2!(and => |x: u32, y: u32| x & y, or => |x: u32, y: u32| x | y, xor => |x: u32, y: u32| x ^ y,
+        eq_u => |x, y| m(x == y), ge_u => |x, y| m(x >= y));
+    #[inline(always)]
+    pub fn select_u(mask: Ux, a: Ux, b: Ux) -> Ux {
+        lanes(|l| (a[l] & mask[l]) | (b[l] & !mask[l]))
+    }
+    #[inline(always)]
+    pub fn bits(mask: Ux) -> u32 {
+        mask.iter().enumerate().fold(0, |b, (l, &x)| b | ((x >> 31) << l))
+    }
+}
+
 macro_rules! f8_binop {
-    ($tr:ident, $f:ident, $op:tt) => {
+    ($tr:ident, $f:ident) => {
         impl $tr for F8 {
             type Output = F8;
             #[inline(always)]
             fn $f(self, o: F8) -> F8 {
-                F8(lanes(|l| self.0[l] $op o.0[l]))
+                F8(imp::$f(self.0, o.0))
             }
         }
         impl $tr<f32> for F8 {
             type Output = F8;
             #[inline(always)]
             fn $f(self, o: f32) -> F8 {
-                F8(lanes(|l| self.0[l] $op o))
+                F8(imp::$f(self.0, [o; W]))
             }
         }
         impl $tr<F8> for f32 {
             type Output = F8;
             #[inline(always)]
             fn $f(self, o: F8) -> F8 {
-                F8(lanes(|l| self $op o.0[l]))
+                F8(imp::$f([self; W], o.0))
             }
         }
     };
 }
-f8_binop!(Add, add, +);
-f8_binop!(Sub, sub, -);
-f8_binop!(Mul, mul, *);
-f8_binop!(Div, div, /);
+f8_binop!(Add, add);
+f8_binop!(Sub, sub);
+f8_binop!(Mul, mul);
+f8_binop!(Div, div);
 
 impl Neg for F8 {
     type Output = F8;
+    /// Flips the sign bit, as `-x` does (also for zeros and NaN).
     #[inline(always)]
     fn neg(self) -> F8 {
-        F8(lanes(|l| -self.0[l]))
+        F8::from_bits(imp::xor(self.to_bits(), [0x8000_0000; W]))
     }
 }
 
 macro_rules! f8_cmp {
-    ($f:ident, $op:tt) => {
+    ($f:ident) => {
         #[inline(always)]
         pub fn $f(self, o: impl Into<F8>) -> M8 {
-            let o = o.into();
-            M8(lanes(|l| u32::from(self.0[l] $op o.0[l]).wrapping_neg()))
+            M8(imp::$f(self.0, o.into().0))
         }
     };
 }
@@ -112,64 +289,85 @@ impl F8 {
         F8([x; W])
     }
 
-    f8_cmp!(lt, <);
-    f8_cmp!(le, <=);
-    f8_cmp!(gt, >);
-    f8_cmp!(ge, >=);
-    f8_cmp!(eq, ==);
-    f8_cmp!(ne, !=);
+    #[inline(always)]
+    fn to_bits(self) -> [u32; W] {
+        // SAFETY: same size, plain data.
+        unsafe { core::mem::transmute::<[f32; W], [u32; W]>(self.0) }
+    }
 
-    /// `f32::max` lane by lane (NaN takes the other operand).
+    #[inline(always)]
+    fn from_bits(b: [u32; W]) -> F8 {
+        // SAFETY: same size, plain data.
+        F8(unsafe { core::mem::transmute::<[u32; W], [f32; W]>(b) })
+    }
+
+    f8_cmp!(lt);
+    f8_cmp!(le);
+    f8_cmp!(gt);
+    f8_cmp!(ge);
+    f8_cmp!(eq);
+    f8_cmp!(ne);
+
+    /// `f32::max` lane by lane (NaN takes the other operand; see the module comment on
+    /// zeros).
     #[inline(always)]
     pub fn max(self, o: impl Into<F8>) -> F8 {
-        let o = o.into();
-        F8(lanes(|l| self.0[l].max(o.0[l])))
+        F8(imp::max(self.0, o.into().0))
     }
 
-    /// `f32::min` lane by lane.
+    /// `f32::min` lane by lane (as [`F8::max`]).
     #[inline(always)]
     pub fn min(self, o: impl Into<F8>) -> F8 {
-        let o = o.into();
-        F8(lanes(|l| self.0[l].min(o.0[l])))
+        F8(imp::min(self.0, o.into().0))
     }
 
-    /// `f32::clamp` lane by lane.
+    /// `f32::clamp` lane by lane: `lo` below it, `hi` above, NaN kept.
     #[inline(always)]
     pub fn clamp(self, lo: f32, hi: f32) -> F8 {
-        F8(lanes(|l| self.0[l].clamp(lo, hi)))
+        let x = self.lt(lo).select(F8::splat(lo), self);
+        x.gt(hi).select(F8::splat(hi), x)
     }
 
+    /// Clears the sign bit, as `f32::abs`.
     #[inline(always)]
     pub fn abs(self) -> F8 {
-        F8(lanes(|l| self.0[l].abs()))
+        F8::from_bits(imp::and(self.to_bits(), [0x7fff_ffff; W]))
+    }
+
+    /// `f32::floor` lane by lane.
+    #[inline(always)]
+    pub fn floor(self) -> F8 {
+        F8(imp::floor(self.0))
     }
 
     #[inline(always)]
     pub fn sqrt(self) -> F8 {
-        F8(lanes(|l| self.0[l].sqrt()))
+        F8(imp::sqrt(self.0))
     }
 
+    /// `1.0 / x`.
     #[inline(always)]
     pub fn recip(self) -> F8 {
-        F8(lanes(|l| 1.0 / self.0[l]))
+        1.0 / self
     }
 
-    /// `f32::copysign` lane by lane.
+    /// `f32::copysign`: the magnitude of `self`, the sign bit of `sign`.
     #[inline(always)]
     pub fn copysign(self, sign: F8) -> F8 {
-        F8(lanes(|l| self.0[l].copysign(sign.0[l])))
+        F8::from_bits(imp::or(imp::and(self.to_bits(), [0x7fff_ffff; W]), imp::and(sign.to_bits(), [0x8000_0000; W])))
     }
 
-    /// `f32::signum` lane by lane.
+    /// `f32::signum`: NaN for NaN, else 1 with `self`'s sign.
     #[inline(always)]
     pub fn signum(self) -> F8 {
-        F8(lanes(|l| self.0[l].signum()))
+        self.is_nan().select(F8::splat(f32::NAN), F8::ONE.copysign(self))
     }
 
-    /// `f32::is_finite`, by the exponent bits (which vectorise).
+    /// `f32::is_finite`: the exponent bits are not all ones.
     #[inline(always)]
     pub fn is_finite(self) -> M8 {
-        M8(lanes(|l| u32::from(self.0[l].to_bits() & 0x7f80_0000 != 0x7f80_0000).wrapping_neg()))
+        let exp = imp::and(self.to_bits(), [0x7f80_0000; W]);
+        !M8(imp::eq_u(exp, [0x7f80_0000; W]))
     }
 
     /// `f32::is_nan` (unordered with itself).
@@ -178,10 +376,10 @@ impl F8 {
         self.ne(self)
     }
 
-    /// `f32::is_infinite`, by the bits.
+    /// `f32::is_infinite`: the magnitude is the infinity's bits.
     #[inline(always)]
     pub fn is_infinite(self) -> M8 {
-        M8(lanes(|l| u32::from(self.0[l].to_bits() & 0x7fff_ffff == 0x7f80_0000).wrapping_neg()))
+        M8(imp::eq_u(imp::and(self.to_bits(), [0x7fff_ffff; W]), [0x7f80_0000; W]))
     }
 }
 
@@ -192,13 +390,14 @@ impl M8 {
     /// The lanes set in bit mask `bits`.
     #[inline(always)]
     pub fn from_bits(bits: u32) -> M8 {
-        M8(lanes(|l| ((bits >> l) & 1).wrapping_neg()))
+        let lane = [1, 2, 4, 8, 16, 32, 64, 128];
+        M8(imp::eq_u(imp::and([bits; W], lane), lane))
     }
 
     /// The lanes as a bit mask.
     #[inline(always)]
     pub fn bits(self) -> u32 {
-        self.0.iter().enumerate().fold(0, |m, (l, &x)| m | ((x & 1) << l))
+        imp::bits(self.0)
     }
 
     #[inline(always)]
@@ -214,19 +413,19 @@ impl M8 {
     /// `if self { a } else { b }` lane by lane.
     #[inline(always)]
     pub fn select(self, a: F8, b: F8) -> F8 {
-        F8(lanes(|l| f32::from_bits((a.0[l].to_bits() & self.0[l]) | (b.0[l].to_bits() & !self.0[l]))))
+        F8(imp::select(self.0, a.0, b.0))
     }
 
     /// [`M8::select`] for integers.
     #[inline(always)]
     pub fn select_u(self, a: U8, b: U8) -> U8 {
-        U8(lanes(|l| (a.0[l] & self.0[l]) | (b.0[l] & !self.0[l])))
+        U8(imp::select_u(self.0, a.0, b.0))
     }
 
     /// [`M8::select`] for masks.
     #[inline(always)]
     pub fn select_m(self, a: M8, b: M8) -> M8 {
-        M8(lanes(|l| (a.0[l] & self.0[l]) | (b.0[l] & !self.0[l])))
+        M8(imp::select_u(self.0, a.0, b.0))
     }
 
     /// [`M8::select`] for vectors.
@@ -240,7 +439,7 @@ impl BitAnd for M8 {
     type Output = M8;
     #[inline(always)]
     fn bitand(self, o: M8) -> M8 {
-        M8(lanes(|l| self.0[l] & o.0[l]))
+        M8(imp::and(self.0, o.0))
     }
 }
 
@@ -248,7 +447,7 @@ impl BitOr for M8 {
     type Output = M8;
     #[inline(always)]
     fn bitor(self, o: M8) -> M8 {
-        M8(lanes(|l| self.0[l] | o.0[l]))
+        M8(imp::or(self.0, o.0))
     }
 }
 
@@ -256,7 +455,7 @@ impl Not for M8 {
     type Output = M8;
     #[inline(always)]
     fn not(self) -> M8 {
-        M8(lanes(|l| !self.0[l]))
+        M8(imp::xor(self.0, [u32::MAX; W]))
     }
 }
 
@@ -268,14 +467,16 @@ impl U8 {
 
     #[inline(always)]
     pub fn eq(self, o: U8) -> M8 {
-        M8(lanes(|l| u32::from(self.0[l] == o.0[l]).wrapping_neg()))
+        M8(imp::eq_u(self.0, o.0))
     }
 
+    /// Unsigned `>=`.
     #[inline(always)]
     pub fn ge(self, o: U8) -> M8 {
-        M8(lanes(|l| u32::from(self.0[l] >= o.0[l]).wrapping_neg()))
+        M8(imp::ge_u(self.0, o.0))
     }
 
+    /// Any function lane by lane.
     #[inline(always)]
     pub fn map(self, f: impl Fn(u32) -> u32) -> U8 {
         U8(lanes(|l| f(self.0[l])))
@@ -454,5 +655,93 @@ impl V3w {
     #[inline(always)]
     pub fn abs(self) -> V3w {
         V3w { x: self.x.abs(), y: self.y.abs(), z: self.z.abs() }
+    }
+}
+
+#[cfg(test)]
+pub(crate) mod tests {
+    use super::*;
+
+    /// Whether the wide types may run here (see the module comment).
+    pub(crate) fn available() -> bool {
+        #[cfg(target_arch = "x86_64")]
+        return std::is_x86_feature_detected!("avx2");
+        #[cfg(not(target_arch = "x86_64"))]
+        true
+    }
+
+    /// Every operation gives, lane by lane, the scalar operation's bits, on ordinary
+    /// values and on zeros of both signs, infinities, NaN and subnormals.
+    #[test]
+    fn operations_are_the_scalar_operations() {
+        if !available() {
+            return;
+        }
+        let special =
+            [0.0, -0.0, 1.0, -1.0, 0.5, f32::INFINITY, f32::NEG_INFINITY, f32::NAN, 1e-40, -3e-39, 7.25, -1e30];
+        let mut h = 7u64;
+        let mut next = || {
+            h = h.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
+            let r = (h >> 33) as u32;
+            if r.is_multiple_of(4) {
+                special[(r / 4) as usize % special.len()]
+            } else {
+                f32::from_bits(r.rotate_left(3) & 0xbf7f_ffff)
+            }
+        };
+        let bits = |x: f32| x.to_bits();
+        let same = |a: F8, f: &dyn Fn(usize) -> f32, what: &str| {
+            for l in 0..W {
+                let e = f(l);
+                assert!(
+                    bits(a.0[l]) == bits(e) || (a.0[l].is_nan() && e.is_nan()),
+                    "{what} lane {l}: {} vs {e}",
+                    a.0[l]
+                );
+            }
+        };
+        let mask = |m: M8, f: &dyn Fn(usize) -> bool, what: &str| {
+            for l in 0..W {
+                assert_eq!(m.0[l] != 0, f(l), "{what} lane {l}");
+            }
+        };
+        for _ in 0..2000 {
+            let a = F8(std::array::from_fn(|_| next()));
+            let b = F8(std::array::from_fn(|_| next()));
+            same(a + b, &|l| a.0[l] + b.0[l], "+");
+            same(a - b, &|l| a.0[l] - b.0[l], "-");
+            same(a * b, &|l| a.0[l] * b.0[l], "*");
+            same(a / b, &|l| a.0[l] / b.0[l], "/");
+            same(-a, &|l| -a.0[l], "neg");
+            same(a.sqrt(), &|l| a.0[l].sqrt(), "sqrt");
+            same(a.abs(), &|l| a.0[l].abs(), "abs");
+            same(a.floor(), &|l| a.0[l].floor(), "floor");
+            same(a.copysign(b), &|l| a.0[l].copysign(b.0[l]), "copysign");
+            same(a.signum(), &|l| a.0[l].signum(), "signum");
+            same(a.clamp(-0.5, 2.0), &|l| a.0[l].clamp(-0.5, 2.0), "clamp");
+            // max and min: equal unless the operands are zeros of opposite signs.
+            let zeros = |l: usize| a.0[l] == 0.0 && b.0[l] == 0.0;
+            let skip = |x: F8, e: f32, l: usize| if zeros(l) { e } else { x.0[l] };
+            let mx = a.max(b);
+            same(F8(std::array::from_fn(|l| skip(mx, a.0[l].max(b.0[l]), l))), &|l| a.0[l].max(b.0[l]), "max");
+            let mn = a.min(b);
+            same(F8(std::array::from_fn(|l| skip(mn, a.0[l].min(b.0[l]), l))), &|l| a.0[l].min(b.0[l]), "min");
+            mask(a.lt(b), &|l| a.0[l] < b.0[l], "<");
+            mask(a.le(b), &|l| a.0[l] <= b.0[l], "<=");
+            mask(a.gt(b), &|l| a.0[l] > b.0[l], ">");
+            mask(a.ge(b), &|l| a.0[l] >= b.0[l], ">=");
+            mask(a.eq(b), &|l| a.0[l] == b.0[l], "==");
+            mask(a.ne(b), &|l| a.0[l] != b.0[l], "!=");
+            mask(a.is_finite(), &|l| a.0[l].is_finite(), "is_finite");
+            mask(a.is_nan(), &|l| a.0[l].is_nan(), "is_nan");
+            mask(a.is_infinite(), &|l| a.0[l].is_infinite(), "is_infinite");
+            let m = a.lt(b);
+            same(m.select(a, b), &|l| if a.0[l] < b.0[l] { a.0[l] } else { b.0[l] }, "select");
+            assert_eq!(m.bits(), (0..W).fold(0, |s, l| s | (u32::from(a.0[l] < b.0[l]) << l)));
+            assert_eq!(M8::from_bits(m.bits()), m);
+            let (x, y) = (U8(a.0.map(f32::to_bits)), U8(b.0.map(f32::to_bits)));
+            mask(x.ge(y), &|l| x.0[l] >= y.0[l], "u32 >=");
+            mask(x.eq(x), &|_| true, "u32 ==");
+        }
     }
 }
