@@ -11,7 +11,6 @@ use std::f32::consts::PI;
 use glam::{Vec2, Vec3};
 
 use crate::geometry::{Frame, FrameW, offset_origin, offset_origin_wide};
-use crate::math;
 use crate::sampler::ONE_MINUS_EPSILON;
 use crate::sampling::{sample_uniform_sphere, sample_uniform_triangle, select, select_bits, uniform_sphere_pdf, wide};
 use crate::wide::{F8, M8, U8, V2w, V3w, each};
@@ -197,9 +196,8 @@ fn sample_sphere_cone(p: Vec3, center: Vec3, radius: f32, u: Vec2) -> Option<(Ve
     let s = sin2_t * inv_sin_max; // sin2_t / sin_max
     let cos_alpha = s + cos_t * (1.0 - s * inv_sin_max).max(0.0).sqrt();
     let sin_alpha = (1.0 - cos_alpha * cos_alpha).max(0.0).sqrt();
-    let phi = 2.0 * PI * u.y;
     let frame = Frame::from_normal(to_center * inv_dist);
-    let (sin_phi, cos_phi) = math::sin_cos(phi);
+    let (sin_phi, cos_phi) = crate::sampling::sin_cos_turns(u.y);
     let w = Vec3::new(sin_alpha * cos_phi, sin_alpha * sin_phi, cos_alpha);
     let n = frame.to_world(-w);
     let q = center + radius * n;
@@ -581,9 +579,8 @@ fn sample_sphere_cone_wide(p: V3w, center: V3w, radius: F8, u: V2w, mask: M8) ->
     let s = sin2_t * inv_sin_max;
     let cos_alpha = s + cos_t * (1.0 - s * inv_sin_max).max(0.0).sqrt();
     let sin_alpha = (1.0 - cos_alpha * cos_alpha).max(0.0).sqrt();
-    let phi = 2.0 * PI * u.y;
     let frame = FrameW::from_normal(to_center * inv_dist);
-    let (sin_phi, cos_phi) = wide::sin_cos(phi, some);
+    let (sin_phi, cos_phi) = wide::sin_cos_turns(u.y);
     let w = V3w::new(sin_alpha * cos_phi, sin_alpha * sin_phi, cos_alpha);
     let n = frame.to_world(-w);
     let q = center + radius * n;

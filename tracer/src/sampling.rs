@@ -6,7 +6,7 @@
 //! steradian; the disk pdf is per unit area of the unit disk. Every function is total:
 //! inputs on the closed square \[0,1\]² and degenerate parameters give finite results.
 
-use std::f32::consts::{FRAC_PI_2, FRAC_PI_4, PI};
+use std::f32::consts::{FRAC_PI_4, PI};
 
 use glam::{Vec2, Vec3};
 
@@ -42,10 +42,42 @@ pub(crate) fn select_bits(cond: bool, a: u32, b: u32) -> u32 {
     (a & mask) | (b & !mask)
 }
 
-/// Unit vector with polar angle given by (`sin_theta`, `cos_theta`) and azimuth `phi`.
+/// `sin x` and `cos x` for `|x| <= π/4`: Cephes' single-precision minimax polynomials
+/// (`sinf`, `cosf`), within 2 ulp there, in plain `f32` arithmetic in a fixed order, so
+/// the same bits on every machine. The warps use these rather than CORE-MATH's
+/// correctly rounded `sincosf` (`math.rs`): a direction needs no last-bit accuracy,
+/// and, unlike the C function, the polynomial vectorises across the eight-path
+/// integrator's lanes (`sampling::wide`), where `sincosf` ran lane by lane.
+#[inline(always)]
+pub fn sin_cos_octant(x: f32) -> (f32, f32) {
+    let z = x * x;
+    let sin = x + x * z * (-1.666_665_5e-1 + z * (8.332_161e-3 + z * -1.951_529_6e-4));
+    let cos = 1.0 - 0.5 * z + z * z * (4.166_664_6e-2 + z * (-1.388_731_6e-3 + z * 2.443_315_7e-5));
+    (sin, cos)
+}
+
+/// `sin 2πt` and `cos 2πt` for `t` in turns (`[0, 1]` and a little beyond): the octant
+/// `k = ⌊8t⌋` and the offset in it are exact, [`sin_cos_octant`] gives the rest, and the
+/// octant's symmetries (by selects: the octant of a random angle is random) swap and
+/// negate.
 #[inline]
-pub fn spherical_direction(sin_theta: f32, cos_theta: f32, phi: f32) -> Vec3 {
-    let (sin_phi, cos_phi) = math::sin_cos(phi);
+pub fn sin_cos_turns(t: f32) -> (f32, f32) {
+    let t8 = 8.0 * t;
+    let k = t8.floor();
+    let octant = (k as i32 & 7) as u32;
+    // Odd octants run backwards from their upper end.
+    let r = select(octant & 1 != 0, 1.0 - (t8 - k), t8 - k);
+    let (s, c) = sin_cos_octant(r * FRAC_PI_4);
+    let swap = matches!(octant, 1 | 2 | 5 | 6);
+    let (s, c) = (select(swap, c, s), select(swap, s, c));
+    (select(octant >= 4, -s, s), select(matches!(octant, 2..=5), -c, c))
+}
+
+/// Unit vector with polar angle given by (`sin_theta`, `cos_theta`) and azimuth
+/// `2π · phi_turns`.
+#[inline]
+pub fn spherical_direction(sin_theta: f32, cos_theta: f32, phi_turns: f32) -> Vec3 {
+    let (sin_phi, cos_phi) = sin_cos_turns(phi_turns);
     Vec3::new(sin_theta * cos_phi, sin_theta * sin_phi, cos_theta)
 }
 
@@ -60,12 +92,12 @@ pub fn sample_uniform_disk_concentric(u: Vec2) -> Vec2 {
     // The same values as choosing the wedge by a branch, but by selects: which wedge a
     // random point falls in is a coin flip, which a branch mispredicts half the time
     // (4.7 % of a Cornell box render went to this line).
+    // In the wedge |x| > |y| the angle is q = π/4 · y/x; in the other it is π/2 - q'
+    // with q' = π/4 · x/y, whose cosine and sine are q's sine and cosine.
     let wide = o.x.abs() > o.y.abs();
     let (r, other) = (select(wide, o.x, o.y), select(wide, o.y, o.x));
-    let q = FRAC_PI_4 * (other / r);
-    let theta = select(wide, q, FRAC_PI_2 - q);
-    let (sin, cos) = math::sin_cos(theta);
-    r * Vec2::new(cos, sin)
+    let (sin, cos) = sin_cos_octant(FRAC_PI_4 * (other / r));
+    Vec2::new(r * select(wide, cos, sin), r * select(wide, sin, cos))
 }
 
 /// Short name for [`sample_uniform_disk_concentric`] (the camera lens uses this one).
@@ -99,7 +131,7 @@ pub fn cosine_hemisphere_pdf(cos_theta: f32) -> f32 {
 pub fn sample_uniform_sphere(u: Vec2) -> Vec3 {
     let z = 1.0 - 2.0 * u.x;
     let r = (1.0 - z * z).max(0.0).sqrt();
-    spherical_direction(r, z, 2.0 * PI * u.y)
+    spherical_direction(r, z, u.y)
 }
 
 /// pdf = 1 / (4π).
@@ -113,7 +145,7 @@ pub fn uniform_sphere_pdf() -> f32 {
 pub fn sample_uniform_hemisphere(u: Vec2) -> Vec3 {
     let z = u.x;
     let r = (1.0 - z * z).max(0.0).sqrt();
-    spherical_direction(r, z, 2.0 * PI * u.y)
+    spherical_direction(r, z, u.y)
 }
 
 /// pdf = 1 / (2π) on the upper hemisphere.
@@ -131,7 +163,7 @@ pub fn sample_uniform_cone(u: Vec2, cos_theta_max: f32) -> Vec3 {
     let cos_theta = 1.0 - one_minus_cos;
     // sin²θ = (1 − cos θ)(1 + cos θ), without the cancellation of 1 − cos²θ.
     let sin_theta = (one_minus_cos * (2.0 - one_minus_cos)).max(0.0).sqrt();
-    spherical_direction(sin_theta, cos_theta, 2.0 * PI * u.y)
+    spherical_direction(sin_theta, cos_theta, u.y)
 }
 
 /// pdf = 1 / (2π (1 − cos θmax)) inside the cone. A degenerate cone (cos θmax = 1) is a
@@ -151,7 +183,7 @@ pub fn sample_power_cosine(u: Vec2, exponent: f32) -> Vec3 {
     let log_cos = math::ln(u.x) * inv_np1; // ln cos θ, −∞ for u.x = 0 (θ = π/2)
     let cos_theta = math::exp(log_cos);
     let sin_theta = (-math::exp_m1(2.0 * log_cos)).clamp(0.0, 1.0).sqrt();
-    spherical_direction(sin_theta, cos_theta, 2.0 * PI * u.y)
+    spherical_direction(sin_theta, cos_theta, u.y)
 }
 
 /// pdf = (n + 1)/(2π) cos^n θ on the upper hemisphere, 0 below.
@@ -194,44 +226,54 @@ pub fn power_heuristic(nf: f32, f_pdf: f32, ng: f32, g_pdf: f32) -> f32 {
 /// The warps of the eight-path integrator: each is its scalar namesake (without
 /// `_wide`) lane by lane, with the same operations in the same order (see `wide.rs`).
 pub mod wide {
-    use std::f32::consts::{FRAC_PI_2, FRAC_PI_4, PI};
+    use std::f32::consts::FRAC_PI_4;
 
     use super::{INV_2PI, INV_PI};
     use crate::math;
-    use crate::wide::{F8, M8, V2w, V3w, W, lanes};
+    use crate::wide::{F8, M8, U8, V2w, V3w, lanes};
 
-    /// `math::sin_cos` for the lanes of `mask`, lane by lane (CORE-MATH is scalar); the
-    /// other lanes get `(0, 1)`.
     #[inline(always)]
-    pub fn sin_cos(x: F8, mask: M8) -> (F8, F8) {
-        let sc: [(f32, f32); W] = lanes(|l| if mask.0[l] != 0 { math::sin_cos(x.0[l]) } else { (0.0, 1.0) });
-        (F8(lanes(|l| sc[l].0)), F8(lanes(|l| sc[l].1)))
+    pub fn sin_cos_octant(x: F8) -> (F8, F8) {
+        let z = x * x;
+        let sin = x + x * z * (-1.666_665_5e-1 + z * (8.332_161e-3 + z * -1.951_529_6e-4));
+        let cos = 1.0 - 0.5 * z + z * z * (4.166_664_6e-2 + z * (-1.388_731_6e-3 + z * 2.443_315_7e-5));
+        (sin, cos)
     }
 
-    /// For the lanes of `mask` (the others' values are unspecified).
     #[inline(always)]
-    pub fn spherical_direction(sin_theta: F8, cos_theta: F8, phi: F8, mask: M8) -> V3w {
-        let (sin_phi, cos_phi) = sin_cos(phi, mask);
+    pub fn sin_cos_turns(t: F8) -> (F8, F8) {
+        let t8 = 8.0 * t;
+        let k = t8.floor();
+        let octant = U8(lanes(|l| k.0[l] as i32 as u32));
+        // Octants 1, 3, 5, 7; 1, 2, 5, 6; 4 to 7; 2 to 5 (as `matches!` in the scalar).
+        let bit = |add: u32, bit: u32| M8(lanes(|l| ((octant.0[l].wrapping_add(add) >> bit) & 1).wrapping_neg()));
+        let r = bit(0, 0).select(1.0 - (t8 - k), t8 - k);
+        let (s, c) = sin_cos_octant(r * FRAC_PI_4);
+        let swap = bit(1, 1);
+        let (s, c) = (swap.select(c, s), swap.select(s, c));
+        (bit(0, 2).select(-s, s), bit(2, 2).select(-c, c))
+    }
+
+    #[inline(always)]
+    pub fn spherical_direction(sin_theta: F8, cos_theta: F8, phi_turns: F8) -> V3w {
+        let (sin_phi, cos_phi) = sin_cos_turns(phi_turns);
         V3w::new(sin_theta * cos_phi, sin_theta * sin_phi, cos_theta)
     }
 
-    /// For the lanes of `mask` (the others' values are unspecified).
     #[inline(always)]
-    pub fn sample_uniform_disk_concentric(u: V2w, mask: M8) -> V2w {
+    pub fn sample_uniform_disk_concentric(u: V2w) -> V2w {
         let o = V2w { x: 2.0 * u.x - 1.0, y: 2.0 * u.y - 1.0 };
         let center = o.x.eq(0.0) & o.y.eq(0.0);
         let wide = o.x.abs().gt(o.y.abs());
         let (r, other) = (wide.select(o.x, o.y), wide.select(o.y, o.x));
-        let q = FRAC_PI_4 * (other / r);
-        let theta = wide.select(q, FRAC_PI_2 - q);
-        let (sin, cos) = sin_cos(theta, mask & !center);
-        V2w { x: center.select(F8::ZERO, r * cos), y: center.select(F8::ZERO, r * sin) }
+        let (sin, cos) = sin_cos_octant(FRAC_PI_4 * (other / r));
+        let (x, y) = (r * wide.select(cos, sin), r * wide.select(sin, cos));
+        V2w { x: center.select(F8::ZERO, x), y: center.select(F8::ZERO, y) }
     }
 
-    /// For the lanes of `mask` (the others' values are unspecified).
     #[inline(always)]
-    pub fn sample_cosine_hemisphere(u: V2w, mask: M8) -> V3w {
-        let d = sample_uniform_disk_concentric(u, mask);
+    pub fn sample_cosine_hemisphere(u: V2w) -> V3w {
+        let d = sample_uniform_disk_concentric(u);
         let z = (1.0 - (d.x * d.x + d.y * d.y)).max(0.0).sqrt();
         V3w::new(d.x, d.y, z)
     }
@@ -278,7 +320,7 @@ pub mod wide {
         let log_cos = on(math::ln, u.x) * inv_np1;
         let cos_theta = on(math::exp, log_cos);
         let sin_theta = (-on(math::exp_m1, 2.0 * log_cos)).clamp(0.0, 1.0).sqrt();
-        spherical_direction(sin_theta, cos_theta, 2.0 * PI * u.y, mask)
+        spherical_direction(sin_theta, cos_theta, u.y)
     }
 }
 
@@ -300,6 +342,58 @@ mod tests {
             r.dof,
             r.p_value
         );
+    }
+
+    /// The polynomial sine and cosine are within 2 ulp of the exact values over whole
+    /// turns (double precision reference), also at the octants' ends.
+    #[test]
+    #[allow(clippy::disallowed_methods)] // the f64 reference
+    fn sin_cos_turns_is_accurate() {
+        let mut worst = 0.0f64;
+        let n = 1 << 20;
+        let ends = (0..=64).map(|k| k as f32 / 64.0).flat_map(|t| [t, t.next_up(), t.next_down()]);
+        for t in (0..n).map(|i| i as f32 / n as f32).chain(ends) {
+            let (s, c) = sin_cos_turns(t);
+            let a = std::f64::consts::TAU * t as f64;
+            // Error in units of the result's magnitude near 1 (2^-24): absolute error of
+            // a unit vector's components.
+            let err = ((s as f64 - a.sin()).abs()).max((c as f64 - a.cos()).abs()) * (1u64 << 24) as f64;
+            worst = worst.max(err);
+            assert!(err <= 2.0, "t {t}: ({s}, {c}) against ({}, {})", a.sin(), a.cos());
+        }
+        assert!(worst > 0.1, "a test that cannot fail: worst error {worst}");
+    }
+
+    /// The eight-lane twins of the sine and cosine and of the disk give the scalar bits.
+    #[test]
+    fn wide_twins_are_the_scalar_functions() {
+        if !crate::wide::tests::available() {
+            return;
+        }
+        let mut rng = Rng::new(11);
+        for k in 0..20_000 {
+            let u: [Vec2; 8] = std::array::from_fn(|l| match (k + l) % 5 {
+                0 => Vec2::new((k % 65) as f32 / 64.0, (k % 33) as f32 / 32.0),
+                _ => rng.vec2(),
+            });
+            let uw = crate::wide::V2w {
+                x: crate::wide::F8(std::array::from_fn(|l| u[l].x)),
+                y: crate::wide::F8(std::array::from_fn(|l| u[l].y)),
+            };
+            let (s, c) = wide::sin_cos_turns(uw.x);
+            let d = wide::sample_uniform_disk_concentric(uw);
+            let h = wide::sample_cosine_hemisphere(uw);
+            for (l, &u) in u.iter().enumerate() {
+                let (es, ec) = sin_cos_turns(u.x);
+                assert_eq!((s.0[l].to_bits(), c.0[l].to_bits()), (es.to_bits(), ec.to_bits()), "turns {}", u.x);
+                let e = sample_uniform_disk_concentric(u);
+                assert_eq!((d.x.0[l].to_bits(), d.y.0[l].to_bits()), (e.x.to_bits(), e.y.to_bits()), "disk {}", u);
+                assert_eq!(
+                    h.get(l).to_array().map(f32::to_bits),
+                    sample_cosine_hemisphere(u).to_array().map(f32::to_bits)
+                );
+            }
+        }
     }
 
     #[test]

@@ -212,7 +212,7 @@ impl BlinnPhongW {
             wi_up = on_spec.select3(reflect_about_wide(wo_up, h).normalize_or_zero(), wi_up);
         }
         if on_diffuse.any() {
-            wi_up = on_diffuse.select3(wide::sample_cosine_hemisphere(u, on_diffuse), wi_up);
+            wi_up = on_diffuse.select3(wide::sample_cosine_hemisphere(u), wi_up);
         }
         let none = none | wi_up.z.le(0.0);
         let wi = to_side_of_wide(wo, wi_up);

@@ -64,7 +64,7 @@ impl LambertW {
     /// For the lanes of `mask`: `(wi, pdf, valid)`; the weight is `kd`.
     #[inline(always)]
     pub fn sample(&self, wo: V3w, u: V2w, mask: M8) -> (V3w, F8, M8) {
-        let wi = to_side_of_wide(wo, wide::sample_cosine_hemisphere(u, mask));
+        let wi = to_side_of_wide(wo, wide::sample_cosine_hemisphere(u));
         let pdf = wide::cosine_hemisphere_pdf(wi.z.abs());
         (wi, pdf, mask & wo.z.ne(0.0) & pdf.gt(0.0))
     }
