@@ -48,14 +48,14 @@ fn prefetch<T>(p: *const T) {
     let _ = p;
 }
 
-/// `a.min(b)` for operands known not to be NaN: one `minss`, where `f32::min` also
-/// handles NaN (a few instructions more, in the hottest loop).
+/// `a.min(b)` for a non-NaN `b`, and `b` when `a` is NaN: one `minss` (`f32::min`
+/// handles NaN in either operand, a few instructions more, in the hottest loop).
 #[inline(always)]
 fn fmin(a: f32, b: f32) -> f32 {
     if a < b { a } else { b }
 }
 
-/// `a.max(b)` for operands known not to be NaN.
+/// `a.max(b)` for a non-NaN `b`, and `b` when `a` is NaN: one `maxss`.
 #[inline(always)]
 fn fmax(a: f32, b: f32) -> f32 {
     if a > b { a } else { b }
@@ -134,12 +134,12 @@ impl KdTree {
     /// the parent's or at `tp - slack`, which is at most `bound + slack` whenever the
     /// second child is visited), and `bound` only changes at leaves.
     ///
-    /// `SELECT`: descend with selects instead of branches in the common case (the plane
-    /// crossed ahead of the origin, or behind it). Random rays make those branches
-    /// mispredict about half the time. The nodes visited, and their intervals, are the
-    /// same either way. Measured with `KDTREE_AB` on the 1M mesh, selects gave closest-hit
-    /// queries +9 to +13 % (median of the per-slice ratios; +4 to +5 % in total time,
-    /// 3 runs), but any-hit queries −12 to −15 %. So only `intersect` uses them.
+    /// `SELECT`: descend with selects instead of branches. Random rays make those
+    /// branches mispredict often; but a predicted branch lets the core fetch the next
+    /// node before the split test resolves. The nodes visited, and their intervals, are
+    /// the same either way. Measured with `KDTREE_AB` on the 1M mesh, selects gave
+    /// closest-hit queries +9 to +13 % (median of the per-slice ratios), but any-hit
+    /// queries −6 to −15 %. So only `intersect` uses them.
     #[inline(always)]
     fn walk<const SELECT: bool>(
         &self,
@@ -161,67 +161,48 @@ impl KdTree {
         let o = ray.origin.to_array();
         let d = ray.dir.to_array();
         let inv = inv.to_array();
+        let flip = d.map(|x| if x.is_sign_negative() { usize::MAX } else { 0 });
         loop {
             let n: Node = self.nodes[node];
             if !n.is_leaf() {
                 let axis = n.axis();
-                let split = n.split();
-                let tp = (split - o[axis]) * inv[axis];
-                let below_first = o[axis] < split || (o[axis] == split && d[axis] <= 0.0);
+                let tp = (n.split() - o[axis]) * inv[axis];
+                // Children in the order the ray meets them, by the sign bit of its
+                // direction (so that -0 and +0 agree with the sign of `inv`): the first
+                // holds t < tp, the second t > tp. A plane behind the origin (tp < 0)
+                // needs no case of its own: the first child gets nothing unless the
+                // plane is within the slack. A ray in the plane (tp NaN) gets both
+                // children the whole interval, as `fmin` and `fmax` return their second
+                // operand for NaN.
+                let (below, above) = (node + 1, node + n.above());
+                let first = below ^ ((below ^ above) & flip[axis]);
+                let second = first ^ below ^ above;
                 // The above child is far away in memory: fetch it while deciding.
-                prefetch(self.nodes.as_ptr().wrapping_add(node + n.above()));
-                let (first, second) =
-                    if below_first { (node + 1, node + n.above()) } else { (node + n.above(), node + 1) };
-                // The rare cases (a ray in the plane, or the plane within the slack
-                // behind the origin) take the branches below.
-                if SELECT && !(tp.is_nan() || (tp <= 0.0 && tp > -slack && lo <= slack)) {
-                    // A plane behind the origin is never reached: as if at infinity, the
-                    // first child keeps the whole interval and the second gets none.
-                    let t = if tp > 0.0 { tp } else { f32::INFINITY };
-                    let f_hi = fmin(hi, t + slack);
-                    let s_lo = fmax(lo, t - slack);
-                    let visit_first = lo <= f_hi;
-                    let visit_second = s_lo <= fmin(hi, reach);
-                    // One of the two is always visited (`lo <= hi` and `lo <= reach`
-                    // hold at every node). The entry is written whether or not it is
-                    // kept: `sp` counts it only when both children are visited.
+                prefetch(self.nodes.as_ptr().wrapping_add(above));
+                let f_hi = fmin(tp + slack, hi);
+                let s_lo = fmax(tp - slack, lo);
+                // One of the two is always visited: `lo <= hi` and `lo <= reach` hold
+                // at every node.
+                let visit_first = lo <= f_hi;
+                let visit_second = s_lo <= fmin(hi, reach);
+                if SELECT {
+                    // The entry is written whether or not it is kept: `sp` counts it
+                    // only when both children are visited.
                     stack[sp] = MaybeUninit::new(Entry { node: second as u32, lo: s_lo, hi });
                     sp += (visit_first & visit_second) as usize;
                     node = if visit_first { first } else { second };
                     lo = if visit_first { lo } else { s_lo };
                     hi = if visit_first { f_hi } else { hi };
-                    continue;
-                }
-                if tp.is_nan() {
-                    // The ray lies in the split plane: both sides, whole interval.
-                    stack[sp] = MaybeUninit::new(Entry { node: second as u32, lo, hi });
-                    sp += 1;
-                    node = first;
-                } else if tp > 0.0 {
-                    let visit_first = tp + slack >= lo;
-                    let visit_second = tp - slack <= fmin(hi, reach);
+                } else if visit_first {
                     if visit_second {
-                        if visit_first {
-                            stack[sp] = MaybeUninit::new(Entry { node: second as u32, lo: fmax(lo, tp - slack), hi });
-                            sp += 1;
-                            hi = fmin(hi, tp + slack);
-                            node = first;
-                        } else {
-                            lo = fmax(lo, tp - slack);
-                            node = second;
-                        }
-                    } else {
-                        hi = fmin(hi, tp + slack);
-                        node = first;
-                    }
-                } else {
-                    // Moving away from the plane (or starting on it): the ray stays
-                    // on the first side, except for rounding right at the origin.
-                    if tp > -slack && lo <= slack {
-                        stack[sp] = MaybeUninit::new(Entry { node: second as u32, lo, hi: fmin(hi, slack) });
+                        stack[sp] = MaybeUninit::new(Entry { node: second as u32, lo: s_lo, hi });
                         sp += 1;
                     }
                     node = first;
+                    hi = f_hi;
+                } else {
+                    node = second;
+                    lo = s_lo;
                 }
                 continue;
             }
