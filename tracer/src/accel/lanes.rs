@@ -301,21 +301,26 @@ pub(crate) fn gather_test_avx2(
 #[inline]
 unsafe fn load_corners(corners: &[[Vec3; 3]], tris: &[u32; LANES]) -> [[core::arch::x86_64::__m256; 3]; 3] {
     use core::arch::x86_64::*;
-    std::array::from_fn(|c| {
+    // Loops, not closures: a closure does not inherit `target_feature`, and these were
+    // not inlined.
+    let mut out = [[_mm256_setzero_ps(); 3]; 3];
+    for (c, out) in out.iter_mut().enumerate() {
         // Corner 2 is read from the triangle's float 5 on, so that no load runs past its
         // nine floats: its coordinates are then columns 1 to 3.
         let start = 3 * c - usize::from(c == 2);
-        // SAFETY: `tris[j]` indexes `corners` (the caller's promise), whose elements are
-        // nine contiguous floats (`Vec3` is three `f32`s, `repr(C)`); the load reads
-        // floats `start .. start + 4 <= 9` of one element.
-        let row = |j: usize| unsafe {
-            let lo = _mm_loadu_ps(corners.as_ptr().add(tris[j] as usize).cast::<f32>().add(start));
-            let hi = _mm_loadu_ps(corners.as_ptr().add(tris[j + 4] as usize).cast::<f32>().add(start));
-            _mm256_insertf128_ps::<1>(_mm256_castps128_ps256(lo), hi)
-        };
-        let (r0, r1, r2, r3) = (row(0), row(1), row(2), row(3));
-        let (t0, t1) = (_mm256_unpacklo_ps(r0, r1), _mm256_unpackhi_ps(r0, r1));
-        let (t2, t3) = (_mm256_unpacklo_ps(r2, r3), _mm256_unpackhi_ps(r2, r3));
+        let mut r = [_mm256_setzero_ps(); 4];
+        for (j, r) in r.iter_mut().enumerate() {
+            // SAFETY: `tris[j]` indexes `corners` (the caller's promise), whose elements
+            // are nine contiguous floats; the loads read floats `start .. start + 4 <= 9`
+            // of one element.
+            *r = unsafe {
+                let lo = _mm_loadu_ps(corners.as_ptr().add(tris[j] as usize).cast::<f32>().add(start));
+                let hi = _mm_loadu_ps(corners.as_ptr().add(tris[j + 4] as usize).cast::<f32>().add(start));
+                _mm256_insertf128_ps::<1>(_mm256_castps128_ps256(lo), hi)
+            };
+        }
+        let (t0, t1) = (_mm256_unpacklo_ps(r[0], r[1]), _mm256_unpackhi_ps(r[0], r[1]));
+        let (t2, t3) = (_mm256_unpacklo_ps(r[2], r[3]), _mm256_unpackhi_ps(r[2], r[3]));
         let col = [
             _mm256_shuffle_ps::<0x44>(t0, t2),
             _mm256_shuffle_ps::<0xee>(t0, t2),
@@ -323,8 +328,9 @@ unsafe fn load_corners(corners: &[[Vec3; 3]], tris: &[u32; LANES]) -> [[core::ar
             _mm256_shuffle_ps::<0xee>(t1, t3),
         ];
         let k = usize::from(c == 2);
-        [col[k], col[k + 1], col[k + 2]]
-    })
+        *out = [col[k], col[k + 1], col[k + 2]];
+    }
+    out
 }
 
 #[cfg(all(test, target_arch = "x86_64"))]
