@@ -5,7 +5,8 @@ Needs: `pip install embreex numpy` (this script installs nothing) and a Rust too
 
 What is measured, on one thread each:
   * tilefarm: `KdTree::intersect` / `KdTree::occluded` called once per ray in a loop
-    (`KDTREE_QUICK=all,N,REPEAT,0,RAYS cargo bench -p tracer --bench kdtree`).
+    (`KDTREE_SERVE=N,REPEAT,RAYS cargo bench -p tracer --bench kdtree`, a process that
+    times one pass over the rays whenever asked).
   * Embree (embreex 4.x): `EmbreeScene.run(origins, dirs, query=...)`, whose C loop calls
     `rtcIntersect1` / `rtcOccluded1` once per ray on the calling thread and writes the
     hit to NumPy arrays: single-ray queries, like ours, plus a few stores per ray. The
@@ -15,13 +16,14 @@ Both traverse the displaced sphere of `cargo bench --bench kdtree` (seed 0, N tr
 the incoherent rays `tracer::accel::incoherent_rays` makes (origins on the bounding
 sphere aimed at uniform points in the box; closest hit with tmax = inf, any hit with
 tmax = the distance to that point), exported by `coordinator bench --export-mesh /
---export-rays`. Figures are medians of REPEAT passes; hit counts are printed for both as
-a check that the same work is done. Embree's build runs on all threads (TBB); ours too.
+--export-rays`. Hit counts are checked equal on every pass, so the same work is done.
+Embree's build runs on all threads (TBB); ours too.
 
-The two alternate for `--rounds` rounds (this host's speed drifts); the last line gives
-the median ratio over rounds and its range.
+This host's speed drifts by tens of percent within minutes, so the two alternate pass
+by pass (`--passes` pairs per query kind, the order flipping every pair) and the ratio
+printed is the median of the pairs' ratios, with its quartiles.
 
-Usage: python3 bench/embree_compare.py [--triangles 1000000] [--rays 100000] [--repeat 5] [--rounds 3]
+Usage: python3 bench/embree_compare.py [--triangles 1000000] [--rays 100000] [--repeat 3] [--passes 20]
 """
 
 import argparse
@@ -78,9 +80,9 @@ def main():
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--triangles", type=int, default=1_000_000)
     ap.add_argument("--rays", type=int, default=100_000)
-    ap.add_argument("--repeat", type=int, default=5, help="passes per measurement (median)")
-    ap.add_argument("--rounds", type=int, default=3,
-                    help="alternations of tilefarm and Embree; the summary is the median over rounds")
+    ap.add_argument("--repeat", type=int, default=3, help="tilefarm builds (median)")
+    ap.add_argument("--passes", type=int, default=20,
+                    help="alternated passes per query kind; the ratio is the median over pass pairs")
     a = ap.parse_args()
 
     with tempfile.TemporaryDirectory() as tmp:
@@ -102,40 +104,67 @@ def main():
     embree_build = time.perf_counter() - t
 
     # This host is shared and its speed drifts by tens of percent within minutes, so
-    # the two renderers alternate, round by round, and each round gives its own ratios.
-    rows = []
-    for r in range(a.rounds):
-        closest_e, ids = median_rate(n, a.repeat, lambda: scene.run(origins, dirs, query="INTERSECT"))
-        any_e, occ = median_rate(n, a.repeat, lambda: scene.run(origins, dirs, dists=tmax, query="OCCLUDED"))
-        hits_e, occl_e = int((np.asarray(ids) >= 0).sum()), int((np.asarray(occ) >= 0).sum())
+    # the two alternate pass by pass (each pass: all rays, one query kind), the order
+    # flipping every pair, and each pair gives a ratio; the summary is their median.
+    # tilefarm runs as one long-lived process (`KDTREE_SERVE`) that times a pass when
+    # asked; Embree runs on this thread.
+    env = dict(os.environ, KDTREE_SERVE=f"{a.triangles},{a.repeat},{a.rays}")
+    tf = subprocess.Popen(["cargo", "bench", "-q", "-p", "tracer", "--bench", "kdtree"],
+                          cwd=ROOT, env=env, stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True)
+    try:
+        ready = tf.stdout.readline()
+        m = re.search(r"ready (\d+) triangles, build median ([0-9.]+) s", ready)
+        if not m:
+            sys.exit(f"tilefarm bench did not start: {ready!r}")
+        build = float(m.group(2))
 
-        env = dict(os.environ, KDTREE_QUICK=f"all,{a.triangles},{a.repeat},0,{a.rays}")
-        out = subprocess.run(["cargo", "bench", "-q", "-p", "tracer", "--bench", "kdtree"],
-                             cwd=ROOT, env=env, check=True, capture_output=True, text=True).stdout
-        build = float(re.search(r"build median ([0-9.]+) s", out).group(1))
-        m = re.search(r"closest-hit ([0-9.]+) Mrays/s \((\d+) hit\)", out)
-        closest_t, hits_t = float(m.group(1)), int(m.group(2))
-        m = re.search(r"any-hit ([0-9.]+) Mrays/s \((\d+) occluded\)", out)
-        any_t, occl_t = float(m.group(1)), int(m.group(2))
-        if (hits_t, occl_t) != (hits_e, occl_e):
-            sys.exit(f"hit counts differ: tilefarm {hits_t} / {occl_t}, Embree {hits_e} / {occl_e}")
+        def tilefarm(query):
+            tf.stdin.write(query + "\n")
+            tf.stdin.flush()
+            kind, secs, count = tf.stdout.readline().split()
+            return float(secs), int(count)
 
-        print(f"round {r + 1}:{'':4}{'tilefarm':>14}{'Embree':>14}{'ratio':>9}")
-        if r == 0:
-            print(f"{'build (s)':12}{build:>14.3f}{embree_build:>14.3f}{build / embree_build:>9.2f}   (all threads)")
-        else:
-            print(f"{'build (s)':12}{build:>14.3f}")
-        print(f"{'closest-hit':12}{closest_t:>14.3f}{closest_e:>14.3f}{closest_t / closest_e:>9.2f}   "
-              f"Mrays/s, one thread; hits {hits_t} / {hits_e}")
-        print(f"{'any-hit':12}{any_t:>14.3f}{any_e:>14.3f}{any_t / any_e:>9.2f}   "
-              f"Mrays/s, one thread; occluded {occl_t} / {occl_e}")
-        rows.append((build, closest_t / closest_e, any_t / any_e))
+        def embree(query):
+            t = time.perf_counter()
+            if query == "closest":
+                out = scene.run(origins, dirs, query="INTERSECT")
+            else:
+                out = scene.run(origins, dirs, dists=tmax, query="OCCLUDED")
+            secs = time.perf_counter() - t
+            return secs, int((np.asarray(out) >= 0).sum())
 
-    def span(xs):
-        return f"median {statistics.median(xs):.2f} (range {min(xs):.2f}-{max(xs):.2f})"
+        results = {}
+        for query in ("closest", "any"):
+            tilefarm(query), embree(query)  # warm caches and branch predictors
+            pairs = []
+            for k in range(a.passes):
+                if k % 2 == 0:
+                    e, t = embree(query), tilefarm(query)
+                else:
+                    t, e = tilefarm(query), embree(query)
+                if t[1] != e[1]:
+                    sys.exit(f"{query}: hit counts differ: tilefarm {t[1]}, Embree {e[1]}")
+                pairs.append((t[0], e[0], t[1]))
+            results[query] = pairs
+    finally:
+        tf.stdin.close()
+        tf.wait(timeout=60)
 
-    print(f"over {a.rounds} rounds: build {span([b for b, _, _ in rows])} s; ratio to Embree "
-          f"closest-hit {span([c for _, c, _ in rows])}, any-hit {span([x for _, _, x in rows])}")
+    def q(xs, f):
+        xs = sorted(xs)
+        return xs[int((len(xs) - 1) * f)]
+
+    print(f"{'':14}{'tilefarm':>10}{'Embree':>10}{'ratio':>8}")
+    print(f"{'build (s)':14}{build:>10.3f}{embree_build:>10.3f}{build / embree_build:>8.2f}   (all threads; "
+          f"tilefarm median of {a.repeat}, Embree one)")
+    for query, name in (("closest", "closest-hit"), ("any", "any-hit")):
+        pairs = results[query]
+        ratios = [e / t for t, e, _ in pairs]
+        rate_t = statistics.median(n / t / 1e6 for t, _, _ in pairs)
+        rate_e = statistics.median(n / e / 1e6 for _, e, _ in pairs)
+        print(f"{name:14}{rate_t:>10.3f}{rate_e:>10.3f}{statistics.median(ratios):>8.2f}   Mrays/s on one thread "
+              f"(medians); ratio: median of {len(pairs)} pass pairs, quartiles {q(ratios, 0.25):.2f}-"
+              f"{q(ratios, 0.75):.2f}; {'hits' if query == 'closest' else 'occluded'} {pairs[0][2]} in both")
 
 
 if __name__ == "__main__":

@@ -13,6 +13,10 @@
 //! parameters, give the two trees the variants to compare; `KDTREE_AB_SIMD=baseline,avx2`
 //! builds them under two `TILEFARM_SIMD` settings (sixteen-lane leaves, tried this way:
 //! 0.99–1.01 of eight, on the 1M and 100k meshes and with Ci 0.06, so not kept).
+//! `KDTREE_SERVE=TRIANGLES,REPEAT,RAYS` builds the mesh's tree (REPEAT times, printing
+//! the median build) and then answers lines on stdin, `closest` or `any`, with one
+//! timed pass over the rays each: `closest SECONDS HITS`. `bench/embree_compare.py`
+//! drives it, alternating pass by pass with Embree in its own process.
 
 use std::hint::black_box;
 use std::time::Instant;
@@ -271,6 +275,35 @@ fn ab(spec: &str) {
     }
 }
 
+/// `KDTREE_SERVE=TRIANGLES,REPEAT,RAYS`: see the module comment.
+fn serve(spec: &str) {
+    use std::io::{BufRead, Write};
+    let v: Vec<usize> = spec.split(',').filter_map(|x| x.parse().ok()).collect();
+    let (n, reps, nrays) =
+        (v.first().copied().unwrap_or(1_000_000), v.get(1).copied().unwrap_or(3), v.get(2).copied().unwrap_or(RAYS));
+    let mut geo = Geometry::new(displaced_sphere(n, 0), vec![]);
+    let builds: Vec<(KdTree, f64)> = (0..reps.max(1)).map(|_| timed_build(&geo, &BuildParams::default())).collect();
+    let build = median(builds.iter().map(|b| b.1).collect());
+    let mut tree = builds.into_iter().next_back().unwrap().0;
+    geo.store_in_leaf_order(&mut tree);
+    let rays = random_rays(tree.bounds(), nrays, 1);
+    let mut out = std::io::stdout().lock();
+    writeln!(out, "ready {} triangles, build median {build:.4} s", geo.triangle_count()).unwrap();
+    out.flush().unwrap();
+    for line in std::io::stdin().lock().lines() {
+        let line = line.unwrap();
+        let t = Instant::now();
+        let count = match line.trim() {
+            "closest" => closest(&tree, &geo, &rays),
+            "any" => any(&tree, &geo, &rays),
+            "" => continue,
+            other => panic!("KDTREE_SERVE: unknown command {other:?} (closest, any)"),
+        };
+        writeln!(out, "{} {:.6} {count}", line.trim(), t.elapsed().as_secs_f64()).unwrap();
+        out.flush().unwrap();
+    }
+}
+
 fn bench(c: &mut Criterion) {
     if std::env::var_os("KDTREE_TUNE").is_some() {
         tune();
@@ -282,6 +315,10 @@ fn bench(c: &mut Criterion) {
     }
     if let Ok(spec) = std::env::var("KDTREE_AB") {
         ab(&spec);
+        return;
+    }
+    if let Ok(spec) = std::env::var("KDTREE_SERVE") {
+        serve(&spec);
         return;
     }
     let params = BuildParams::default();
