@@ -60,6 +60,14 @@ fn smoothstep(x: f32, a: f32, b: f32) -> f32 {
     t * t * (3.0 - 2.0 * t)
 }
 
+/// [`smoothstep`] at eight points, with per-lane edges.
+#[inline(always)]
+fn smoothstep_wide(x: F8, a: F8, b: F8) -> F8 {
+    let step = x.lt(a).select(F8::ZERO, F8::ONE);
+    let t = ((x - a) / (b - a)).clamp(0.0, 1.0);
+    a.eq(b).select(step, t * t * (3.0 - 2.0 * t))
+}
+
 impl Light {
     /// Emitted power (luminance of W), used to choose lights. `scene_radius` bounds the
     /// area that infinite lights illuminate.
@@ -439,16 +447,15 @@ impl LightSet {
     }
 }
 
-/// Light sampling for the eight-path integrator: [`LightSet::select_at`] and, for
-/// triangle and sphere lights, [`Light::sample_li`], lane by lane with the same
-/// operations in the same order (see `wide.rs`).
+/// Light sampling for the eight-path integrator: [`LightSet::select_at`] and
+/// [`Light::sample_li`], lane by lane with the same operations in the same order (see
+/// `wide.rs`).
 impl LightSet {
-    /// Whether every light is one that [`LightSet::sample_li_wide`] handles (area lights,
-    /// triangles and spheres) and the selection is per point (at most
-    /// [`LOCAL_SELECTION_MAX`] lights).
+    /// Whether [`LightSet::select_at_wide`] can choose the lights: the selection is per
+    /// point (at most [`LOCAL_SELECTION_MAX`] lights). [`LightSet::sample_li_wide`]
+    /// samples every kind.
     pub fn wide_ok(&self) -> bool {
         !self.importance.is_empty()
-            && self.lights.iter().all(|l| matches!(l, Light::Triangle { .. } | Light::Sphere { .. }))
     }
 
     /// [`LightSet::select_at`] at eight points: `(light, pmf, u', chosen)` per lane
@@ -484,18 +491,43 @@ impl LightSet {
         (light, found.select(chosen_w, last_w) / total, ux, ok & !light.eq(none))
     }
 
-    /// [`Light::sample_li`] of light `light[l]` at `p[l]` for the lanes of `mask`, where
-    /// every light is a triangle or a sphere ([`LightSet::wide_ok`]): `(wi, li, pdf,
-    /// target, some)`, lanes not `some` having no sample.
+    /// [`Light::sample_li`] of light `light[l]` at `p[l]` for the lanes of `mask`; lanes
+    /// not `some` have no sample.
     #[inline(always)]
-    pub fn sample_li_wide(&self, light: U8, p: V3w, u: V2w, mask: M8) -> (V3w, V3w, F8, V3w, M8) {
+    pub fn sample_li_wide(&self, light: U8, p: V3w, u: V2w, mask: M8) -> LightSamplesW {
         let zero = V3w::splat(Vec3::ZERO);
-        let (mut tri, mut sph) = (M8::NONE, M8::NONE);
-        // Triangles: p0, e1, e2, normal, area; spheres: center (in `a`), radius.
+        let (mut tri, mut sph, mut pnt, mut spt) = (M8::NONE, M8::NONE, M8::NONE, M8::NONE);
+        // Lights at infinity: the environment, directional lights (`dir` in `b`).
+        let (mut env, mut dir) = (M8::NONE, M8::NONE);
+        // Triangles: p0, e1, e2, normal, area; spheres: center (in `a`), radius; points:
+        // position (in `a`); spots: position, direction (in `n`), cos_total (in `size`),
+        // cos_falloff_start.
         let (mut a, mut b, mut c, mut n) = (zero, zero, zero, zero);
-        let (mut size, mut li) = (F8::ONE, zero);
+        let (mut size, mut start, mut li) = (F8::ONE, F8::ONE, zero);
         for l in each(mask.bits()) {
             match self.lights[light.0[l] as usize] {
+                Light::Point { position, intensity } => {
+                    pnt.0[l] = u32::MAX;
+                    a.set(l, position);
+                    li.set(l, intensity);
+                }
+                Light::Spot { position, direction, intensity, cos_total, cos_falloff_start } => {
+                    spt.0[l] = u32::MAX;
+                    a.set(l, position);
+                    n.set(l, direction);
+                    size.0[l] = cos_total;
+                    start.0[l] = cos_falloff_start;
+                    li.set(l, intensity);
+                }
+                Light::Directional { direction, irradiance } => {
+                    dir.0[l] = u32::MAX;
+                    b.set(l, direction);
+                    li.set(l, irradiance);
+                }
+                Light::Environment { radiance } => {
+                    env.0[l] = u32::MAX;
+                    li.set(l, radiance);
+                }
                 Light::Triangle { p0, e1, e2, normal, area, radiance, .. } => {
                     tri.0[l] = u32::MAX;
                     a.set(l, p0);
@@ -511,10 +543,32 @@ impl LightSet {
                     size.0[l] = radius;
                     li.set(l, radiance);
                 }
-                _ => {}
             }
         }
-        let (mut wi, mut pdf, mut target, mut some) = (zero, F8::ZERO, zero, M8::NONE);
+        let (mut wi, mut pdf, mut target, mut some, mut delta) = (zero, F8::ZERO, zero, M8::NONE, M8::NONE);
+        let mut radiance = li;
+        let at_point = pnt | spt;
+        if at_point.any() {
+            // `Light::Point`'s and `Light::Spot`'s arms.
+            let d = a - p;
+            let d2 = d.length_squared();
+            let w = d / d2.sqrt();
+            let falloff = smoothstep_wide((-w).dot(n), size, start);
+            let ok = pnt | (spt & !falloff.le(0.0));
+            wi = ok.select3(w, wi);
+            radiance = pnt.select3(li / d2, spt.select3(li * falloff / d2, radiance));
+            pdf = ok.select(F8::ONE, pdf);
+            target = ok.select3(a, target);
+            some = some | ok;
+            delta = delta | ok;
+        }
+        if (dir | env).any() {
+            // `Light::Directional`'s and `Light::Environment`'s arms.
+            wi = dir.select3(-b, env.select3(wide::sample_uniform_sphere(u), wi));
+            pdf = dir.select(F8::ONE, env.select(F8::splat(uniform_sphere_pdf()), pdf));
+            some = some | dir | env;
+            delta = delta | dir;
+        }
         if tri.any() {
             // `Light::Triangle`'s arm.
             let [_, b1, b2] = wide::sample_uniform_triangle(u);
@@ -538,8 +592,23 @@ impl LightSet {
             target = ok.select3(offset_origin_wide(q, normal, -w), target);
             some = some | ok;
         }
-        (wi, li, pdf, target, some)
+        LightSamplesW { wi, li: radiance, pdf, target, some, delta, at_infinity: dir | env }
     }
+}
+
+/// Eight [`LightSample`]s ([`LightSet::sample_li_wide`]).
+pub struct LightSamplesW {
+    pub wi: V3w,
+    pub li: V3w,
+    pub pdf: F8,
+    /// The point the shadow ray ends at, where not `at_infinity`.
+    pub target: V3w,
+    /// The lanes with a sample.
+    pub some: M8,
+    /// Samples of lights at a point or in one direction (no MIS).
+    pub delta: M8,
+    /// Samples whose shadow rays are unbounded (`LightSample::target` `None`).
+    pub at_infinity: M8,
 }
 
 impl Importance {

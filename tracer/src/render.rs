@@ -246,10 +246,12 @@ radiance = [0.1, 0.15, 0.2]
 "#;
         let extra = crate::scene::scene_from_toml(toml, "variants.toml", &dir).unwrap();
         assert!(extra.has_cutouts && extra.camera.has_lens() && extra.packed.is_some());
-        // For the eight-path renderer's wide route: an open box lit by a triangle lamp
-        // and a sphere light only, with diffuse and glossy surfaces and spheres (its
-        // lanes), a mirror sphere and a smooth-shaded triangle (lanes it leaves to the
-        // one-path code), and unlimited depth (long paths, Russian roulette).
+        // For the eight-path renderer's wide route: an open box lit by a triangle lamp,
+        // a sphere light, a point light, a spot light (half the box in its cone), a
+        // directional light and the background,
+        // with diffuse and glossy surfaces and spheres (its lanes), a mirror sphere and
+        // a smooth-shaded triangle (lanes it leaves to the one-path code), and unlimited
+        // depth (long paths, Russian roulette).
         std::fs::write(
             dir.join("w.mtl"),
             "newmtl wall\nKd 0.8 0.75 0.7\nnewmtl shiny\nKd 0.2 0.3 0.2\nKs 0.5 0.5 0.5\nNs 60\n\
@@ -296,9 +298,26 @@ illum = 3
 center = [1.5, 2.5, 1.5]
 radius = 0.1
 ke = [30.0, 25.0, 20.0]
+[[light]]
+type = "point"
+position = [-1.5, 2.5, -1.0]
+intensity = [2.0, 2.0, 2.0]
+[[light]]
+type = "spot"
+position = [1.0, 2.8, -1.0]
+direction = [-0.3, -1.0, 0.4]
+intensity = [8.0, 6.0, 4.0]
+cone_angle = 35
+falloff_start = 15
+[[light]]
+type = "directional"
+direction = [0.4, -1.0, 0.6]
+irradiance = [0.3, 0.3, 0.35]
+[background]
+radiance = [0.05, 0.06, 0.08]
 "#;
         let wide = crate::scene::scene_from_toml(toml, "wide.toml", &dir).unwrap();
-        assert!(wide.lights.wide_ok() && wide.lights.lights.len() == 3 && wide.packed.is_some());
+        assert!(wide.lights.wide_ok() && wide.lights.lights.len() == 7 && wide.packed.is_some());
         // The same with a finely divided back wall: too many triangles for brute force,
         // so the eight paths' rays go through the kd-tree one by one.
         let mut grid = String::from("mtllib w.mtl\nusemtl wall\n");

@@ -261,6 +261,13 @@ pub mod wide {
     }
 
     #[inline(always)]
+    pub fn sample_uniform_sphere(u: V2w) -> V3w {
+        let z = 1.0 - 2.0 * u.x;
+        let r = (1.0 - z * z).max(0.0).sqrt();
+        spherical_direction(r, z, u.y)
+    }
+
+    #[inline(always)]
     pub fn sample_uniform_disk_concentric(u: V2w) -> V2w {
         let o = V2w { x: 2.0 * u.x - 1.0, y: 2.0 * u.y - 1.0 };
         let center = o.x.eq(0.0) & o.y.eq(0.0);
@@ -364,7 +371,7 @@ mod tests {
         assert!(worst > 0.1, "a test that cannot fail: worst error {worst}");
     }
 
-    /// The eight-lane twins of the sine and cosine and of the disk give the scalar bits.
+    /// The eight-lane twins of the sine and cosine and of the warps give the scalar bits.
     #[test]
     fn wide_twins_are_the_scalar_functions() {
         if !crate::wide::tests::available() {
@@ -383,7 +390,12 @@ mod tests {
             let (s, c) = wide::sin_cos_turns(uw.x);
             let d = wide::sample_uniform_disk_concentric(uw);
             let h = wide::sample_cosine_hemisphere(uw);
+            let sph = wide::sample_uniform_sphere(uw);
             for (l, &u) in u.iter().enumerate() {
+                assert_eq!(
+                    sph.get(l).to_array().map(f32::to_bits),
+                    sample_uniform_sphere(u).to_array().map(f32::to_bits)
+                );
                 let (es, ec) = sin_cos_turns(u.x);
                 assert_eq!((s.0[l].to_bits(), c.0[l].to_bits()), (es.to_bits(), ec.to_bits()), "turns {}", u.x);
                 let e = sample_uniform_disk_concentric(u);

@@ -9,10 +9,10 @@
 //! its radiance in the film and its lane takes the tile's next sample.
 //!
 //! Scattering takes one of two routes per lane. The common case, a diffuse or glossy
-//! surface without texture in a scene lit by triangle and sphere lights, runs eight
-//! lanes at once ([`scatter_wide`]): the one-path code's operations in the same order,
-//! on the eight-lane types of `wide.rs`, with each step's wide twin next to its scalar
-//! original. Every other lane runs the one-path [`PathState::scatter`] itself. Either
+//! surface without texture or shading normals in a scene of at most 16 lights, runs
+//! eight lanes at once ([`scatter_wide`]): the one-path code's operations in the same
+//! order, on the eight-lane types of `wide.rs`, with each step's wide twin next to its
+//! scalar original. Every other lane runs the one-path [`PathState::scatter`] itself. Either
 //! way a sample's radiance is the same bits as with [`li`](super::path::li) (the
 //! render-variant test in `render.rs` holds them equal), and the film's fixed-point sums
 //! do not depend on the order in which samples end.
@@ -185,10 +185,10 @@ impl Queries<'_> {
 }
 
 /// Whether eight paths at a time beat one: where the scene is traced by brute force
-/// with AVX2 (packet queries), or its surfaces can take the wide route (lights are
-/// triangles and spheres, no cutouts). Otherwise every lane would run the one-path code
-/// anyway, with the lanes' bookkeeping on top (the cup, lit by a spot light, renders 5 %
-/// slower that way: cachegrind, 48 px, 16 spp).
+/// with AVX2 (packet queries), or its surfaces can take the wide route (lights chosen
+/// per point, no cutouts). Otherwise every lane would run the one-path code anyway,
+/// with the lanes' bookkeeping on top (the cup renders 5 % slower that way when its
+/// spot light did not take the wide route: cachegrind, 48 px, 16 spp).
 pub(crate) fn pays(scene: &Scene) -> bool {
     scene.packed.as_ref().is_some_and(|p| p.packets()) || (scene.lights.wide_ok() && !scene.has_cutouts)
 }
@@ -368,8 +368,9 @@ fn scatter(
 
 /// [`PathState::scatter`] for the lanes `tri | sph` at once: hits on triangles without
 /// shading normals and on spheres, with diffuse or glossy untextured materials, in a
-/// scene whose lights are triangles and spheres. The same steps and operations, on
-/// eight lanes (see the module comment); returns the lanes whose paths go on.
+/// scene whose lights are chosen per point ([`crate::light::LightSet::wide_ok`]). The same steps and
+/// operations, on eight lanes (see the module comment); returns the lanes whose paths
+/// go on.
 #[allow(clippy::too_many_arguments)]
 #[inline(always)]
 fn scatter_wide(
@@ -433,8 +434,8 @@ fn scatter_wide(
     if use_nee {
         let u = samplers.next_2d(alive);
         let (light, pmf, ux, chosen) = scene.lights.select_at_wide(p, u.x);
-        let (wi, li, light_pdf, target, some) =
-            scene.lights.sample_li_wide(light, p, V2w { x: ux, y: u.y }, alive & chosen);
+        let ls = scene.lights.sample_li_wide(light, p, V2w { x: ux, y: u.y }, alive & chosen);
+        let (wi, li, light_pdf, some, delta) = (ls.wi, ls.li, ls.pdf, ls.some, ls.delta);
         let reflects_above = ng.dot(wi).gt(0.0);
         let cond = some & light_pdf.gt(0.0) & li.max_element().gt(0.0) & reflects_above;
         let wi_local = frame.to_local(wi);
@@ -448,19 +449,23 @@ fn scatter_wide(
         }
         let keep = cond & f.max_element().gt(0.0);
         if keep.any() {
-            let pdf = pmf * light_pdf;
-            let w = if use_bsdf_hits { wide::power_heuristic(1.0, pdf, 1.0, bsdf_pdf) } else { F8::ONE };
+            // A light at a point (delta) cannot be hit by BSDF sampling: no MIS.
+            let area_pdf = pmf * light_pdf;
+            let pdf = delta.select(pmf, area_pdf);
+            let w = if use_bsdf_hits { wide::power_heuristic(1.0, area_pdf, 1.0, bsdf_pdf) } else { F8::ONE };
+            let w = delta.select(F8::ONE, w);
             let origin = offset_origin_wide(p, ng, wi);
-            let d = target - origin;
+            let d = ls.target - origin;
             let dist = d.length();
+            let far = ls.at_infinity;
             shadows.origin = keep.select3(origin, shadows.origin);
-            shadows.dir = keep.select3(d / dist, shadows.dir);
-            shadows.tmax = keep.select(dist * (1.0 - 1e-5), shadows.tmax);
+            shadows.dir = keep.select3(far.select3(wi, d / dist), shadows.dir);
+            shadows.tmax = keep.select(far.select(F8::splat(f32::INFINITY), dist * (1.0 - 1e-5)), shadows.tmax);
             shadows.unshadowed = keep.select3(paths.beta * f * li, shadows.unshadowed);
             shadows.weight = keep.select(w, shadows.weight);
             shadows.pdf = keep.select(pdf, shadows.pdf);
             shadows.pending |= keep.bits();
-            shadows.traced |= (keep & !dist.le(0.0)).bits();
+            shadows.traced |= (keep & (far | !dist.le(0.0))).bits();
         }
     }
 
