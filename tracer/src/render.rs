@@ -249,9 +249,11 @@ radiance = [0.1, 0.15, 0.2]
         // For the eight-path renderer's wide route: an open box lit by a triangle lamp,
         // a sphere light, a point light, a spot light (half the box in its cone), a
         // directional light and the background,
-        // with diffuse and glossy surfaces and spheres (its lanes), a mirror sphere and
-        // a smooth-shaded triangle (lanes it leaves to the one-path code), and unlimited
-        // depth (long paths, Russian roulette).
+        // with diffuse and glossy surfaces, spheres and smooth-shaded triangles (one
+        // whose `vn` are zero, so the loader computes them, one whose normals face
+        // away: its lanes), a mirror sphere
+        // (lanes it leaves to the one-path code), and unlimited depth (long paths,
+        // Russian roulette).
         std::fs::write(
             dir.join("w.mtl"),
             "newmtl wall\nKd 0.8 0.75 0.7\nnewmtl shiny\nKd 0.2 0.3 0.2\nKs 0.5 0.5 0.5\nNs 60\n\
@@ -263,8 +265,10 @@ radiance = [0.1, 0.15, 0.2]
             "mtllib w.mtl\nv -2 0 -2\nv 2 0 -2\nv 2 0 2\nv -2 0 2\nv -2 3 -2\nv 2 3 -2\nv 2 3 2\nv -2 3 2\n\
              v -0.5 2.99 -0.5\nv 0.5 2.99 -0.5\nv 0.5 2.99 0.5\nv -0.5 2.99 0.5\n\
              v -1 0.01 0\nv 0 0.01 1.5\nv 1 1.5 1\nvn 0.3 1 0.1\nvn -0.2 1 0.3\nvn 0.5 0.5 -0.2\n\
+             v -1.9 0.01 -1.5\nv -1.2 0.01 -1.5\nv -1.5 1.0 -1.9\nvn 0 0 0\nvn 0 -1 0\n\
              usemtl shiny\nf 1 4 3 2\nusemtl wall\nf 4 8 7 3\nf 1 5 8 4\nf 2 3 7 6\nf 5 6 7 8\n\
-             usemtl lamp\nf 9 10 11 12\nusemtl shiny\nf 13//1 14//2 15//3\n",
+             usemtl lamp\nf 9 10 11 12\nusemtl shiny\nf 13//1 14//2 15//3\nusemtl wall\nf 16//4 17//4 18//4\n\
+             f 16//5 18//5 17//5\n",
         )
         .unwrap();
         let toml = r#"

@@ -9,7 +9,7 @@
 //! its radiance in the film and its lane takes the tile's next sample.
 //!
 //! Scattering takes one of two routes per lane. The common case, a diffuse or glossy
-//! surface without texture or shading normals in a scene of at most 16 lights, runs
+//! surface without texture in a scene of at most 16 lights, runs
 //! eight lanes at once ([`scatter_wide`]): the one-path code's operations in the same
 //! order, on the eight-lane types of `wide.rs`, with each step's wide twin next to its
 //! scalar original. Every other lane runs the one-path [`PathState::scatter`] itself. Either
@@ -326,7 +326,7 @@ fn scatter(
         let prim = hits.prim[l] as usize;
         let (m, sphere) = if prim < ntri { (g.material(prim), false) } else { (g.spheres[prim - ntri].material, true) };
         material.0[l] = m;
-        let wide = materials[m as usize].ok && (sphere || g.shading_normals(prim).is_none());
+        let wide = materials[m as usize].ok;
         let lane = 1 << l;
         match (wide, sphere) {
             (true, false) => tri |= lane,
@@ -366,8 +366,8 @@ fn scatter(
     go_on
 }
 
-/// [`PathState::scatter`] for the lanes `tri | sph` at once: hits on triangles without
-/// shading normals and on spheres, with diffuse or glossy untextured materials, in a
+/// [`PathState::scatter`] for the lanes `tri | sph` at once: hits on triangles and on
+/// spheres, with diffuse or glossy untextured materials, in a
 /// scene whose lights are chosen per point ([`crate::light::LightSet::wide_ok`]). The same steps and
 /// operations, on eight lanes (see the module comment); returns the lanes whose paths
 /// go on.
@@ -391,7 +391,7 @@ fn scatter_wide(
         Strategy::BsdfOnly => (false, true),
     };
     let lanes = tri | sph;
-    let (p, ng) = scene.interaction_wide(paths.origin, paths.dir, hit, tri, sph);
+    let (p, ng, ns) = scene.interaction_wide(paths.origin, paths.dir, hit, tri, sph);
     let wo = -paths.dir;
     let mat = |l: usize| &materials[material.0[l] as usize];
 
@@ -425,8 +425,9 @@ fn scatter_wide(
         .any()
         .then(|| BlinnPhongW::from_fn(|l| mat(l).glossy.unwrap_or(BlinnPhong::new(Vec3::ZERO, Vec3::ZERO, 0.0))));
     // Reflection-only surfaces are two-sided: shade the side the ray arrives from.
-    let ng = ng.dot(wo).lt(0.0).select3(-ng, ng);
-    let frame = FrameW::from_normal(ng);
+    let back = ng.dot(wo).lt(0.0);
+    let (ng, ns) = (back.select3(-ng, ng), back.select3(-ns, ns));
+    let frame = FrameW::from_normal(ns);
     let wo_local = frame.to_local(wo);
 
     // Next-event estimation (`PathState::scatter`'s): one 2D sample picks the light and

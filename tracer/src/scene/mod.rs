@@ -124,29 +124,45 @@ impl Scene {
         }
     }
 
-    /// [`Scene::interaction`]'s position and geometric normal at eight hits, lane by lane
-    /// with the same operations: the lanes of `tri` hit triangles without shading
-    /// normals (so the shading normal is the geometric one), those of `sph` spheres;
-    /// `prim`, `t`, `u`, `v` are the hits'. (Texture coordinates are not computed: the
-    /// eight-path integrator takes lanes whose materials have no texture.)
+    /// [`Scene::interaction`]'s position, geometric and shading normals at eight hits,
+    /// lane by lane with the same operations: the lanes of `tri` hit triangles, those of
+    /// `sph` spheres; `prim`, `t`, `u`, `v` are the hits'. (Texture coordinates are not
+    /// computed: the eight-path integrator takes lanes whose materials have no texture.)
     #[inline(always)]
-    pub fn interaction_wide(&self, origin: V3w, dir: V3w, hit: (U8, F8, F8, F8), tri: M8, sph: M8) -> (V3w, V3w) {
+    pub fn interaction_wide(&self, origin: V3w, dir: V3w, hit: (U8, F8, F8, F8), tri: M8, sph: M8) -> (V3w, V3w, V3w) {
         let (prim, t, u, v) = hit;
         let g = &self.geometry;
         let zero = V3w::splat(Vec3::ZERO);
-        let (mut p, mut ng) = (zero, zero);
+        let (mut p, mut ng, mut ns) = (zero, zero, zero);
         if tri.any() {
             let (mut p0, mut p1, mut p2) = (zero, zero, zero);
+            let (mut n0, mut n1, mut n2, mut smooth) = (zero, zero, zero, M8::NONE);
             for l in each(tri.bits()) {
-                let [a, b, c] = *g.triangle(prim.0[l] as usize);
+                let i = prim.0[l] as usize;
+                let [a, b, c] = *g.triangle(i);
                 p0.set(l, a);
                 p1.set(l, b);
                 p2.set(l, c);
+                if let Some([a, b, c]) = g.shading_normals(i) {
+                    n0.set(l, a);
+                    n1.set(l, b);
+                    n2.set(l, c);
+                    smooth.0[l] = u32::MAX;
+                }
             }
             let b = V3w::new(1.0 - u - v, u, v);
             let pt = b.x * p0 + b.y * p1 + b.z * p2;
             p = tri.select3(pt, p);
-            ng = tri.select3((p1 - p0).cross(p2 - p0).normalize_or_zero(), ng);
+            let n_g = (p1 - p0).cross(p2 - p0).normalize_or_zero();
+            ng = tri.select3(n_g, ng);
+            let mut n_s = n_g;
+            if smooth.any() {
+                let n = (b.x * n0 + b.y * n1 + b.z * n2).normalize_or_zero();
+                let degenerate = (n.x.eq(0.0) & n.y.eq(0.0) & n.z.eq(0.0)) | !n.is_finite();
+                let n = n.dot(n_g).lt(0.0).select3(-n, n);
+                n_s = (smooth & !degenerate).select3(n, n_g);
+            }
+            ns = tri.select3(n_s, ns);
         }
         if sph.any() {
             let (mut c, mut r) = (zero, F8::ZERO);
@@ -159,7 +175,71 @@ impl Scene {
             let n = (n.x.eq(0.0) & n.y.eq(0.0) & n.z.eq(0.0)).select3(V3w::splat(Vec3::Z), n);
             p = sph.select3(c + r * n, p);
             ng = sph.select3(n, ng);
+            ns = sph.select3(n, ns);
         }
-        (p, ng)
+        (p, ng, ns)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The wide interaction gives [`Scene::interaction`]'s bits, on flat and smooth
+    /// triangles (with shading normals facing away from the face, and cancelling to zero
+    /// on an edge) and on spheres.
+    #[test]
+    fn interaction_wide_is_the_interaction() {
+        if !crate::wide::tests::available() {
+            return;
+        }
+        let dir = std::env::temp_dir().join(format!("tilefarm-interaction-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        std::fs::write(
+            dir.join("t.obj"),
+            "v 0 0 0\nv 1 0 0\nv 0 1 0\nv 0 0 1\nvn 0 0 1\nvn 0 0 -1\nvn 0.3 0.2 -1\nvn 1 1 1\n\
+             f 1 2 3\nf 1//1 2//2 3//1\nf 1//3 2//4 4//3\n",
+        )
+        .unwrap();
+        let text = "[camera]\nposition = [0, 0, 10]\nlook_at = [0, 0, 0]\nfov = 40\nwidth = 8\nheight = 8\n\
+                    [[mesh]]\nobj = \"t.obj\"\n[[sphere]]\ncenter = [2, 0, 0]\nradius = 0.5\nkd = [0.5, 0.5, 0.5]\n";
+        let scene = crate::scene::scene_from_toml(text, "interaction.toml", &dir).unwrap();
+        std::fs::remove_dir_all(&dir).unwrap();
+        let ntri = scene.geometry.triangle_count() as u32;
+        assert_eq!(ntri, 3);
+        // (prim, u, v): u = 0.5, v = 0 puts the second triangle's normals at zero; at
+        // u = 0.8 they face away from the face normal, as do the third's.
+        let hits = [(0, 0.2, 0.3), (1, 0.5, 0.0), (1, 0.8, 0.0), (2, 0.1, 0.7), (3, 0.0, 0.0), (2, 0.5, 0.5)];
+        let mut origin = V3w::splat(Vec3::ZERO);
+        let mut dirw = V3w::splat(Vec3::ZERO);
+        let (mut prim, mut t, mut u, mut v) = (U8::splat(0), F8::ZERO, F8::ZERO, F8::ZERO);
+        let (mut tri, mut sph) = (M8::NONE, M8::NONE);
+        let mut want = Vec::new();
+        for (l, &(p, hu, hv)) in hits.iter().enumerate() {
+            let o = Vec3::new(0.3 + l as f32 * 0.1, -0.2, 5.0);
+            let d = Vec3::new(0.05 * l as f32, 0.02, -1.0).normalize();
+            let hit = Hit { t: 4.0 + 0.1 * l as f32, prim: p, u: hu, v: hv };
+            let si = scene.interaction(&Ray::new(o, d), &hit);
+            want.push((si.p, si.ng, si.ns));
+            origin.set(l, o);
+            dirw.set(l, d);
+            (prim.0[l], t.0[l], u.0[l], v.0[l]) = (p, hit.t, hu, hv);
+            if p < ntri {
+                tri.0[l] = u32::MAX;
+            } else {
+                sph.0[l] = u32::MAX;
+            }
+        }
+        assert_eq!(want[1].2, want[1].1, "the cancelling normals fall back to the face normal");
+        assert_ne!(want[3].2, want[3].1);
+        let (p, ng, ns) = scene.interaction_wide(origin, dirw, (prim, t, u, v), tri, sph);
+        let bits = |v: Vec3| v.to_array().map(f32::to_bits);
+        for (l, w) in want.iter().enumerate() {
+            assert_eq!(
+                [bits(p.get(l)), bits(ng.get(l)), bits(ns.get(l))],
+                [bits(w.0), bits(w.1), bits(w.2)],
+                "hit {l}"
+            );
+        }
     }
 }
