@@ -19,8 +19,11 @@ const MAX_DEPTH: u32 = 60;
 /// (origins on the bounding sphere towards uniform points in the box) on this 2-core
 /// machine, whose timings swing by ±20 % between runs, so figures are medians (best) of
 /// five processes run interleaved. Leaves test their triangles eight at a time (corners
-/// gathered, `accel/lanes.rs`), which makes a primitive test cheap against a node
-/// step (a likely cache miss), so big leaves and shallow trees win. 1M-triangle
+/// loaded by index, `accel/lanes.rs`; gathered when these figures were taken), which
+/// makes a primitive test cheap against a node step (a likely cache miss), so big leaves
+/// and shallow trees win. (Ci/Ct 0.15, 0.18, 0.21, 0.25 against 0.12 with loaded
+/// corners, `KDTREE_AB`, 1M mesh: 0.99–1.16, one run each and 0.99 on a rerun of 0.18,
+/// within this host's noise, so 0.12 stays.) 1M-triangle
 /// displaced sphere (`KDTREE_CI=… KDTREE_QUICK=closest|any,1000000,5 cargo bench -p
 /// tracer --bench kdtree`), closest / any hit in Mrays/s, build on both threads:
 ///
