@@ -336,12 +336,22 @@ radiance = [0.05, 0.06, 0.08]
                 grid += &format!("f {} {} {} {}\n", v, v + 13, v + 14, v + 1);
             }
         }
-        std::fs::write(dir.join("grid.obj"), grid).unwrap();
+        std::fs::write(dir.join("grid.obj"), &grid).unwrap();
         let tree =
             crate::scene::scene_from_toml(&format!("{toml}[[mesh]]\nobj = \"grid.obj\"\n"), "wide-tree.toml", &dir)
                 .unwrap();
+        // The grid alone as a mirror: no surface takes the wide route, so eight paths
+        // at a time would not pay.
+        std::fs::write(dir.join("m.mtl"), "newmtl wall\nKs 0.9 0.9 0.9\nillum 3\n").unwrap();
+        std::fs::write(dir.join("mirror.obj"), grid.replace("w.mtl", "m.mtl")).unwrap();
+        let light = "[[light]]\ntype = \"point\"\nposition = [0.0, 2.0, 0.0]\nintensity = [1.0, 1.0, 1.0]\n";
+        let camera = &toml[..toml.find("[[mesh]]").unwrap()];
+        let mirror =
+            crate::scene::scene_from_toml(&format!("{camera}[[mesh]]\nobj = \"mirror.obj\"\n{light}"), "m.toml", &dir)
+                .unwrap();
         let _ = std::fs::remove_dir_all(&dir);
         assert!(tree.packed.is_none() && crate::integrator::packet::pays(&tree));
+        assert!(mirror.packed.is_none() && mirror.lights.wide_ok() && !crate::integrator::packet::pays(&mirror));
         let mut scenes = vec![
             ("variants.toml".to_string(), extra),
             ("wide.toml".to_string(), wide),

@@ -28,6 +28,7 @@ use crate::bsdf::blinn_phong::{BlinnPhong, BlinnPhongW};
 use crate::bsdf::lambert::LambertW;
 use crate::film::{Accumulation, SampleRange, Tile};
 use crate::geometry::{FrameW, Ray, offset_origin_wide};
+use crate::material::Material;
 use crate::sampler::{Sampler, SamplerLanes};
 use crate::sampling::wide;
 use crate::scene::Scene;
@@ -126,24 +127,27 @@ struct WideMaterial {
 
 impl WideMaterial {
     fn of(scene: &Scene) -> Vec<WideMaterial> {
-        let plain = scene.lights.wide_ok() && !scene.has_cutouts;
         scene
             .materials
             .iter()
             .map(|m| {
-                let (kind_ok, glossy, kd) = match m.bsdf {
-                    Bsdf::Diffuse { kd } => (true, None, kd),
-                    Bsdf::Glossy { kd, ks, exponent } => (true, Some(BlinnPhong::new(kd, ks, exponent)), Vec3::ZERO),
-                    _ => (false, None, Vec3::ZERO),
+                let (glossy, kd) = match m.bsdf {
+                    Bsdf::Diffuse { kd } => (None, kd),
+                    Bsdf::Glossy { kd, ks, exponent } => (Some(BlinnPhong::new(kd, ks, exponent)), Vec3::ZERO),
+                    _ => (None, Vec3::ZERO),
                 };
-                WideMaterial {
-                    ok: plain && kind_ok && m.opacity >= 1.0 && m.kd_texture.is_none(),
-                    glossy,
-                    kd,
-                    emissive: m.is_emissive(),
-                }
+                WideMaterial { ok: Self::takes(scene, m), glossy, kd, emissive: m.is_emissive() }
             })
             .collect()
+    }
+
+    /// Whether the wide route takes surfaces of material `m` in `scene`.
+    fn takes(scene: &Scene, m: &Material) -> bool {
+        scene.lights.wide_ok()
+            && !scene.has_cutouts
+            && matches!(m.bsdf, Bsdf::Diffuse { .. } | Bsdf::Glossy { .. })
+            && m.opacity >= 1.0
+            && m.kd_texture.is_none()
     }
 }
 
@@ -185,12 +189,13 @@ impl Queries<'_> {
 }
 
 /// Whether eight paths at a time beat one: where the scene is traced by brute force
-/// with AVX2 (packet queries), or its surfaces can take the wide route (lights chosen
-/// per point, no cutouts). Otherwise every lane would run the one-path code anyway,
-/// with the lanes' bookkeeping on top (the cup renders 5 % slower that way when its
-/// spot light did not take the wide route: cachegrind, 48 px, 16 spp).
+/// with AVX2 (packet queries), or some of its surfaces take the wide route (lights
+/// chosen per point, no cutouts, a diffuse or glossy untextured material). Otherwise
+/// every lane would run the one-path code anyway, with the lanes' bookkeeping on top
+/// (the cup renders 5 % slower that way when its spot light did not take the wide
+/// route: cachegrind, 48 px, 16 spp).
 pub(crate) fn pays(scene: &Scene) -> bool {
-    scene.packed.as_ref().is_some_and(|p| p.packets()) || (scene.lights.wide_ok() && !scene.has_cutouts)
+    scene.packed.as_ref().is_some_and(|p| p.packets()) || scene.materials.iter().any(|m| WideMaterial::takes(scene, m))
 }
 
 /// Every sample of every pixel of `tile` with the path integrator, eight at a time.
