@@ -1,11 +1,15 @@
 //! SAH kd-tree: build with perfect (clipped) splits, binned SAH for large nodes and
-//! exact sweeps for small ones, in `build.rs`; compact 8-byte nodes, and a stack-based
-//! front-to-back traversal in `traverse.rs` whose answers are bit-identical to the
-//! brute-force loops. Leaves test their triangles eight at a time (`accel/lanes.rs`).
+//! exact sweeps for small ones, into compact 8-byte nodes, in `build.rs`; the nodes cut
+//! into cache-line treelets of three levels for traversal, in `treelet.rs`; a
+//! stack-based front-to-back traversal in `traverse.rs` whose answers are bit-identical
+//! to the brute-force loops. Leaves test their triangles eight at a time
+//! (`accel/lanes.rs`).
 
 mod build;
 mod traverse;
+mod treelet;
 
+use self::treelet::{Treelet, to_treelets};
 use super::lanes::Simd;
 use super::{Hit, Primitives, Ray};
 use crate::geometry::Aabb;
@@ -108,7 +112,10 @@ impl Default for BuildParams {
 /// Shape and size of a built tree.
 #[derive(Clone, Debug, Default, PartialEq)]
 pub struct KdTreeStats {
+    /// Nodes of the binary tree, leaves included.
     pub nodes: usize,
+    /// The 64-byte treelets the traversal reads them from.
+    pub treelets: usize,
     pub leaves: usize,
     pub empty_leaves: usize,
     /// Deepest leaf (the root is at depth 0).
@@ -119,20 +126,16 @@ pub struct KdTreeStats {
     pub prim_refs: usize,
     /// Largest leaf.
     pub max_leaf_prims: usize,
-    /// Memory of the nodes and the leaves' primitive indices.
+    /// Memory of the treelets and the leaves' primitive indices.
     pub bytes: usize,
 }
 
-/// A node in 8 bytes (pbrt's layout). `flags` low 2 bits: split axis, or 3 for a leaf;
-/// upper 30 bits: the above child's offset from this node (interior; the below child
-/// is the next node), or the primitive count (leaf). `data`: the split position's bits
-/// (interior), the primitive itself (leaf of one), or (as the build emits them) the
-/// offset of the leaf's indices in the build's index array.
-///
-/// In a built [`KdTree`] a leaf of several primitives is instead followed by its indices,
-/// two per 8-byte slot (`data` then `flags`; the slots are not nodes): reaching the leaf
-/// brings them into the cache with it, where a separate index array cost one more
-/// dependent cache miss per leaf (see [`inline_leaf_ids`]).
+/// A node in 8 bytes (pbrt's layout), as the build emits them. `flags` low 2 bits: split
+/// axis, or 3 for a leaf; upper 30 bits: the above child's offset from this node
+/// (interior; the below child is the next node), or the primitive count (leaf). `data`:
+/// the split position's bits (interior), the primitive itself (leaf of one), or the
+/// offset of the leaf's indices in the build's index array. A built [`KdTree`] holds
+/// them as treelets (`treelet.rs`).
 #[repr(C)]
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
 struct Node {
@@ -187,66 +190,39 @@ impl Node {
     fn prim_count(self) -> usize {
         (self.flags >> 2) as usize
     }
-    /// Slots taken by a built tree's inline indices after this node.
-    #[inline(always)]
-    fn id_slots(self) -> usize {
-        if self.is_leaf() && self.prim_count() > 1 { self.prim_count().div_ceil(2) } else { 0 }
-    }
-}
-
-/// The build's output (depth-first nodes and a shared index array) with each leaf's
-/// indices moved right after the leaf, child offsets adjusted: the node order, and so
-/// the tree, are unchanged. Measured on the 1M-triangle mesh (`KDTREE_QUICK`): the
-/// separate array's load was about a sixth of the traversal's time.
-fn inline_leaf_ids(nodes: &[Node], ids: &[u32]) -> Vec<Node> {
-    // Where each node goes: its index plus the slots inserted before it.
-    let mut pos = Vec::with_capacity(nodes.len() + 1);
-    let mut at = 0usize;
-    for n in nodes {
-        pos.push(at);
-        at += 1 + n.id_slots();
-    }
-    pos.push(at);
-    let mut out = Vec::with_capacity(at);
-    for (i, &n) in nodes.iter().enumerate() {
-        if !n.is_leaf() {
-            out.push(Node::interior(n.axis(), n.split(), (pos[i + n.above()] - pos[i]) as u32));
-        } else if n.prim_count() <= 1 {
-            out.push(n);
-        } else {
-            out.push(Node { data: 0, flags: n.flags });
-            let c = n.prim_count();
-            for pair in ids[n.data as usize..n.data as usize + c].chunks(2) {
-                out.push(Node { data: pair[0], flags: pair.get(1).copied().unwrap_or(0) });
-            }
-        }
-    }
-    debug_assert_eq!(out.len(), at);
-    out
 }
 
 /// The kd-tree over a [`Primitives`] set. It stores primitive indices only: queries take
 /// the same set again.
 pub struct KdTree {
-    /// Nodes in depth-first order, each multi-primitive leaf followed by its indices.
-    nodes: Vec<Node>,
+    /// The nodes, three levels to a treelet, in depth-first order.
+    treelets: Vec<Treelet>,
+    /// Each leaf of several primitives as its count and its indices, in depth-first
+    /// order.
+    leaves: Vec<u32>,
+    /// The root's reference (`treelet.rs`): a treelet, a leaf, or nothing.
+    root: u32,
     bounds: Aabb,
     /// Root cell (the primitives' padded extents): what traversal clips rays to.
     cell: Aabb,
     stats: KdTreeStats,
-    /// The instruction set of the leaves' eight-lane triangle test.
+    /// The instruction set of the treelet step and of the leaves' eight-lane triangle
+    /// test.
     simd: Simd,
 }
 
 impl KdTree {
     pub fn build<P: Primitives>(prims: &P, params: &BuildParams) -> KdTree {
         let b = build::build(prims, params);
-        let nodes = inline_leaf_ids(&b.out.nodes, &b.out.ids);
-        crate::accel::advise_huge_pages(&nodes);
-        let mut tree =
-            KdTree { nodes, bounds: b.bounds, cell: b.cell, stats: Default::default(), simd: Simd::detect() };
-        tree.stats = tree.compute_stats(b.max_depth as usize);
-        tree
+        let (treelets, leaves, root) = to_treelets(&b.out.nodes, &b.out.ids);
+        crate::accel::advise_huge_pages(&treelets);
+        crate::accel::advise_huge_pages(&leaves);
+        let stats = KdTreeStats {
+            treelets: treelets.len(),
+            bytes: treelets.len() * size_of::<Treelet>() + leaves.len() * size_of::<u32>(),
+            ..binary_stats(&b.out.nodes, b.max_depth as usize)
+        };
+        KdTree { treelets, leaves, root, bounds: b.bounds, cell: b.cell, stats, simd: Simd::detect() }
     }
 
     /// Union of the primitives' bounds (empty for an empty set).
@@ -258,20 +234,21 @@ impl KdTree {
         self.stats.clone()
     }
 
-    /// A hash of the node array (leaf indices included): equal fingerprints mean the same
-    /// tree, for checking that a build change left the tree alone.
+    /// A hash of the treelets and leaves: equal fingerprints mean the same tree, for
+    /// checking that a build change left the tree alone.
     pub fn fingerprint(&self) -> u64 {
         use std::hash::{Hash, Hasher};
         let mut h = std::collections::hash_map::DefaultHasher::new();
-        for n in &self.nodes {
-            (n.data, n.flags).hash(&mut h);
+        for t in &self.treelets {
+            (t.split.map(f32::to_bits), t.axes, t.child).hash(&mut h);
         }
+        (&self.leaves, self.root).hash(&mut h);
         h.finish()
     }
 
-    /// Bytes allocated for the nodes, leaf indices included (their capacity).
+    /// Bytes allocated for the treelets and the leaves (their capacity).
     pub fn heap_bytes(&self) -> usize {
-        self.nodes.capacity() * size_of::<Node>()
+        self.treelets.capacity() * size_of::<Treelet>() + self.leaves.capacity() * size_of::<u32>()
     }
 
     /// Nearest hit with `0 < t < tmax`: exactly what [`super::brute_force_intersect`]
@@ -298,28 +275,37 @@ impl KdTree {
     }
 
     /// A permutation of the primitive indices `0..n` (`order[new] = old`): every index
-    /// the leaves list, in order of its first listing in depth-first leaf order (the
-    /// node array's order), then the unlisted ones in index order. Storing the
-    /// primitives in this order puts a leaf's primitives next to each other in memory,
-    /// and neighbouring leaves' close by; [`KdTree::remap`] then renames the tree's
-    /// indices to match. Deterministic: a function of the tree alone.
+    /// the leaves list, in order of its first listing in depth-first leaf order (below
+    /// before above), then the unlisted ones in index order. Storing the primitives in
+    /// this order puts a leaf's primitives next to each other in memory, and
+    /// neighbouring leaves' close by; [`KdTree::remap`] then renames the tree's indices
+    /// to match. Deterministic: a function of the tree alone.
     pub fn leaf_order(&self, n: usize) -> Vec<u32> {
         let mut seen = vec![false; n];
         let mut order = Vec::with_capacity(n);
-        let mut i = 0;
-        while i < self.nodes.len() {
-            let node = self.nodes[i];
-            if node.is_leaf() {
-                for &g in self.leaf_ids(i, node) {
-                    if !std::mem::replace(&mut seen[g as usize], true) {
-                        order.push(g);
-                    }
+        self.for_each_leaf(|ids| {
+            for &g in ids {
+                if !std::mem::replace(&mut seen[g as usize], true) {
+                    order.push(g);
                 }
             }
-            i += 1 + node.id_slots();
-        }
+        });
         order.extend((0..n as u32).filter(|&i| !seen[i as usize]));
         order
+    }
+
+    /// Calls `f` with each non-empty leaf's primitives, in depth-first order.
+    fn for_each_leaf(&self, mut f: impl FnMut(&[u32])) {
+        let mut stack = vec![self.root];
+        while let Some(r) = stack.pop() {
+            let at = (r >> 2) as usize;
+            match r & 3 {
+                treelet::TREELET => stack.extend(self.treelets[at].child.iter().rev()),
+                treelet::LEAF => f(&self.leaves[at + 1..at + 1 + self.leaves[at] as usize]),
+                treelet::ONE => f(&[r >> 2]),
+                _ => {}
+            }
+        }
     }
 
     /// Renames primitive `i` to `new_index[i]` throughout the tree, for use after the
@@ -328,70 +314,47 @@ impl KdTree {
     /// stay bit-identical to brute force over the permuted set: the traversal's result
     /// does not depend on the order within a leaf.
     pub fn remap(&mut self, new_index: &[u32]) {
+        let rename = |r: &mut u32| {
+            if *r & 3 == treelet::ONE {
+                *r = (new_index[(*r >> 2) as usize] << 2) | treelet::ONE;
+            }
+        };
+        rename(&mut self.root);
+        for t in &mut self.treelets {
+            t.child.iter_mut().for_each(rename);
+        }
         let mut i = 0;
-        while i < self.nodes.len() {
-            let node = self.nodes[i];
-            if node.is_leaf() {
-                let ids = self.leaf_ids_mut(i, node);
-                for id in ids.iter_mut() {
-                    *id = new_index[*id as usize];
-                }
-                ids.sort_unstable();
+        while i < self.leaves.len() {
+            let n = self.leaves[i] as usize;
+            let ids = &mut self.leaves[i + 1..i + 1 + n];
+            for id in ids.iter_mut() {
+                *id = new_index[*id as usize];
             }
-            i += 1 + node.id_slots();
+            ids.sort_unstable();
+            i += 1 + n;
         }
     }
+}
 
-    /// The primitives of leaf `node`, at index `i`.
-    #[inline(always)]
-    fn leaf_ids(&self, i: usize, node: Node) -> &[u32] {
-        match node.prim_count() {
-            0 => &[],
-            1 => std::slice::from_ref(&self.nodes[i].data),
-            c => {
-                let slots = &self.nodes[i + 1..i + 1 + c.div_ceil(2)];
-                // SAFETY: `Node` is `repr(C)` of two `u32`s (no padding), so `slots` is
-                // `2 * slots.len() >= c` initialised, aligned `u32`s.
-                unsafe { std::slice::from_raw_parts(slots.as_ptr().cast::<u32>(), c) }
-            }
+/// The shape of the binary tree the build emitted (depth-first, below child next).
+fn binary_stats(nodes: &[Node], depth_limit: usize) -> KdTreeStats {
+    let mut s = KdTreeStats { depth_limit, ..Default::default() };
+    let mut stack = if nodes.is_empty() { vec![] } else { vec![(0usize, 0usize)] };
+    while let Some((i, d)) = stack.pop() {
+        let n = nodes[i];
+        s.nodes += 1;
+        s.max_depth = s.max_depth.max(d);
+        if n.is_leaf() {
+            s.leaves += 1;
+            s.empty_leaves += usize::from(n.prim_count() == 0);
+            s.prim_refs += n.prim_count();
+            s.max_leaf_prims = s.max_leaf_prims.max(n.prim_count());
+        } else {
+            stack.push((i + 1, d + 1));
+            stack.push((i + n.above(), d + 1));
         }
     }
-
-    /// [`KdTree::leaf_ids`], mutable.
-    fn leaf_ids_mut(&mut self, i: usize, node: Node) -> &mut [u32] {
-        match node.prim_count() {
-            0 => &mut [],
-            1 => std::slice::from_mut(&mut self.nodes[i].data),
-            c => {
-                let slots = &mut self.nodes[i + 1..i + 1 + c.div_ceil(2)];
-                // SAFETY: as in `leaf_ids`; the slice borrows `slots` mutably.
-                unsafe { std::slice::from_raw_parts_mut(slots.as_mut_ptr().cast::<u32>(), c) }
-            }
-        }
-    }
-
-    fn compute_stats(&self, depth_limit: usize) -> KdTreeStats {
-        let mut s = KdTreeStats { depth_limit, bytes: self.nodes.len() * size_of::<Node>(), ..Default::default() };
-        let mut stack = vec![(0usize, 0usize)];
-        if self.nodes.is_empty() {
-            stack.clear();
-        }
-        while let Some((i, d)) = stack.pop() {
-            let n = self.nodes[i];
-            s.nodes += 1;
-            s.max_depth = s.max_depth.max(d);
-            if n.is_leaf() {
-                s.leaves += 1;
-                s.empty_leaves += usize::from(n.prim_count() == 0);
-                s.prim_refs += n.prim_count();
-                s.max_leaf_prims = s.max_leaf_prims.max(n.prim_count());
-            } else {
-                stack.push((i + 1, d + 1));
-                stack.push((i + n.above(), d + 1));
-            }
-        }
-        s
-    }
+    s
 }
 
 #[cfg(test)]

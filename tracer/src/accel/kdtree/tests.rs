@@ -4,6 +4,7 @@
 use glam::Vec3;
 use proptest::prelude::*;
 
+use super::treelet::Treelet;
 use super::*;
 use crate::accel::{RayPrecomp, brute_force_intersect, brute_force_occluded};
 use crate::scene::generate::displaced_sphere;
@@ -317,29 +318,51 @@ fn nodes_are_compact_and_tree_is_shareable() {
     fn send_sync<T: Send + Sync>() {}
     send_sync::<KdTree>();
     assert_eq!(size_of::<Node>(), 8);
+    assert_eq!((size_of::<Treelet>(), align_of::<Treelet>()), (64, 64));
     let geo = random_scene(5, 3000);
     let tree = KdTree::build(&geo, &BuildParams::default());
     let s = tree.stats();
     assert_eq!(s.nodes, 2 * s.leaves - 1);
     assert!(s.prim_refs >= geo.triangle_count() / 2, "{s:?}");
-    assert_eq!(s.bytes, 8 * tree.nodes.len());
-    // Depth-first: an interior node's below child is the next node; a leaf of several
-    // primitives is followed by its indices, two per slot.
-    let (mut i, mut nodes, mut refs) = (0, 0, 0);
-    while i < tree.nodes.len() {
-        let n = tree.nodes[i];
-        if !n.is_leaf() {
-            assert!(n.above() > 1 && i + n.above() < tree.nodes.len());
-        } else {
-            refs += tree.leaf_ids(i, n).len();
-        }
-        nodes += 1;
-        i += 1 + n.id_slots();
+    assert_eq!(s.bytes, 64 * tree.treelets.len() + 4 * tree.leaves.len());
+    assert_eq!(s.treelets, tree.treelets.len());
+    // Every reference points inside its array, leaves of several primitives are
+    // `[count, ids..]` runs that tile `leaves`, and the walk from the root meets each
+    // treelet once and each non-empty leaf's primitives once.
+    let mut runs = std::collections::BTreeMap::new();
+    let mut i = 0;
+    while i < tree.leaves.len() {
+        let n = tree.leaves[i] as usize;
+        assert!(n >= 2 && i + 1 + n <= tree.leaves.len());
+        runs.insert(i, false);
+        i += 1 + n;
     }
-    assert_eq!((nodes, refs), (s.nodes, s.prim_refs));
+    let (mut seen, mut refs) = (vec![false; tree.treelets.len()], 0);
+    let mut stack = vec![tree.root];
+    while let Some(r) = stack.pop() {
+        let at = (r >> 2) as usize;
+        match r & 3 {
+            treelet::TREELET => {
+                assert!(!std::mem::replace(&mut seen[at], true));
+                stack.extend(tree.treelets[at].child);
+            }
+            treelet::LEAF => {
+                assert_eq!(runs.insert(at, true), Some(false));
+                refs += tree.leaves[at] as usize;
+            }
+            treelet::ONE => refs += 1,
+            _ => {}
+        }
+    }
+    assert!(seen.iter().all(|&x| x) && runs.values().all(|&x| x));
+    assert_eq!(refs, s.prim_refs);
+    let mut listed = 0;
+    tree.for_each_leaf(|ids| listed += ids.len());
+    assert_eq!(listed, s.prim_refs);
     // A depth limit of 0 gives one leaf with everything.
     let one = KdTree::build(&geo, &BuildParams { max_depth: Some(0), ..Default::default() });
     assert_eq!((one.stats().nodes, one.stats().prim_refs), (1, geo.triangle_count() + geo.spheres.len()));
+    assert_eq!((one.root & 3, one.treelets.len()), (treelet::LEAF, 0));
 }
 
 #[test]
@@ -383,7 +406,8 @@ fn check_leaf_order(geo: Geometry, params: &BuildParams, r: &mut Rng, rays: usiz
     let order = moved.store_in_leaf_order(&mut moved_tree);
     let (mut again, mut again_tree) = (geo.clone(), KdTree::build(&geo, params));
     prop_assert_eq!(&order, &again.store_in_leaf_order(&mut again_tree), "not deterministic");
-    prop_assert_eq!(&again_tree.nodes, &moved_tree.nodes);
+    prop_assert_eq!(&again_tree.treelets, &moved_tree.treelets);
+    prop_assert_eq!(&again_tree.leaves, &moved_tree.leaves);
     let ntri = geo.triangle_count();
     let mut sorted = order.clone();
     sorted.sort_unstable();
