@@ -74,7 +74,7 @@ struct Setup {
 
 impl KdTree {
     /// Clips the ray to the root cell, widened by the slack.
-    #[inline]
+    #[inline(always)]
     fn setup(&self, ray: &Ray, inv: Vec3, tmax: f32) -> Option<Setup> {
         if self.root & 3 == EMPTY {
             return None;
@@ -151,24 +151,23 @@ impl KdTree {
                         _ => st.step(t, &axes, lo, hi, reach),
                     }
                 }
-                LEAF => {
-                    let n = self.leaves[at] as usize;
-                    bound = leaf(&self.leaves[at + 1..at + 1 + n]);
-                    if bound.is_nan() {
-                        return;
+                kind => {
+                    // One call of `leaf`, so that it inlines.
+                    let one = [r >> 2];
+                    let ids: &[u32] = match kind {
+                        LEAF => &self.leaves[at + 1..at + 1 + self.leaves[at] as usize],
+                        ONE => &one,
+                        _ => &[],
+                    };
+                    if !ids.is_empty() {
+                        bound = leaf(ids);
+                        if bound.is_nan() {
+                            return;
+                        }
+                        reach = bound + slack;
                     }
-                    reach = bound + slack;
                     None
                 }
-                ONE => {
-                    bound = leaf(&[r >> 2]);
-                    if bound.is_nan() {
-                        return;
-                    }
-                    reach = bound + slack;
-                    None
-                }
-                _ => None,
             };
             match next {
                 Some(n) => (r, lo, hi) = n,

@@ -180,9 +180,9 @@ impl Stack {
     #[inline(always)]
     pub(super) fn new() -> Self {
         Self {
-            node: [MaybeUninit::uninit(); STACK],
-            lo: [MaybeUninit::uninit(); STACK],
-            hi: [MaybeUninit::uninit(); STACK],
+            node: [const { MaybeUninit::uninit() }; STACK],
+            lo: [const { MaybeUninit::uninit() }; STACK],
+            hi: [const { MaybeUninit::uninit() }; STACK],
             sp: 0,
         }
     }
