@@ -261,14 +261,19 @@ mod avx2 {
     }
 
     impl RayLanes {
-        #[target_feature(enable = "avx2")]
-        pub(in crate::accel::kdtree) fn new(r: &RayAxes) -> Self {
+        /// # Safety
+        /// The CPU must have AVX2.
+        #[inline(always)]
+        pub(in crate::accel::kdtree) unsafe fn new(r: &RayAxes) -> Self {
             let neg = r.neg.map(|n| -(n as i32));
-            Self {
-                o: r.o.map(|x| _mm256_set1_ps(x)),
-                inv: r.inv.map(|x| _mm256_set1_ps(x)),
-                neg: _mm256_setr_epi32(neg[0], neg[1], neg[2], 0, 0, 0, 0, 0),
-                slack: _mm256_set1_ps(r.slack),
+            // SAFETY: AVX2 (the caller's promise).
+            unsafe {
+                Self {
+                    o: [_mm256_set1_ps(r.o[0]), _mm256_set1_ps(r.o[1]), _mm256_set1_ps(r.o[2])],
+                    inv: [_mm256_set1_ps(r.inv[0]), _mm256_set1_ps(r.inv[1]), _mm256_set1_ps(r.inv[2])],
+                    neg: _mm256_setr_epi32(neg[0], neg[1], neg[2], 0, 0, 0, 0, 0),
+                    slack: _mm256_set1_ps(r.slack),
+                }
             }
         }
     }
@@ -318,40 +323,50 @@ mod avx2 {
     /// The addresses are made in 64-bit lanes, four at a time: against the scalar loop,
     /// `KDTREE_AB` medians of 200 slice pairs, closest / any hit, 10k mesh 1.13 / 1.15,
     /// 1M mesh 1.11 / 1.11.
-    #[target_feature(enable = "avx2")]
-    #[inline]
-    fn prefetch_children(child: __m256i, tb: usize, lb: usize) {
-        let kind = _mm256_and_si256(child, _mm256_set1_epi32(3));
-        let is_t = _mm256_cmpeq_epi32(kind, _mm256_set1_epi32(super::TREELET as i32));
-        let is_l = _mm256_cmpeq_epi32(kind, _mm256_set1_epi32(super::LEAF as i32));
-        // Byte offsets' shifts: 64-byte treelets from the index `c >> 2`, 4-byte words.
-        let index = _mm256_and_si256(_mm256_srli_epi32::<2>(child), _mm256_or_si256(is_t, is_l));
-        let shift =
-            _mm256_or_si256(_mm256_and_si256(is_t, _mm256_set1_epi32(6)), _mm256_and_si256(is_l, _mm256_set1_epi32(2)));
-        for half in 0..2 {
-            let (i, sh, l) = if half == 0 {
-                (_mm256_castsi256_si128(index), _mm256_castsi256_si128(shift), _mm256_castsi256_si128(is_l))
-            } else {
-                (
-                    _mm256_extracti128_si256::<1>(index),
-                    _mm256_extracti128_si256::<1>(shift),
-                    _mm256_extracti128_si256::<1>(is_l),
-                )
-            };
-            let off = _mm256_sllv_epi64(_mm256_cvtepu32_epi64(i), _mm256_cvtepu32_epi64(sh));
-            let base = _mm256_blendv_epi8(
-                _mm256_set1_epi64x(tb as i64),
-                _mm256_set1_epi64x(lb as i64),
-                _mm256_cvtepi32_epi64(l),
+    ///
+    /// # Safety
+    /// The CPU must have AVX2.
+    #[inline(always)]
+    unsafe fn prefetch_children(child: __m256i, tb: usize, lb: usize) {
+        // SAFETY: AVX2 (the caller's promise); a prefetch is a hint, it never faults,
+        // whatever the address.
+        unsafe {
+            let kind = _mm256_and_si256(child, _mm256_set1_epi32(3));
+            let is_t = _mm256_cmpeq_epi32(kind, _mm256_set1_epi32(super::TREELET as i32));
+            let is_l = _mm256_cmpeq_epi32(kind, _mm256_set1_epi32(super::LEAF as i32));
+            // Byte offsets' shifts: 64-byte treelets from the index `c >> 2`, 4-byte words.
+            let index = _mm256_and_si256(_mm256_srli_epi32::<2>(child), _mm256_or_si256(is_t, is_l));
+            let shift = _mm256_or_si256(
+                _mm256_and_si256(is_t, _mm256_set1_epi32(6)),
+                _mm256_and_si256(is_l, _mm256_set1_epi32(2)),
             );
-            let a = _mm256_add_epi64(base, off);
-            let lo = _mm256_castsi256_si128(a);
-            let hi = _mm256_extracti128_si256::<1>(a);
-            for p in
-                [_mm_cvtsi128_si64(lo), _mm_extract_epi64::<1>(lo), _mm_cvtsi128_si64(hi), _mm_extract_epi64::<1>(hi)]
-            {
-                // A hint: it never faults, whatever the address.
-                _mm_prefetch::<_MM_HINT_T0>(p as usize as *const i8);
+            for half in 0..2 {
+                let (i, sh, l) = if half == 0 {
+                    (_mm256_castsi256_si128(index), _mm256_castsi256_si128(shift), _mm256_castsi256_si128(is_l))
+                } else {
+                    (
+                        _mm256_extracti128_si256::<1>(index),
+                        _mm256_extracti128_si256::<1>(shift),
+                        _mm256_extracti128_si256::<1>(is_l),
+                    )
+                };
+                let off = _mm256_sllv_epi64(_mm256_cvtepu32_epi64(i), _mm256_cvtepu32_epi64(sh));
+                let base = _mm256_blendv_epi8(
+                    _mm256_set1_epi64x(tb as i64),
+                    _mm256_set1_epi64x(lb as i64),
+                    _mm256_cvtepi32_epi64(l),
+                );
+                let a = _mm256_add_epi64(base, off);
+                let lo = _mm256_castsi256_si128(a);
+                let hi = _mm256_extracti128_si256::<1>(a);
+                for p in [
+                    _mm_cvtsi128_si64(lo),
+                    _mm_extract_epi64::<1>(lo),
+                    _mm_cvtsi128_si64(hi),
+                    _mm_extract_epi64::<1>(hi),
+                ] {
+                    _mm_prefetch::<_MM_HINT_T0>(p as usize as *const i8);
+                }
             }
         }
     }
@@ -368,10 +383,13 @@ mod avx2 {
     /// matter once a NaN distance (a ray in the plane) is made to leave the interval
     /// alone, as in the binary walk.
     ///
+    /// Not a `target_feature` function, which would not inline into the walk in every
+    /// caller (it did not in the renderer's); `#[inline(always)]` puts its intrinsics in
+    /// the AVX2 query, where they inline.
+    ///
     /// # Safety
     /// The CPU must have AVX2.
-    #[target_feature(enable = "avx2")]
-    #[inline]
+    #[inline(always)]
     pub(in crate::accel::kdtree) unsafe fn step_avx2(
         st: &mut Stack,
         t: &Treelet,
@@ -381,88 +399,90 @@ mod avx2 {
         reach: f32,
         (tb, lb): (usize, usize),
     ) -> Option<(u32, f32, f32)> {
-        // SAFETY: `Treelet` is 64-byte aligned; its first 32 bytes are the splits and
-        // `axes`, its last the children.
-        let (split, child) = unsafe {
-            let p = (t as *const Treelet).cast::<__m256>();
-            (_mm256_load_ps(p.cast()), _mm256_load_si256(p.add(1).cast()))
-        };
-        prefetch_children(child, tb, lb);
-        let axes = _mm256_and_si256(
-            _mm256_srlv_epi32(_mm256_set1_epi32(t.axes as i32), v([0, 2, 4, 6, 8, 10, 12, 14])),
-            _mm256_set1_epi32(3),
-        );
-        let is_y = _mm256_castsi256_ps(_mm256_cmpeq_epi32(axes, _mm256_set1_epi32(1)));
-        let is_z = _mm256_castsi256_ps(_mm256_cmpeq_epi32(axes, _mm256_set1_epi32(2)));
-        let along = |a: usize| _mm256_mul_ps(_mm256_sub_ps(split, r.o[a]), r.inv[a]);
-        let tp = _mm256_blendv_ps(_mm256_blendv_ps(along(0), along(1), is_y), along(2), is_z);
-        let tp_hi = _mm256_add_ps(tp, r.slack);
-        let tp_lo = _mm256_sub_ps(tp, r.slack);
-        let neg = _mm256_permutevar8x32_epi32(r.neg, axes);
-        let inf = _mm256_set1_ps(f32::INFINITY);
-        let ninf = _mm256_set1_ps(f32::NEG_INFINITY);
-        let (mut clo, mut chi) = (_mm256_set1_ps(lo), _mm256_set1_ps(hi));
-        let mut chr = _mm256_set1_ps(if hi < reach { hi } else { reach });
-        let levels = [
-            (v([0; 8]), v([0, 0, 0, 0, -1, -1, -1, -1])),
-            (v([1, 1, 1, 1, 2, 2, 2, 2]), v([0, 0, -1, -1, 0, 0, -1, -1])),
-            (v([3, 3, 4, 4, 5, 5, 6, 6]), v([0, -1, 0, -1, 0, -1, 0, -1])),
-        ];
-        for (path, above) in levels {
-            let far = _mm256_castsi256_ps(_mm256_xor_si256(_mm256_permutevar8x32_epi32(neg, path), above));
-            // A far side leaves `hi` alone, a near side `lo`; `minps` / `maxps` return
-            // their second operand for NaN (as `fmin` / `fmax`), which never is NaN.
-            let h = _mm256_blendv_ps(_mm256_permutevar8x32_ps(tp_hi, path), inf, far);
-            let l = _mm256_blendv_ps(ninf, _mm256_permutevar8x32_ps(tp_lo, path), far);
-            chi = _mm256_min_ps(h, chi);
-            chr = _mm256_min_ps(h, chr);
-            clo = _mm256_max_ps(l, clo);
-        }
-        let empty = _mm256_cmpeq_epi32(_mm256_and_si256(child, _mm256_set1_epi32(3)), _mm256_set1_epi32(EMPTY as i32));
-        let keep = _mm256_andnot_si256(empty, _mm256_castps_si256(_mm256_cmp_ps::<_CMP_LE_OQ>(clo, chr)));
-        // Lane j of `order`: the child of rank 7 - j (`child_of_rank`, lane-wise).
-        let one = _mm256_set1_epi32(1);
-        let neg1 = _mm256_srli_epi32::<31>(neg);
-        let rank = v([7, 6, 5, 4, 3, 2, 1, 0]);
-        let c_hi = _mm256_xor_si256(_mm256_srli_epi32::<2>(rank), _mm256_permutevar8x32_epi32(neg1, v([0; 8])));
-        let n_mid = _mm256_permutevar8x32_epi32(neg1, _mm256_add_epi32(c_hi, one));
-        let c_mid = _mm256_xor_si256(_mm256_and_si256(_mm256_srli_epi32::<1>(rank), one), n_mid);
-        let at_lo = _mm256_add_epi32(_mm256_set1_epi32(3), _mm256_add_epi32(_mm256_slli_epi32::<1>(c_hi), c_mid));
-        let c_lo = _mm256_xor_si256(_mm256_and_si256(rank, one), _mm256_permutevar8x32_epi32(neg1, at_lo));
-        let order = _mm256_or_si256(_mm256_or_si256(_mm256_slli_epi32::<2>(c_hi), _mm256_slli_epi32::<1>(c_mid)), c_lo);
-        let mask = _mm256_movemask_ps(_mm256_castsi256_ps(_mm256_permutevar8x32_epi32(keep, order))) as usize;
-        if mask == 0 {
-            return None;
-        }
-        // The nearest: the highest lane of `order` kept.
-        let top = 31 - (mask as u32).leading_zeros() as usize;
-        let rest = mask ^ (1 << top);
-        let mut ord = Lanes([0u32; 8]);
-        let (mut los, mut his) = (Lanes([0f32; 8]), Lanes([0f32; 8]));
-        // SAFETY: aligned 32-byte arrays.
+        // SAFETY: AVX2 (the caller's promise); the loads and stores are in bounds, as
+        // commented at each.
         unsafe {
+            // `Treelet` is 64-byte aligned; its first 32 bytes are the splits and `axes`,
+            // its last the children.
+            let p = (t as *const Treelet).cast::<__m256>();
+            let (split, child) = (_mm256_load_ps(p.cast()), _mm256_load_si256(p.add(1).cast()));
+            prefetch_children(child, tb, lb);
+            let axes = _mm256_and_si256(
+                _mm256_srlv_epi32(_mm256_set1_epi32(t.axes as i32), v([0, 2, 4, 6, 8, 10, 12, 14])),
+                _mm256_set1_epi32(3),
+            );
+            let is_y = _mm256_castsi256_ps(_mm256_cmpeq_epi32(axes, _mm256_set1_epi32(1)));
+            let is_z = _mm256_castsi256_ps(_mm256_cmpeq_epi32(axes, _mm256_set1_epi32(2)));
+            let along = |a: usize| _mm256_mul_ps(_mm256_sub_ps(split, r.o[a]), r.inv[a]);
+            let tp = _mm256_blendv_ps(_mm256_blendv_ps(along(0), along(1), is_y), along(2), is_z);
+            let tp_hi = _mm256_add_ps(tp, r.slack);
+            let tp_lo = _mm256_sub_ps(tp, r.slack);
+            let neg = _mm256_permutevar8x32_epi32(r.neg, axes);
+            let inf = _mm256_set1_ps(f32::INFINITY);
+            let ninf = _mm256_set1_ps(f32::NEG_INFINITY);
+            let (mut clo, mut chi) = (_mm256_set1_ps(lo), _mm256_set1_ps(hi));
+            let mut chr = _mm256_set1_ps(if hi < reach { hi } else { reach });
+            let levels = [
+                (v([0; 8]), v([0, 0, 0, 0, -1, -1, -1, -1])),
+                (v([1, 1, 1, 1, 2, 2, 2, 2]), v([0, 0, -1, -1, 0, 0, -1, -1])),
+                (v([3, 3, 4, 4, 5, 5, 6, 6]), v([0, -1, 0, -1, 0, -1, 0, -1])),
+            ];
+            for (path, above) in levels {
+                let far = _mm256_castsi256_ps(_mm256_xor_si256(_mm256_permutevar8x32_epi32(neg, path), above));
+                // A far side leaves `hi` alone, a near side `lo`; `minps` / `maxps` return
+                // their second operand for NaN (as `fmin` / `fmax`), which never is NaN.
+                let h = _mm256_blendv_ps(_mm256_permutevar8x32_ps(tp_hi, path), inf, far);
+                let l = _mm256_blendv_ps(ninf, _mm256_permutevar8x32_ps(tp_lo, path), far);
+                chi = _mm256_min_ps(h, chi);
+                chr = _mm256_min_ps(h, chr);
+                clo = _mm256_max_ps(l, clo);
+            }
+            let empty =
+                _mm256_cmpeq_epi32(_mm256_and_si256(child, _mm256_set1_epi32(3)), _mm256_set1_epi32(EMPTY as i32));
+            let keep = _mm256_andnot_si256(empty, _mm256_castps_si256(_mm256_cmp_ps::<_CMP_LE_OQ>(clo, chr)));
+            // Lane j of `order`: the child of rank 7 - j (`child_of_rank`, lane-wise).
+            let one = _mm256_set1_epi32(1);
+            let neg1 = _mm256_srli_epi32::<31>(neg);
+            let rank = v([7, 6, 5, 4, 3, 2, 1, 0]);
+            let c_hi = _mm256_xor_si256(_mm256_srli_epi32::<2>(rank), _mm256_permutevar8x32_epi32(neg1, v([0; 8])));
+            let n_mid = _mm256_permutevar8x32_epi32(neg1, _mm256_add_epi32(c_hi, one));
+            let c_mid = _mm256_xor_si256(_mm256_and_si256(_mm256_srli_epi32::<1>(rank), one), n_mid);
+            let at_lo = _mm256_add_epi32(_mm256_set1_epi32(3), _mm256_add_epi32(_mm256_slli_epi32::<1>(c_hi), c_mid));
+            let c_lo = _mm256_xor_si256(_mm256_and_si256(rank, one), _mm256_permutevar8x32_epi32(neg1, at_lo));
+            let order =
+                _mm256_or_si256(_mm256_or_si256(_mm256_slli_epi32::<2>(c_hi), _mm256_slli_epi32::<1>(c_mid)), c_lo);
+            let mask = _mm256_movemask_ps(_mm256_castsi256_ps(_mm256_permutevar8x32_epi32(keep, order))) as usize;
+            if mask == 0 {
+                return None;
+            }
+            // The nearest: the highest lane of `order` kept.
+            let top = 31 - (mask as u32).leading_zeros() as usize;
+            let rest = mask ^ (1 << top);
+            let mut ord = Lanes([0u32; 8]);
+            let (mut los, mut his) = (Lanes([0f32; 8]), Lanes([0f32; 8]));
+            // Aligned 32-byte arrays.
             _mm256_store_si256(ord.0.as_mut_ptr().cast(), order);
             _mm256_store_ps(los.0.as_mut_ptr(), clo);
             _mm256_store_ps(his.0.as_mut_ptr(), chi);
-        }
-        let c = ord.0[top] as usize & 7;
-        let nearest = (t.child[c], los.0[c], his.0[c]);
-        if rest != 0 {
-            let packed = _mm256_set1_epi32(COMPRESS[rest] as i32);
-            let pick =
-                _mm256_and_si256(_mm256_srlv_epi32(packed, v([0, 4, 8, 12, 16, 20, 24, 28])), _mm256_set1_epi32(15));
-            let idx = _mm256_permutevar8x32_epi32(order, pick);
-            let sp = st.sp;
-            assert!(sp + 8 <= STACK);
-            // SAFETY: `sp + 8 <= STACK` (checked): eight lanes fit in each array.
-            unsafe {
+            let c = ord.0[top] as usize & 7;
+            let nearest = (t.child[c], los.0[c], his.0[c]);
+            if rest != 0 {
+                let packed = _mm256_set1_epi32(COMPRESS[rest] as i32);
+                let pick = _mm256_and_si256(
+                    _mm256_srlv_epi32(packed, v([0, 4, 8, 12, 16, 20, 24, 28])),
+                    _mm256_set1_epi32(15),
+                );
+                let idx = _mm256_permutevar8x32_epi32(order, pick);
+                let sp = st.sp;
+                assert!(sp + 8 <= STACK);
+                // `sp + 8 <= STACK` (checked): eight lanes fit in each array.
                 _mm256_storeu_si256(st.node.as_mut_ptr().add(sp).cast(), _mm256_permutevar8x32_epi32(child, idx));
                 _mm256_storeu_ps(st.lo.as_mut_ptr().add(sp).cast(), _mm256_permutevar8x32_ps(clo, idx));
                 _mm256_storeu_ps(st.hi.as_mut_ptr().add(sp).cast(), _mm256_permutevar8x32_ps(chi, idx));
+                st.sp = sp + COUNT[rest] as usize;
             }
-            st.sp = sp + COUNT[rest] as usize;
+            Some(nearest)
         }
-        Some(nearest)
     }
 }
 
