@@ -17,6 +17,10 @@
 //! the median build) and then answers lines on stdin, `closest` or `any`, with one
 //! timed pass over the rays each: `closest SECONDS HITS`. `bench/embree_compare.py`
 //! drives it, alternating pass by pass with Embree in its own process.
+//! `KDTREE_RAYS=surface|camera` makes `KDTREE_QUICK` trace other rays than the incoherent
+//! ones: from points on the mesh in uniform directions (as bounces leave a surface), or a
+//! pinhole camera's in scanline order (coherent). `KDTREE_SCENE=scene.toml` with
+//! `KDTREE_QUICK=x` times both kinds on that scene's own tree instead.
 
 use std::hint::black_box;
 use std::time::Instant;
@@ -46,6 +50,56 @@ impl Rng {
 /// with the distance to that point (the shadow-ray length).
 fn random_rays(b: Aabb, n: usize, seed: u64) -> Vec<(Ray, f32)> {
     tracer::accel::incoherent_rays(b, n, seed)
+}
+
+/// Rays leaving the surface, as a renderer's bounces do: from random points of random
+/// triangles (nudged off along the ray), uniform directions; any-hit length 1/4 of the
+/// scene's size.
+fn surface_rays(geo: &Geometry, n: usize) -> Vec<(Ray, f32)> {
+    let mut r = Rng(5);
+    let ntri = geo.triangle_count();
+    let size = (0..ntri)
+        .fold(Aabb::EMPTY, |b, i| {
+            let t = geo.triangle(i);
+            b.union(Aabb::new(t[0], t[0]))
+        })
+        .diagonal()
+        .length();
+    (0..n)
+        .map(|_| {
+            let t = geo.triangle(((r.f() * ntri as f32) as usize).min(ntri - 1));
+            let (mut u, mut v) = (r.f(), r.f());
+            if u + v > 1.0 {
+                (u, v) = (1.0 - u, 1.0 - v);
+            }
+            let p = t[0] + (t[1] - t[0]) * u + (t[2] - t[0]) * v;
+            let d = loop {
+                let d = Vec3::new(r.f(), r.f(), r.f()) * 2.0 - 1.0;
+                if d.length_squared() > 1e-4 && d.length_squared() <= 1.0 {
+                    break d.normalize();
+                }
+            };
+            (Ray::new(p + d * (1e-4 * size), d), 0.25 * size)
+        })
+        .collect()
+}
+
+/// A pinhole camera's rays in scanline order (coherent), from 1.5 diagonals away from the
+/// box's center, through a square grid covering it; any-hit length: to the center.
+fn camera_rays(b: Aabb, n: usize) -> Vec<(Ray, f32)> {
+    let side = (n as f64).sqrt().ceil() as usize;
+    let (c, size) = (b.center(), b.diagonal().length());
+    let eye = c + Vec3::new(0.3, 0.4, 3.0).normalize() * (1.5 * size);
+    let fwd = (c - eye).normalize();
+    let right = fwd.cross(Vec3::Y).normalize();
+    let up = right.cross(fwd);
+    (0..n)
+        .map(|i| {
+            let (x, y) = ((i % side) as f32 / side as f32 - 0.5, (i / side) as f32 / side as f32 - 0.5);
+            let d = (fwd + (right * x + up * y) * 0.7).normalize();
+            (Ray::new(eye, d), (c - eye).length())
+        })
+        .collect()
 }
 
 fn closest(tree: &KdTree, geo: &Geometry, rays: &[(Ray, f32)]) -> usize {
@@ -137,9 +191,31 @@ fn median(mut v: Vec<f64>) -> f64 {
     v[v.len() / 2]
 }
 
+/// `KDTREE_SCENE=scene.toml`: the scene's own tree and geometry, surface and camera rays.
+fn scene_quick(path: &str, reps: usize) {
+    let sc = tracer::scene::load_scene(std::path::Path::new(path)).unwrap();
+    let (tree, geo) = (&sc.accel, &sc.geometry);
+    for mode in ["surface", "camera"] {
+        let rays = if mode == "surface" { surface_rays(geo, RAYS) } else { camera_rays(tree.bounds(), RAYS) };
+        for any_hit in [false, true] {
+            let v: Vec<f64> = (0..reps)
+                .map(|_| {
+                    let t = Instant::now();
+                    black_box(if any_hit { any(tree, geo, &rays) } else { closest(tree, geo, &rays) });
+                    rays.len() as f64 / t.elapsed().as_secs_f64() / 1e6
+                })
+                .collect();
+            println!("{mode} {} {:.3} Mrays/s", if any_hit { "any" } else { "closest" }, median(v));
+        }
+    }
+}
+
 /// `KDTREE_QUICK=all|build|closest|any[,triangles[,repeats[,mesh seed[,rays]]]]`: medians without criterion, for
 /// before/after comparisons and for profiling one query kind in isolation.
 fn quick(spec: &str) {
+    if let Ok(p) = std::env::var("KDTREE_SCENE") {
+        return scene_quick(&p, 20);
+    }
     let mut parts = spec.split(',');
     let what = parts.next().unwrap_or("all").to_string();
     let n: usize = parts.next().and_then(|x| x.parse().ok()).unwrap_or(1_000_000);
@@ -178,7 +254,11 @@ fn quick(spec: &str) {
         s.bytes as f64 / ntri as f64,
         fingerprint
     );
-    let rays = random_rays(tree.bounds(), nrays, 1);
+    let rays = match std::env::var("KDTREE_RAYS").as_deref() {
+        Ok("surface") => surface_rays(&geo, nrays),
+        Ok("camera") => camera_rays(tree.bounds(), nrays),
+        _ => random_rays(tree.bounds(), nrays, 1),
+    };
     let rate = |f: &dyn Fn() -> usize| {
         let v: Vec<f64> = (0..reps)
             .map(|_| {

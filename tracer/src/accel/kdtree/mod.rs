@@ -45,6 +45,10 @@ const MAX_DEPTH: u32 = 60;
 /// smaller leaves ([`BuildParams::for_scene`] keeps 0.35 for such sets). The cup scene
 /// (4.4k triangles) renders at the same speed at 0.12 and 0.35 (0.77–0.79 against
 /// 0.75–0.77 M samples/s).
+///
+/// Those figures were taken with the binary walk. With treelets (three levels a step),
+/// 100k mesh, `KDTREE_AB`, medians of 200 slice pairs against 0.12, closest / any hit:
+/// 0.2 gives 0.96 / 0.92, 0.08 gives 1.06 / 0.97 (quartiles ±0.2), so 0.12 stays.
 #[derive(Clone, Debug)]
 pub struct BuildParams {
     /// SAH cost of visiting an interior node. Default 1.
