@@ -493,23 +493,11 @@ mod avx2 {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::accel::kdtree::tests::Rng;
 
-    struct Rng(u64);
-
-    impl Rng {
-        fn next(&mut self) -> u64 {
-            self.0 = self.0.wrapping_add(0x9E37_79B9_7F4A_7C15);
-            let mut z = self.0;
-            z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
-            z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
-            z ^ (z >> 31)
-        }
-        fn f(&mut self, lo: f32, hi: f32) -> f32 {
-            lo + (hi - lo) * ((self.next() >> 40) as f32 / (1u64 << 24) as f32)
-        }
-        fn pick<T: Copy>(&mut self, x: &[T]) -> T {
-            x[(self.next() % x.len() as u64) as usize]
-        }
+    /// A pick from `x`.
+    fn pick<T: Copy>(r: &mut Rng, x: &[T]) -> T {
+        x[(r.next() % x.len() as u64) as usize]
     }
 
     /// Everything a step leaves: the nearest child and the pushed entries, as bits.
@@ -518,23 +506,31 @@ mod tests {
         next.into_iter().chain(std::iter::from_fn(|| st.pop())).map(bits).collect()
     }
 
+    /// What the scalar step leaves, from an empty stack.
+    fn scalar_step(t: &Treelet, ray: &RayAxes, lo: f32, hi: f32, reach: f32) -> Vec<(u32, u32, u32)> {
+        let mut st = Stack::new();
+        let next = st.step(t, ray, lo, hi, reach);
+        drain(next, &mut st)
+    }
+
     /// A random treelet and ray with the special cases: planes at infinity
     /// (placeholders), rays in a plane (`0 · ∞`), zero direction components of both
     /// signs, empty children, `reach` below `hi`.
     fn case(r: &mut Rng) -> (Treelet, RayAxes, f32, f32, f32) {
         let one_of = |r: &mut Rng, special: &[f32], lo: f32, hi: f32| {
-            let x = r.f(lo, hi);
-            if r.next().is_multiple_of(2) { x } else { r.pick(special) }
+            let x = r.range(lo, hi);
+            if r.next().is_multiple_of(2) { x } else { pick(r, special) }
         };
         let o = [0; 3].map(|_| one_of(r, &[0.0, 0.5], -2.0, 2.0));
         let split = [0; 7].map(|_| one_of(r, &[f32::INFINITY, 0.0, 0.5], -2.0, 2.0));
         let d = [0; 3].map(|_| one_of(r, &[0.0, -0.0], -1.0, 1.0));
-        let child = [0; 8].map(|_| ((r.next() as u32 % 1000) << 2) | r.pick(&[TREELET, LEAF, ONE, EMPTY]));
+        let child = [0; 8].map(|_| ((r.next() as u32 % 1000) << 2) | pick(r, &[TREELET, LEAF, ONE, EMPTY]));
         let axes = (0..7).fold(0, |a, k| a | ((r.next() as u32 % 3) << (2 * k)));
         let lo = one_of(r, &[0.0], 0.0, 2.0);
         let hi = lo + one_of(r, &[f32::INFINITY], 0.0, 3.0);
         let reach = one_of(r, &[f32::INFINITY, hi], lo, lo + 2.0);
-        let ray = RayAxes { o, inv: d.map(|x| 1.0 / x), neg: d.map(|x| x.is_sign_negative()), slack: r.f(0.0, 1e-3) };
+        let ray =
+            RayAxes { o, inv: d.map(|x| 1.0 / x), neg: d.map(|x| x.is_sign_negative()), slack: r.range(0.0, 1e-3) };
         (Treelet { split, axes, child }, ray, lo, hi, reach)
     }
 
@@ -548,9 +544,7 @@ mod tests {
             let mut r = Rng(3);
             for _ in 0..200_000 {
                 let (t, ray, lo, hi, reach) = case(&mut r);
-                let mut a = Stack::new();
-                let next = a.step(&t, &ray, lo, hi, reach);
-                let scalar = drain(next, &mut a);
+                let scalar = scalar_step(&t, &ray, lo, hi, reach);
                 let mut b = Stack::new();
                 // SAFETY: AVX2 was detected.
                 let next = unsafe { step_avx2(&mut b, &t, &RayLanes::new(&ray), lo, hi, reach, (0, 0)) };
@@ -566,9 +560,7 @@ mod tests {
         let mut r = Rng(5);
         for _ in 0..100_000 {
             let (t, ray, lo, hi, reach) = case(&mut r);
-            let mut st = Stack::new();
-            let next = st.step(&t, &ray, lo, hi, reach);
-            let got = drain(next, &mut st);
+            let got = scalar_step(&t, &ray, lo, hi, reach);
             // The binary walk's descent from node k with interval [lo, hi], children in
             // the order the ray meets them.
             fn descend(
