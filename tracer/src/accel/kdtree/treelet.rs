@@ -170,13 +170,14 @@ pub(super) fn fmax(a: f32, b: f32) -> f32 {
     if a > b { a } else { b }
 }
 
-/// The grandchild visited `k`-th (front to back) when the nodes' directions are
-/// negative as `neg[node]` says: at each level the near side comes first.
+/// The grandchild visited `k`-th (front to back) when the nodes whose bits are set in
+/// `neg` have a negative direction along their axis: at each level the near side comes
+/// first.
 #[inline(always)]
-fn child_of_rank(k: usize, neg: impl Fn(usize) -> bool) -> usize {
-    let hi = (k >> 2) ^ neg(0) as usize;
-    let mid = ((k >> 1) & 1) ^ neg(1 + hi) as usize;
-    let lo = (k & 1) ^ neg(3 + 2 * hi + mid) as usize;
+const fn child_of_rank(k: usize, neg: usize) -> usize {
+    let hi = (k >> 2) ^ (neg & 1);
+    let mid = ((k >> 1) & 1) ^ ((neg >> (1 + hi)) & 1);
+    let lo = (k & 1) ^ ((neg >> (3 + 2 * hi + mid)) & 1);
     (hi << 2) | (mid << 1) | lo
 }
 
@@ -224,9 +225,10 @@ impl Stack {
             tp[k] = (t.split[k] - r.o[a]) * r.inv[a];
             neg[k] = r.neg[a];
         }
+        let signs = (0..7).fold(0, |m, k| m | (usize::from(neg[k]) << k));
         let before = self.sp;
         for rank in (0..8).rev() {
-            let c = child_of_rank(rank, |k| neg[k]);
+            let c = child_of_rank(rank, signs);
             let (mut clo, mut chi) = (lo, hi);
             for (l, path) in PATH.iter().enumerate() {
                 let k = path[c];
@@ -297,6 +299,26 @@ mod avx2 {
                 lane += 1;
             }
             t[m] = packed;
+            m += 1;
+        }
+        t
+    };
+
+    /// For each pattern of the seven nodes' direction signs (bit k: node k's is
+    /// negative), the children by rank from the farthest, four bits each: lane j of the
+    /// step's `order` is the child of rank 7 - j ([`super::child_of_rank`]). A table
+    /// load instead of fourteen vector operations: `KDTREE_AB` medians of 200 slice
+    /// pairs, closest / any hit, 1.02 / 1.02 on the 10k mesh, 1.01 / 1.02 on 4k, 1.03 /
+    /// 1.00 on 1M.
+    const ORDER: [u32; 128] = {
+        let mut t = [0u32; 128];
+        let mut m = 0;
+        while m < 128 {
+            let mut j = 0;
+            while j < 8 {
+                t[m] |= (super::child_of_rank(7 - j, m) as u32) << (4 * j);
+                j += 1;
+            }
             m += 1;
         }
         t
@@ -444,17 +466,13 @@ mod avx2 {
             let empty =
                 _mm256_cmpeq_epi32(_mm256_and_si256(child, _mm256_set1_epi32(3)), _mm256_set1_epi32(EMPTY as i32));
             let keep = _mm256_andnot_si256(empty, _mm256_castps_si256(_mm256_cmp_ps::<_CMP_LE_OQ>(clo, chr)));
-            // Lane j of `order`: the child of rank 7 - j (`child_of_rank`, lane-wise).
-            let one = _mm256_set1_epi32(1);
-            let neg1 = _mm256_srli_epi32::<31>(neg);
-            let rank = v([7, 6, 5, 4, 3, 2, 1, 0]);
-            let c_hi = _mm256_xor_si256(_mm256_srli_epi32::<2>(rank), _mm256_permutevar8x32_epi32(neg1, v([0; 8])));
-            let n_mid = _mm256_permutevar8x32_epi32(neg1, _mm256_add_epi32(c_hi, one));
-            let c_mid = _mm256_xor_si256(_mm256_and_si256(_mm256_srli_epi32::<1>(rank), one), n_mid);
-            let at_lo = _mm256_add_epi32(_mm256_set1_epi32(3), _mm256_add_epi32(_mm256_slli_epi32::<1>(c_hi), c_mid));
-            let c_lo = _mm256_xor_si256(_mm256_and_si256(rank, one), _mm256_permutevar8x32_epi32(neg1, at_lo));
-            let order =
-                _mm256_or_si256(_mm256_or_si256(_mm256_slli_epi32::<2>(c_hi), _mm256_slli_epi32::<1>(c_mid)), c_lo);
+            // Lane j of `order`: the child of rank 7 - j, from the table by the seven
+            // nodes' direction signs.
+            let signs = (_mm256_movemask_ps(_mm256_castsi256_ps(neg)) & 0x7f) as usize;
+            let order = _mm256_and_si256(
+                _mm256_srlv_epi32(_mm256_set1_epi32(ORDER[signs] as i32), v([0, 4, 8, 12, 16, 20, 24, 28])),
+                _mm256_set1_epi32(15),
+            );
             let mask = _mm256_movemask_ps(_mm256_castsi256_ps(_mm256_permutevar8x32_epi32(keep, order))) as usize;
             if mask == 0 {
                 return None;
