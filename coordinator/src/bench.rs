@@ -152,9 +152,10 @@ fn bench_scene(name: &str, scene: &Scene, args: &BenchArgs) {
     let gb = geom.bytes();
     let tree_bytes = scene.accel.heap_bytes();
     println!(
-        "kd-tree build: {:.3} ms (median of {repeat}); {} nodes, {} leaves, depth {}, {} refs",
+        "kd-tree build: {:.3} ms (median of {repeat}); {} nodes in {} treelets, {} leaves, depth {}, {} refs",
         median(builds) * 1e3,
         stats.nodes,
+        stats.treelets,
         stats.leaves,
         stats.max_depth,
         stats.prim_refs
