@@ -128,6 +128,9 @@ impl KdTree {
         let axes = RayAxes {
             o: ray.origin.to_array(),
             inv: inv.to_array(),
+            // By the sign bit, so that -0 and +0 agree with the sign of `inv`. A plane
+            // behind the origin needs no case of its own: the near side gets nothing
+            // unless the plane is within the slack.
             neg: ray.dir.to_array().map(|x| x.is_sign_negative()),
             slack,
         };
