@@ -80,6 +80,11 @@ impl AssetStore {
         self.sizes.contains_key(sha256)
     }
 
+    /// The size of a stored blob, if it is stored.
+    pub fn size_of(&self, sha256: &str) -> Option<u64> {
+        self.sizes.get(sha256).copied()
+    }
+
     /// Stores `bytes` (atomically: temp file, fsync, rename) and returns its digest.
     pub fn put(&mut self, bytes: &[u8]) -> anyhow::Result<(String, u64)> {
         let sha = sha256_hex(bytes);

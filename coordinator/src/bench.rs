@@ -93,7 +93,7 @@ pub fn run(args: BenchArgs) -> anyhow::Result<()> {
             materials: vec![tracer::material::MaterialDesc::default_grey("generated")],
             ..Default::default()
         };
-        let scene = tracer::scene::scene_from_bare_obj(model);
+        let scene = tracer::scene::scene_from_bare_obj(model, tracer::scene::UpAxis::Y);
         eprintln!("generated mesh in {:.2}s", t.elapsed().as_secs_f64());
         scenes.push((format!("displaced sphere ({} triangles)", scene.geometry.triangle_count()), scene));
     }

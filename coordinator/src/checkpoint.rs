@@ -23,6 +23,8 @@ use crate::job::{Job, Restored, UnitRecord};
 
 const MAGIC: &[u8; 16] = b"tilefarm-ckpt-1\n";
 const FILE: &str = "checkpoint.tfck";
+/// Beside a checkpoint: its job was cancelled, and must come back cancelled.
+const CANCELLED: &str = "cancelled";
 
 /// A job as persisted.
 #[derive(Clone, Debug, PartialEq)]
@@ -48,6 +50,7 @@ impl Snapshot {
                 tiles: job.tile_accumulations().to_vec(),
                 rays: job.rays,
                 nonfinite: job.nonfinite,
+                cancelled: job.phase == crate::job::JobPhase::Cancelled,
             },
         }
     }
@@ -230,7 +233,20 @@ pub fn decode(bytes: &[u8]) -> anyhow::Result<Snapshot> {
     Ok(Snapshot {
         spec,
         name,
-        job: Restored { width, height, spp, tile_size, batch_spp, non_negative, units, tiles, rays, nonfinite },
+        // A cancel is kept beside the checkpoint, by `serve` (see `mark_cancelled`).
+        job: Restored {
+            width,
+            height,
+            spp,
+            tile_size,
+            batch_spp,
+            non_negative,
+            units,
+            tiles,
+            rays,
+            nonfinite,
+            cancelled: false,
+        },
     })
 }
 
@@ -252,10 +268,27 @@ pub fn write(dir: &Path, s: &Snapshot) -> anyhow::Result<u64> {
 }
 
 /// Reads `<dir>/checkpoint.tfck` if there is one; a damaged one is an error.
+/// Records beside the checkpoint in `dir` that its job was cancelled (durably: the file
+/// and the folder are synced), so a restarted `serve` does not run it again.
+pub fn mark_cancelled(dir: &Path) -> anyhow::Result<()> {
+    let p = dir.join(CANCELLED);
+    let f = std::fs::File::create(&p).with_context(|| format!("creating {}", p.display()))?;
+    f.sync_all().with_context(|| format!("writing {}", p.display()))?;
+    if let Ok(d) = std::fs::File::open(dir) {
+        let _ = d.sync_all();
+    }
+    Ok(())
+}
+
+/// Reads the checkpoint in `dir`; `None` when there is none.
 pub fn read(dir: &Path) -> anyhow::Result<Option<Snapshot>> {
     let p = path(dir);
     match std::fs::read(&p) {
-        Ok(bytes) => decode(&bytes).map(Some).with_context(|| format!("checkpoint {} refused", p.display())),
+        Ok(bytes) => {
+            let mut snap = decode(&bytes).with_context(|| format!("checkpoint {} refused", p.display()))?;
+            snap.job.cancelled = dir.join(CANCELLED).exists();
+            Ok(Some(snap))
+        }
         Err(e) if e.kind() == std::io::ErrorKind::NotFound => Ok(None),
         Err(e) => Err(e).with_context(|| format!("reading {}", p.display())),
     }

@@ -13,21 +13,33 @@ use crate::assets::{LocalScene, sha256_hex};
 use crate::progress::{JobBar, summary};
 use crate::render_cmd::JobArgs;
 
+/// Where the farm is: shared by every command that talks to one.
+#[derive(Args, Clone, Debug)]
+pub struct FarmAddress {
+    /// The coordinator: host:port or a URL, e.g. 10.0.0.5:7878 or http://10.0.0.5:7878
+    /// (http:// is assumed when no scheme is given).
+    #[arg(long = "coordinator", value_name = "ADDRESS", env = "TILEFARM_COORDINATOR")]
+    pub address: String,
+}
+
 #[derive(Args)]
 pub struct SubmitArgs {
     /// Scene file (.toml) or a bare .obj; it and every file it refers to are uploaded.
     pub scene: PathBuf,
-    /// The coordinator's URL, e.g. http://127.0.0.1:7878.
-    #[arg(long)]
-    pub coordinator: String,
+    #[command(flatten)]
+    pub coordinator: FarmAddress,
+    /// The job's name in `status` [default: the scene file's name, or its folder's when
+    /// the file is called scene.toml].
+    #[arg(long, value_name = "NAME")]
+    pub name: Option<String>,
     /// Wait for the job, showing progress, and write the image.
     #[arg(long)]
     pub wait: bool,
     /// Where --wait writes the image (.exr, or .png for a tone-mapped preview).
-    #[arg(short, long, default_value = "out.exr")]
+    #[arg(short, long, value_name = "FILE", default_value = "out.exr")]
     pub output: PathBuf,
     /// With --wait: rewrite a PNG preview of the image so far every few seconds.
-    #[arg(long)]
+    #[arg(long, value_name = "FILE.png")]
     pub preview: Option<PathBuf>,
     /// No progress bar.
     #[arg(long, short)]
@@ -38,15 +50,15 @@ pub struct SubmitArgs {
 
 #[derive(Args)]
 pub struct FetchArgs {
-    /// The job id that `submit` printed.
+    /// The job id that `submit` printed (`status` lists them).
     pub job: String,
-    #[arg(long)]
-    pub coordinator: String,
+    #[command(flatten)]
+    pub coordinator: FarmAddress,
     /// Where to write the image (.exr, or .png for a tone-mapped preview).
-    #[arg(short, long, default_value = "out.exr")]
+    #[arg(short, long, value_name = "FILE", default_value = "out.exr")]
     pub output: PathBuf,
     /// Rewrite a PNG preview of the image so far every few seconds.
-    #[arg(long)]
+    #[arg(long, value_name = "FILE.png")]
     pub preview: Option<PathBuf>,
     /// No progress bar.
     #[arg(long, short)]
@@ -55,20 +67,23 @@ pub struct FetchArgs {
 
 #[derive(Args)]
 pub struct StatusArgs {
-    #[arg(long)]
-    pub coordinator: String,
+    #[command(flatten)]
+    pub coordinator: FarmAddress,
 }
 
 #[derive(Args)]
 pub struct CancelArgs {
+    /// The job id that `submit` printed (`status` lists them).
     pub job: String,
-    #[arg(long)]
-    pub coordinator: String,
+    #[command(flatten)]
+    pub coordinator: FarmAddress,
 }
 
-pub async fn connect(url: &str) -> anyhow::Result<JobsClient<Channel>> {
-    let channel = tonic::transport::Endpoint::from_shared(url.to_string())
-        .with_context(|| format!("bad coordinator URL {url}"))?
+/// Connects to a coordinator given as `host:port` or a URL.
+pub async fn connect(address: &str) -> anyhow::Result<JobsClient<Channel>> {
+    let url = proto::coordinator_url(address);
+    let channel = tonic::transport::Endpoint::from_shared(url.clone())
+        .map_err(|e| anyhow::anyhow!("--coordinator {address}: not an address ({e})"))?
         .connect_timeout(Duration::from_secs(10))
         .connect()
         .await
@@ -76,6 +91,30 @@ pub async fn connect(url: &str) -> anyhow::Result<JobsClient<Channel>> {
     Ok(JobsClient::new(channel)
         .max_decoding_message_size(proto::MAX_MESSAGE_BYTES)
         .max_encoding_message_size(proto::MAX_MESSAGE_BYTES))
+}
+
+/// A job's default name: the scene file's stem (`cup.toml` → `cup`), or for the many
+/// scenes called `scene.toml` the folder that holds them.
+fn job_name(scene: &std::path::Path) -> String {
+    let stem = scene.file_stem().map(|s| s.to_string_lossy().into_owned()).unwrap_or_default();
+    if stem != "scene" {
+        return stem;
+    }
+    let folder = std::path::absolute(scene).ok().and_then(|p| p.parent()?.file_name().map(|n| n.to_os_string()));
+    folder.map_or(stem, |f| f.to_string_lossy().into_owned())
+}
+
+/// The image and preview paths must be writable before waiting for a job.
+pub fn check_outputs(output: &std::path::Path, preview: Option<&std::path::Path>) -> anyhow::Result<()> {
+    tracer::output::check_output_path(output)?;
+    if let Some(p) = preview {
+        anyhow::ensure!(
+            tracer::output::check_output_path(p)? == tracer::output::Format::Png,
+            "{}: a preview is a PNG: give a path ending in .png",
+            p.display()
+        );
+    }
+    Ok(())
 }
 
 fn runtime() -> anyhow::Result<tokio::runtime::Runtime> {
@@ -99,18 +138,32 @@ pub(crate) async fn upload(
 
 pub fn submit(args: SubmitArgs) -> anyhow::Result<()> {
     runtime()?.block_on(async move {
-        let local = LocalScene::collect(&args.scene)?;
-        for m in &local.missing {
-            eprintln!("warning: {} is referred to but missing; the job will report it", m.display());
+        if args.wait {
+            check_outputs(&args.output, args.preview.as_deref())?;
         }
-        let mut client = connect(&args.coordinator).await?;
+        let local = LocalScene::collect(&args.scene)?;
+        // Refused here, before a job exists: a job that cannot load only fails later.
+        if !local.missing.is_empty() {
+            let list: Vec<String> = local.missing.iter().map(|m| format!("  {}", local.relative(m))).collect();
+            anyhow::bail!(
+                "{} refers to files that are missing, so nothing was submitted:\n{}",
+                args.scene.display(),
+                list.join("\n")
+            );
+        }
+        let mut client = connect(&args.coordinator.address).await?;
         let scene = upload(&mut client, &local.scene, local.relative(&local.scene)).await?;
         let mut assets = Vec::new();
         for f in &local.files {
             assets.push(upload(&mut client, f, local.relative(f)).await?);
         }
         let reply = client
-            .submit_job(proto::SubmitJobRequest { scene: Some(scene), assets, settings: Some(args.job.settings()) })
+            .submit_job(proto::SubmitJobRequest {
+                scene: Some(scene),
+                assets,
+                settings: Some(args.job.settings()),
+                name: args.name.clone().unwrap_or_else(|| job_name(&args.scene)),
+            })
             .await
             .map_err(|s| anyhow::anyhow!("{}", s.message()))?;
         let job = reply.into_inner().job_id;
@@ -137,8 +190,9 @@ async fn fetch_image(client: &mut JobsClient<Channel>, job: &str) -> anyhow::Res
 
 /// `coordinator fetch`: follows a job to its end and writes its image.
 pub fn fetch(args: FetchArgs) -> anyhow::Result<()> {
+    check_outputs(&args.output, args.preview.as_deref())?;
     runtime()?.block_on(async move {
-        let mut client = connect(&args.coordinator).await?;
+        let mut client = connect(&args.coordinator.address).await?;
         wait(&mut client, &args.job, args.quiet, &args.output, args.preview.as_deref()).await
     })
 }
@@ -150,7 +204,7 @@ async fn wait(
     output: &std::path::Path,
     preview: Option<&std::path::Path>,
 ) -> anyhow::Result<()> {
-    let bar = JobBar::new(quiet);
+    let mut bar = JobBar::new(quiet);
     let mut stream = client
         .watch_job(proto::JobRequest { job_id: job.to_string() })
         .await
@@ -192,29 +246,29 @@ async fn wait(
             Ok(())
         }
         proto::JobState::Failed => anyhow::bail!("job {job} failed: {}", status.error),
-        proto::JobState::Cancelled => anyhow::bail!("job {job} was cancelled"),
+        proto::JobState::Cancelled if status.width > 0 => {
+            // What was rendered before the cancel is still worth having.
+            tracer::output::write_image(&fetch_image(client, job).await?, output)?;
+            anyhow::bail!(
+                "job {job} was cancelled; wrote the image so far ({:.1}% of its samples; the samples channel \
+                 shows each pixel's) to {}",
+                100.0 * status.samples_done as f64 / status.samples_total.max(1) as f64,
+                output.display()
+            )
+        }
+        proto::JobState::Cancelled => anyhow::bail!("job {job} was cancelled before its scene loaded"),
         s => anyhow::bail!("job {job} stopped in state {s:?}"),
     }
 }
 
 pub fn status(args: StatusArgs) -> anyhow::Result<()> {
     runtime()?.block_on(async move {
-        let mut client = connect(&args.coordinator).await?;
+        let mut client = connect(&args.coordinator.address).await?;
         let jobs = client.list_jobs(proto::ListRequest {}).await?.into_inner().jobs;
         let workers = client.list_workers(proto::ListRequest {}).await?.into_inner().workers;
         println!("jobs:");
         for j in jobs {
-            println!(
-                "  {:<8} {:<10} {:>5}/{:<5} units  {}×{}  {}{}",
-                j.job_id,
-                format!("{:?}", j.state()).to_lowercase(),
-                j.units_done,
-                j.units_total,
-                j.width,
-                j.height,
-                j.scene,
-                if j.error.is_empty() { String::new() } else { format!("  error: {}", j.error) }
-            );
+            println!("  {}", crate::progress::status_line(&j));
         }
         println!("workers:");
         for w in workers {
@@ -229,7 +283,7 @@ pub fn status(args: StatusArgs) -> anyhow::Result<()> {
 
 pub fn cancel(args: CancelArgs) -> anyhow::Result<()> {
     runtime()?.block_on(async move {
-        let mut client = connect(&args.coordinator).await?;
+        let mut client = connect(&args.coordinator.address).await?;
         let s = client
             .cancel_job(proto::JobRequest { job_id: args.job.clone() })
             .await

@@ -81,7 +81,7 @@ pub struct Leased {
 
 impl Farm {
     pub fn new(config: FarmConfig) -> Self {
-        Self { config, next_worker: 1, next_job: 1, ..Default::default() }
+        Self { config, next_worker: first_worker_id(), next_job: 1, ..Default::default() }
     }
 
     pub fn register(&mut self, hostname: String, threads: u32, now: Instant) -> WorkerId {
@@ -253,7 +253,16 @@ pub fn status_of(j: &Job, workers: usize) -> proto::JobStatus {
         scene: j.name.clone(),
         elapsed_s: j.elapsed().as_secs_f64(),
         rays: j.rays,
+        samples_per_s: if j.phase == JobPhase::Running { j.samples_per_second() } else { 0.0 },
     }
+}
+
+/// Worker ids start at this coordinator's start time in microseconds since 1970, so that
+/// a restarted coordinator never hands out an id that a worker of its previous run still
+/// uses (that worker's calls would pass as the new one's).
+fn first_worker_id() -> WorkerId {
+    let since_epoch = std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH).unwrap_or_default();
+    (since_epoch.as_micros() as WorkerId).max(1)
 }
 
 #[cfg(test)]
@@ -268,6 +277,19 @@ mod tests {
         let w = f.register("h".into(), 2, now);
         assert!(f.lease(w, 4, now).unwrap().is_empty());
         assert!(matches!(f.status("nope", now), Err(FarmError::UnknownJob(_))));
+    }
+
+    /// A restarted coordinator must not give a new worker the id of one registered with
+    /// its previous run.
+    #[test]
+    fn worker_ids_are_unique_across_restarts() {
+        let now = Instant::now();
+        let mut before = Farm::new(FarmConfig::default());
+        let old: Vec<WorkerId> = (0..3).map(|_| before.register("a".into(), 1, now)).collect();
+        std::thread::sleep(Duration::from_millis(2));
+        let mut after = Farm::new(FarmConfig::default());
+        let new = after.register("b".into(), 1, now);
+        assert!(old.iter().all(|&o| o < new), "{old:?} then {new}");
     }
 
     #[test]

@@ -78,6 +78,9 @@ pub enum Applied {
     Merged,
     /// The unit was already done: acknowledged and ignored.
     Duplicate,
+    /// The job was cancelled or failed while the unit was out: acknowledged and dropped
+    /// (the worker did nothing wrong, so this is no error).
+    Discarded,
 }
 
 /// The contents of one unit's result, as received.
@@ -113,6 +116,8 @@ pub struct Restored {
     pub tiles: Vec<Accumulation>,
     pub rays: u64,
     pub nonfinite: u64,
+    /// The job had been cancelled: it comes back cancelled, its image so far kept.
+    pub cancelled: bool,
 }
 
 pub struct Job {
@@ -136,6 +141,8 @@ pub struct Job {
     pub nonfinite: u64,
     pub started: Instant,
     pub finished: Option<Instant>,
+    /// Samples already merged when the job (re)started.
+    samples_at_start: u64,
 }
 
 impl Job {
@@ -160,6 +167,7 @@ impl Job {
             nonfinite: 0,
             started: Instant::now(),
             finished: None,
+            samples_at_start: 0,
         }
     }
 
@@ -238,9 +246,13 @@ impl Job {
         (self.non_negative, self.rays, self.nonfinite) = (r.non_negative, r.rays, r.nonfinite);
         self.phase = JobPhase::Running;
         self.started = Instant::now();
+        self.samples_at_start = self.samples_done;
         self.finished = None;
         if self.units_done == self.units.len() as u64 {
             self.finish();
+        }
+        if r.cancelled {
+            self.cancel();
         }
         Ok(())
     }
@@ -299,6 +311,7 @@ impl Job {
         if !self.phase.is_final() {
             self.phase = JobPhase::Failed(error);
             self.finished = Some(Instant::now());
+            self.release_leases();
         }
     }
 
@@ -306,6 +319,19 @@ impl Job {
         if !self.phase.is_final() {
             self.phase = JobPhase::Cancelled;
             self.finished = Some(Instant::now());
+            self.release_leases();
+        }
+    }
+
+    /// An ended job holds no leases: its workers are told to abandon its units at their
+    /// next heartbeat, nothing lapses later, and no worker counts them as held.
+    fn release_leases(&mut self) {
+        for (id, u) in self.units.iter_mut().enumerate() {
+            u.spare = None;
+            if matches!(u.state, UnitState::Leased { .. }) {
+                u.state = UnitState::Pending;
+                self.pending.insert(id as UnitId);
+            }
         }
     }
 
@@ -416,8 +442,13 @@ impl Job {
                 };
             }
             JobPhase::Loading => return Err(Rejection::NotRunning("still loading")),
-            JobPhase::Failed(_) => return Err(Rejection::NotRunning("failed")),
-            JobPhase::Cancelled => return Err(Rejection::NotRunning("cancelled")),
+            JobPhase::Failed(_) | JobPhase::Cancelled => {
+                return if (r.unit as usize) < self.units.len() {
+                    Ok(Applied::Discarded)
+                } else {
+                    Err(Rejection::UnknownUnit(r.unit))
+                };
+            }
         }
         let unit = self.units.get(r.unit as usize).ok_or(Rejection::UnknownUnit(r.unit))?;
         if !unit.holders.contains(&worker) {
@@ -476,6 +507,13 @@ impl Job {
             img.put(acc);
         }
         img
+    }
+
+    /// Samples merged per second since the job started (or was restored: the samples a
+    /// checkpoint brought do not count).
+    pub fn samples_per_second(&self) -> f64 {
+        let secs = self.elapsed().as_secs_f64();
+        if secs > 0.0 { self.samples_done.saturating_sub(self.samples_at_start) as f64 / secs } else { 0.0 }
     }
 
     pub fn elapsed(&self) -> Duration {
@@ -650,6 +688,7 @@ mod tests {
             tiles: j.tile_accumulations().to_vec(),
             rays: j.rays,
             nonfinite: j.nonfinite,
+            cancelled: false,
         }
     }
 
@@ -698,8 +737,13 @@ mod tests {
     fn cancelled_jobs_lease_nothing_and_refuse_results() {
         let mut j = job();
         let id = j.lease_next(1, Instant::now(), Instant::now() + Duration::from_secs(5), NEVER).unwrap();
+        assert_eq!(j.held_by(1), 1);
         j.cancel();
+        assert_eq!(j.held_by(1), 0, "a cancelled job's leases are released");
+        assert_eq!(j.reap_expired(Instant::now() + Duration::from_secs(60)), 0, "and never lapse");
+        assert!(!j.renew(1, id, Instant::now()), "the worker is told to abandon the unit");
         assert_eq!(j.lease_next(1, Instant::now(), Instant::now(), NEVER), None);
-        assert_eq!(j.apply(1, &result_for(&j, id, 1)), Err(Rejection::NotRunning("cancelled")));
+        assert_eq!(j.apply(1, &result_for(&j, id, 1)), Ok(Applied::Discarded), "acknowledged, no error");
+        assert_eq!(j.units_done, 0);
     }
 }

@@ -139,7 +139,12 @@ async fn drive(server: &Server, args: &LoadtestArgs) -> anyhow::Result<()> {
         ..Default::default()
     };
     let job = jobs
-        .submit_job(proto::SubmitJobRequest { scene: Some(scene_ref), assets, settings: Some(settings) })
+        .submit_job(proto::SubmitJobRequest {
+            scene: Some(scene_ref),
+            assets,
+            settings: Some(settings),
+            name: "loadtest".into(),
+        })
         .await
         .map_err(|s| anyhow::anyhow!("submitting the job: {}", s.message()))?
         .into_inner()

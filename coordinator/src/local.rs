@@ -13,22 +13,10 @@ pub struct LocalWorkers {
     children: Vec<Child>,
 }
 
-/// The `worker` executable: next to this one (both are built into the same target
-/// folder, and installed side by side).
-pub fn worker_executable() -> anyhow::Result<PathBuf> {
-    let me = std::env::current_exe().context("locating this executable")?;
-    let dir = me.parent().context("locating this executable's folder")?;
-    // Test binaries live one level down, in deps/.
-    for d in [dir, dir.parent().unwrap_or(dir)] {
-        let p = d.join(format!("worker{}", std::env::consts::EXE_SUFFIX));
-        if p.is_file() {
-            return Ok(p);
-        }
-    }
-    anyhow::bail!(
-        "the worker executable was not found next to {} (build it: cargo build --release -p worker)",
-        me.display()
-    )
+/// This executable, which runs a worker as `coordinator worker …`: a local render needs
+/// no second binary (a fresh `cargo run -p coordinator -- render` builds only this one).
+fn worker_executable() -> anyhow::Result<PathBuf> {
+    std::env::current_exe().context("locating this executable")
 }
 
 impl LocalWorkers {
@@ -42,6 +30,7 @@ impl LocalWorkers {
                 cmd.env("RUST_LOG", "warn");
             }
             let child = cmd
+                .arg("worker")
                 .arg("--coordinator")
                 .arg(url)
                 .arg("--threads")

@@ -50,6 +50,10 @@ enum Command {
     /// Measure how many unit results a coordinator merges per second: a `serve` child
     /// and many simulated workers on loopback that return tiny units at once.
     Loadtest(loadtest::LoadtestArgs),
+    /// Run a worker (the same as the `worker` executable). `render` starts its local
+    /// workers this way, so it needs no other binary.
+    #[command(hide = true)]
+    Worker(worker::Args),
 }
 
 /// Resolves on Ctrl-C (SIGINT) or SIGTERM.
@@ -78,12 +82,13 @@ pub async fn stop_signal() {
 fn main() -> std::process::ExitCode {
     let cli = Cli::parse();
     // A farm logs its jobs and workers; one-shot commands only warn (RUST_LOG overrides).
-    let default_level = if matches!(cli.command, Command::Serve(_)) { "info" } else { "warn" };
-    tracing_subscriber::fmt()
-        .with_env_filter(tracing_subscriber::EnvFilter::try_from_default_env().unwrap_or_else(|_| default_level.into()))
-        .with_writer(std::io::stderr)
-        .init();
+    match &cli.command {
+        Command::Worker(_) => {} // logs as the worker executable does
+        Command::Serve(_) => worker::init_logging("info"),
+        _ => worker::init_logging("warn"),
+    }
     let result = match cli.command {
+        Command::Worker(args) => worker::run(args),
         Command::Render(args) => render_cmd::run(args),
         Command::Resume(args) => render_cmd::resume(args),
         Command::Serve(args) => serve::run(args),

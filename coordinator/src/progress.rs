@@ -1,33 +1,149 @@
-//! The progress bar of `render` and `submit --wait`: tiles and samples done, samples/s,
-//! ETA and workers connected.
+//! The progress bar of `render`, `submit --wait` and `fetch`: samples done, the rate in
+//! samples per second, ETA, units and workers; and the closing summary line.
+
+use std::collections::VecDeque;
+use std::time::{Duration, Instant};
 
 use indicatif::{ProgressBar, ProgressStyle};
 
 pub struct JobBar {
     bar: ProgressBar,
+    rate: Rate,
 }
 
 impl JobBar {
     pub fn new(quiet: bool) -> Self {
         let bar = if quiet { ProgressBar::hidden() } else { ProgressBar::new(1) };
         bar.set_style(
-            ProgressStyle::with_template(
-                "{spinner} [{elapsed_precise}] {wide_bar} {percent:>3}% {msg} {per_sec} ETA {eta}",
-            )
-            .expect("static template"),
+            ProgressStyle::with_template("{spinner} [{elapsed_precise}] {wide_bar} {percent:>3}% {msg}")
+                .expect("static template"),
         );
-        Self { bar }
+        bar.enable_steady_tick(Duration::from_millis(250));
+        Self { bar, rate: Rate::default() }
     }
 
-    pub fn update(&self, s: &proto::JobStatus) {
+    pub fn update(&mut self, s: &proto::JobStatus) {
+        let now = Instant::now();
+        self.rate.observe(now, s.samples_done);
         self.bar.set_length(s.samples_total.max(1));
         self.bar.set_position(s.samples_done);
-        self.bar.set_message(format!("units {}/{} · workers {}", s.units_done, s.units_total, s.workers));
+        let rate = self.rate.per_second();
+        let eta = match rate {
+            Some(r) if r > 0.0 => {
+                format_duration(Duration::from_secs_f64(s.samples_total.saturating_sub(s.samples_done) as f64 / r))
+            }
+            _ => "?".into(),
+        };
+        self.bar.set_message(format!(
+            "{} / {} samples · {} · ETA {eta} · units {}/{} · {} worker{}",
+            si(s.samples_done as f64),
+            si(s.samples_total as f64),
+            rate.map_or_else(|| "– samples/s".to_string(), |r| format!("{}samples/s", si_unit(r))),
+            s.units_done,
+            s.units_total,
+            s.workers,
+            if s.workers == 1 { "" } else { "s" }
+        ));
+    }
+
+    /// A warning printed above the bar (which is redrawn below it).
+    pub fn warn(&self, message: &str) {
+        self.bar.suspend(|| eprintln!("warning: {message}"));
     }
 
     pub fn finish(&self) {
         self.bar.finish_and_clear();
     }
+}
+
+/// The rate of samples over the last few seconds that this bar has seen: a job followed
+/// from the middle (`fetch`) or resumed from a checkpoint shows its true speed, not the
+/// samples it already had divided by a short time.
+#[derive(Default)]
+struct Rate {
+    seen: VecDeque<(Instant, u64)>,
+}
+
+impl Rate {
+    const WINDOW: Duration = Duration::from_secs(10);
+
+    fn observe(&mut self, now: Instant, samples: u64) {
+        if let Some(&(_, last)) = self.seen.back()
+            && samples < last
+        {
+            self.seen.clear(); // a restarted job: start again
+        }
+        self.seen.push_back((now, samples));
+        while self.seen.len() > 2 && now.duration_since(self.seen[1].0) >= Self::WINDOW {
+            self.seen.pop_front();
+        }
+    }
+
+    /// Samples per second; `None` until half a second has been seen.
+    fn per_second(&self) -> Option<f64> {
+        let (&(t0, s0), &(t1, s1)) = (self.seen.front()?, self.seen.back()?);
+        let dt = t1.duration_since(t0).as_secs_f64();
+        (dt >= 0.5).then(|| (s1 - s0) as f64 / dt)
+    }
+}
+
+/// `1.23 M`, `512 k`, `17 `: a count with an SI prefix, three significant digits.
+fn si_unit(x: f64) -> String {
+    let (v, p) = match x {
+        x if x >= 1e9 => (x / 1e9, "G"),
+        x if x >= 1e6 => (x / 1e6, "M"),
+        x if x >= 1e3 => (x / 1e3, "k"),
+        x => (x, ""),
+    };
+    let digits = if v >= 100.0 {
+        0
+    } else if v >= 10.0 {
+        1
+    } else {
+        2
+    };
+    format!("{v:.digits$} {p}")
+}
+
+fn si(x: f64) -> String {
+    si_unit(x).trim_end().to_string()
+}
+
+fn format_duration(d: Duration) -> String {
+    let s = d.as_secs();
+    if s >= 3600 {
+        format!("{}:{:02}:{:02}", s / 3600, s / 60 % 60, s % 60)
+    } else {
+        format!("{}:{:02}", s / 60, s % 60)
+    }
+}
+
+/// A job as `status` lists it: id, state, name, size, samples, rate and ETA.
+pub fn status_line(j: &proto::JobStatus) -> String {
+    let state = format!("{:?}", j.state()).to_lowercase();
+    let percent = 100.0 * j.samples_done as f64 / j.samples_total.max(1) as f64;
+    let mut line = format!(
+        "{:<8} {:<9} {:<20} {}×{}  {} / {} samples ({percent:.0}%)",
+        j.job_id,
+        state,
+        j.scene,
+        j.width,
+        j.height,
+        si(j.samples_done as f64),
+        si(j.samples_total as f64)
+    );
+    if j.state() == proto::JobState::Running && j.samples_per_s > 0.0 {
+        let left = j.samples_total.saturating_sub(j.samples_done) as f64 / j.samples_per_s;
+        line += &format!(
+            "  {}samples/s  ETA {}",
+            si_unit(j.samples_per_s),
+            format_duration(Duration::from_secs_f64(left.min(1e9)))
+        );
+    }
+    if !j.error.is_empty() {
+        line += &format!("  error: {}", j.error);
+    }
+    line
 }
 
 /// The closing line of a finished job; `earlier` are the samples (and rays) that a
@@ -43,4 +159,35 @@ pub fn summary(s: &proto::JobStatus, earlier_samples: u64, earlier_rays: u64) ->
         samples as f64 / secs / 1e6,
         rays as f64 / secs / 1e6
     )
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn rates_are_labelled_with_si_prefixes() {
+        assert_eq!(si_unit(2_632_224.677), "2.63 M");
+        assert_eq!(si_unit(512_000.0), "512 k");
+        assert_eq!(si_unit(17.0), "17.0 ");
+        assert_eq!(si(3.41e9), "3.41 G");
+        assert_eq!(format_duration(Duration::from_secs(75)), "1:15");
+        assert_eq!(format_duration(Duration::from_secs(3725)), "1:02:05");
+    }
+
+    /// A job followed from the middle: the samples it had before count for nothing.
+    #[test]
+    fn the_rate_is_what_was_seen_not_what_the_job_had() {
+        let mut r = Rate::default();
+        let t = Instant::now();
+        r.observe(t, 1_000_000_000);
+        assert_eq!(r.per_second(), None);
+        r.observe(t + Duration::from_secs(1), 1_000_000_000 + 5_000);
+        r.observe(t + Duration::from_secs(2), 1_000_000_000 + 10_000);
+        assert_eq!(r.per_second(), Some(5_000.0));
+        // Only the last ten seconds count.
+        r.observe(t + Duration::from_secs(30), 1_000_000_000 + 10_000);
+        r.observe(t + Duration::from_secs(31), 1_000_000_000 + 10_000);
+        assert_eq!(r.per_second(), Some(0.0));
+    }
 }

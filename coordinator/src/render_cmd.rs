@@ -25,33 +25,37 @@ use crate::service::{JobDefaults, Shared, submit_job};
 /// Options shared by `render` and `submit`: what to render.
 #[derive(Args, Clone, Debug)]
 pub struct JobArgs {
-    /// Samples per pixel (default: the scene's [render] spp).
-    #[arg(long)]
+    /// Samples per pixel [default: the scene's [render] spp].
+    #[arg(long, value_name = "N", value_parser = clap::value_parser!(u32).range(1..))]
     pub spp: Option<u32>,
-    /// Image width in pixels (default: the scene's; the height follows the aspect ratio
-    /// unless --height is given too).
-    #[arg(long)]
+    /// Image width in pixels [default: the scene's; the height follows the aspect ratio
+    /// unless --height is given too].
+    #[arg(long, value_name = "PIXELS", value_parser = clap::value_parser!(u32).range(1..=65_536))]
     pub width: Option<u32>,
-    /// Image height in pixels (default: the scene's).
-    #[arg(long)]
+    /// Image height in pixels [default: the scene's].
+    #[arg(long, value_name = "PIXELS", value_parser = clap::value_parser!(u32).range(1..=65_536))]
     pub height: Option<u32>,
     /// Override the scene's max_depth (path segments; -1 = unlimited).
-    #[arg(long, allow_hyphen_values = true)]
+    #[arg(long, value_name = "N", allow_hyphen_values = true)]
     pub max_depth: Option<i32>,
     /// Override the scene's seed.
-    #[arg(long)]
+    #[arg(long, value_name = "N")]
     pub seed: Option<u64>,
     /// path (default: NEE + MIS); path-light or path-bsdf (one strategy only, to compare
     /// estimators); or an AOV: normals, albedo, depth.
     #[arg(long, default_value = "path")]
     pub integrator: Integrator,
     /// Tile size of a unit of work, in pixels.
-    #[arg(long, default_value_t = 64)]
+    #[arg(long, value_name = "PIXELS", default_value_t = 64, value_parser = clap::value_parser!(u32).range(1..=4096))]
     pub tile: u32,
     /// Samples per pixel in one unit of work. Every tile gets its first batch before any
     /// tile gets its second, so a preview refines evenly.
-    #[arg(long, default_value_t = 16)]
+    #[arg(long, value_name = "N", default_value_t = 16, value_parser = clap::value_parser!(u32).range(1..))]
     pub batch_spp: u32,
+    /// The up axis of a bare .obj model: y or z (many CAD and robotics models are Z-up). In
+    /// a scene file, set `up = "z"` in a [[mesh]] table instead.
+    #[arg(long, value_name = "AXIS", default_value = "y")]
+    pub up: tracer::scene::UpAxis,
 }
 
 impl JobArgs {
@@ -65,6 +69,10 @@ impl JobArgs {
             integrator: self.integrator.name().to_string(),
             tile_size: self.tile,
             batch_spp: self.batch_spp,
+            up: match self.up {
+                tracer::scene::UpAxis::Y => String::new(),
+                tracer::scene::UpAxis::Z => "z".into(),
+            },
         }
     }
 }
@@ -91,7 +99,7 @@ pub struct ResumeArgs {
     /// A checkpoint folder written by `render --checkpoint`.
     pub dir: PathBuf,
     /// Raise the samples per pixel: only the new samples are rendered.
-    #[arg(long)]
+    #[arg(long, value_name = "N", value_parser = clap::value_parser!(u32).range(1..))]
     pub spp: Option<u32>,
     #[command(flatten)]
     pub run: RunArgs,
@@ -108,18 +116,22 @@ pub struct RunArgs {
     /// two render threads — separate processes keep a crash contained, and pairs of
     /// threads share one copy of the scene in memory. 0 renders in this process,
     /// through the same units and merge (same bits).
-    #[arg(long)]
+    #[arg(long, value_name = "N")]
     pub local_workers: Option<usize>,
-    /// Render threads per worker (or in this process with --local-workers 0). Default:
-    /// the cores divided among the workers.
-    #[arg(long)]
-    pub threads: Option<usize>,
+    /// Render threads per worker (or in this process with --local-workers 0) [default:
+    /// the cores divided among the workers].
+    #[arg(long, value_name = "N", value_parser = clap::value_parser!(u32).range(1..=4096))]
+    pub threads: Option<u32>,
     /// Rewrite a tone-mapped PNG preview of the image so far every few seconds.
-    #[arg(long)]
+    #[arg(long, value_name = "FILE.png")]
     pub preview: Option<PathBuf>,
     /// No progress bar.
     #[arg(long, short)]
     pub quiet: bool,
+    /// On Ctrl-C, write nothing. By default an interrupted render writes the image so far
+    /// to --output (its `samples` channel shows how far each pixel got).
+    #[arg(long)]
+    pub no_partial: bool,
     /// Shortest time between two checkpoints, in milliseconds (writing is also kept
     /// under 1% of the time).
     #[arg(long, default_value_t = 5_000)]
@@ -170,7 +182,37 @@ fn runtime() -> anyhow::Result<tokio::runtime::Runtime> {
         .context("starting the async runtime")
 }
 
+impl RunArgs {
+    /// The output and preview paths must be writable before anything is rendered.
+    fn check_outputs(&self) -> anyhow::Result<()> {
+        crate::client::check_outputs(&self.output, self.preview.as_deref())
+    }
+}
+
+/// The folder of a `render` without --checkpoint. Folders of earlier renders that were
+/// killed (their process is gone, so their own cleanup never ran) are removed first.
+fn render_temp_dir() -> TempDir {
+    let tmp = std::env::temp_dir();
+    if let Ok(entries) = std::fs::read_dir(&tmp) {
+        for e in entries.flatten() {
+            let name = e.file_name();
+            let Some(pid) = name.to_str().and_then(|n| n.strip_prefix("tilefarm-render-")) else { continue };
+            if pid.parse::<u32>().is_ok_and(|pid| !process_alive(pid)) {
+                let _ = std::fs::remove_dir_all(e.path());
+            }
+        }
+    }
+    TempDir(tmp.join(format!("tilefarm-render-{}", std::process::id())))
+}
+
+/// Whether a process of that id runs (on Linux, by /proc; elsewhere assumed alive, so
+/// nothing is removed that might be in use).
+fn process_alive(pid: u32) -> bool {
+    if cfg!(target_os = "linux") { Path::new(&format!("/proc/{pid}")).exists() } else { true }
+}
+
 pub fn run(args: RenderArgs) -> anyhow::Result<()> {
+    args.run.check_outputs()?;
     let builtin = match &args.scene {
         Some(_) => None,
         None => Some(crate::builtin::BuiltinScene::write()?),
@@ -180,8 +222,8 @@ pub fn run(args: RenderArgs) -> anyhow::Result<()> {
     let (store_dir, tmp) = match &args.checkpoint {
         Some(d) => (d.clone(), None),
         None => {
-            let d = std::env::temp_dir().join(format!("tilefarm-render-{}", std::process::id()));
-            (d.clone(), Some(TempDir(d)))
+            let t = render_temp_dir();
+            (t.0.clone(), Some(t))
         }
     };
     let mut store = AssetStore::open(&store_dir)?;
@@ -214,6 +256,7 @@ pub fn run(args: RenderArgs) -> anyhow::Result<()> {
 }
 
 pub fn resume(args: ResumeArgs) -> anyhow::Result<()> {
+    args.run.check_outputs()?;
     let snap = checkpoint::read(&args.dir)?
         .with_context(|| format!("{} holds no checkpoint", checkpoint::path(&args.dir).display()))?;
     let store = AssetStore::open(&args.dir)?;
@@ -265,7 +308,7 @@ async fn execute(plan: Plan, args: &RunArgs) -> anyhow::Result<()> {
     let cache = store.dir().join("cache");
     let cores = std::thread::available_parallelism().map_or(2, |n| n.get());
     let workers = args.local_workers.unwrap_or((cores / 2).max(1));
-    let threads = args.threads.unwrap_or_else(|| (cores / workers.max(1)).max(1));
+    let threads = args.threads.map_or_else(|| (cores / workers.max(1)).max(1), |t| t as usize);
     let shared = Arc::new(Shared {
         farm: Mutex::new(Farm::new(args.farm.config()?)),
         store: Mutex::new(store),
@@ -277,7 +320,8 @@ async fn execute(plan: Plan, args: &RunArgs) -> anyhow::Result<()> {
     if let (Some(s), Some(dir)) = (&restore, &checkpoint_dir) {
         eprintln!("resuming from {}: {} of {} units done", dir.display(), s.units_done(), s.job.units.len());
     }
-    let job = submit_job(&shared, scene, assets, settings, restore.map(|s| (String::new(), s.job)))
+    let name = scene.path.clone();
+    let job = submit_job(&shared, name, scene, assets, settings, restore.map(|s| (String::new(), s.job)))
         .map_err(|s| anyhow::anyhow!("{}", s.message()))?;
 
     let (server, mut children) = if workers > 0 {
@@ -292,15 +336,19 @@ async fn execute(plan: Plan, args: &RunArgs) -> anyhow::Result<()> {
         (None, None)
     };
 
-    let bar = JobBar::new(args.quiet);
+    let mut bar = JobBar::new(args.quiet);
     let mut last_preview = Instant::now();
     let mut pacer = checkpoint::Pacer::new(Duration::from_millis(args.checkpoint_interval_ms));
     let mut saved_units = resumed;
     let stop = crate::stop_signal();
     tokio::pin!(stop);
+    let mut interrupted = false;
     let outcome = loop {
         tokio::select! {
-            _ = &mut stop => break Err(anyhow::anyhow!("interrupted")),
+            _ = &mut stop => {
+                interrupted = true;
+                break Err(anyhow::anyhow!("interrupted"));
+            }
             _ = tokio::time::sleep(Duration::from_millis(100)) => {}
             _ = shared.changed.notified() => {}
         }
@@ -322,16 +370,22 @@ async fn execute(plan: Plan, args: &RunArgs) -> anyhow::Result<()> {
             && pacer.due()
         {
             let t = Instant::now();
-            save_checkpoint(&shared, &job, dir).await?;
+            // A failed write (disk full, folder gone) must not throw the render away: say
+            // so, and write again at the next interval.
+            match save_checkpoint(&shared, &job, dir).await {
+                Ok(()) => saved_units = status.units_done,
+                Err(e) => bar.warn(&format!("checkpoint not written, retrying at the next interval: {e:#}")),
+            }
             pacer.wrote(t.elapsed());
-            saved_units = status.units_done;
         }
         if let Some(p) = &args.preview
             && last_preview.elapsed() > Duration::from_secs(3)
             && status.state() == proto::JobState::Running
         {
             let image = shared.farm().entry(&job)?.job.image();
-            tracer::output::write_png(&image, p)?;
+            if let Err(e) = tracer::output::write_png(&image, p) {
+                bar.warn(&format!("preview not written: {e}"));
+            }
             last_preview = Instant::now();
         }
     };
@@ -356,6 +410,9 @@ async fn execute(plan: Plan, args: &RunArgs) -> anyhow::Result<()> {
             eprintln!("checkpoint saved in {}; continue with `coordinator resume {}`", dir.display(), dir.display());
         }
     }
+    if interrupted && !args.no_partial {
+        write_partial(&shared, &job, &args.output)?;
+    }
     let status = outcome?;
     let (image, nonfinite, total) = {
         let farm = shared.farm();
@@ -375,6 +432,26 @@ async fn execute(plan: Plan, args: &RunArgs) -> anyhow::Result<()> {
     if nonfinite > 0 {
         eprintln!("warning: {nonfinite} non-finite samples were replaced by zero");
     }
+    Ok(())
+}
+
+/// Writes the image of an interrupted render so far: each pixel the mean of the samples
+/// it has, its count in the `samples` channel.
+fn write_partial(shared: &Shared, job: &str, output: &Path) -> anyhow::Result<()> {
+    let (image, done, total) = {
+        let farm = shared.farm();
+        let j = &farm.entry(job)?.job;
+        if j.width == 0 {
+            return Ok(()); // the scene never loaded: there is no image
+        }
+        (j.image(), j.samples_done, j.samples_total())
+    };
+    tracer::output::write_image(&image, output)?;
+    eprintln!(
+        "wrote the image so far to {} ({:.1}% of its samples; --no-partial writes nothing)",
+        output.display(),
+        100.0 * done as f64 / total.max(1) as f64
+    );
     Ok(())
 }
 

@@ -103,7 +103,7 @@ pub fn run(args: ServeArgs) -> anyhow::Result<()> {
         };
         tokio::pin!(stop);
         let mut pacer = checkpoint::Pacer::new(Duration::from_millis(args.checkpoint_interval_ms));
-        let mut saved: HashMap<String, u64> = HashMap::new();
+        let mut saved: HashMap<String, Saved> = HashMap::new();
         loop {
             tokio::select! {
                 _ = &mut stop => break,
@@ -113,14 +113,14 @@ pub fn run(args: ServeArgs) -> anyhow::Result<()> {
                 && pacer.due()
             {
                 let t = std::time::Instant::now();
-                save_jobs(&shared, root, &mut saved).await?;
+                save_jobs(&shared, root, &mut saved).await;
                 pacer.wrote(t.elapsed());
             }
         }
         tracing::info!("stopping");
         server.stop().await;
         if let Some(root) = &ckpt_root {
-            save_jobs(&shared, root, &mut saved).await?;
+            save_jobs(&shared, root, &mut saved).await;
             tracing::info!(folder = %root.display(), "jobs checkpointed");
         }
         Ok(())
@@ -159,28 +159,43 @@ async fn stdin_closed(watch: bool) {
     }
 }
 
-/// Writes the checkpoint of every job whose progress changed since its last one.
-async fn save_jobs(shared: &Arc<Shared>, root: &Path, saved: &mut HashMap<String, u64>) -> anyhow::Result<()> {
-    let snaps: Vec<(String, checkpoint::Snapshot)> = {
+/// What a job's last checkpoint holds: its finished units and whether it was cancelled.
+type Saved = (u64, bool);
+
+/// Writes the checkpoint of every job whose progress (or cancellation) changed since its
+/// last one. A write that fails (disk full, folder gone, read-only) is a warning naming
+/// the file: the farm goes on, and the job is written again at the next interval.
+async fn save_jobs(shared: &Arc<Shared>, root: &Path, saved: &mut HashMap<String, Saved>) {
+    let snaps: Vec<(String, Saved, checkpoint::Snapshot)> = {
         let farm = shared.farm();
         farm.jobs
             .iter()
-            .filter(|e| e.job.width > 0 && saved.get(&e.job.id) != Some(&e.job.units_done))
-            .map(|e| (e.job.id.clone(), checkpoint::Snapshot::of(&e.spec, &e.job)))
+            .filter(|e| e.job.width > 0)
+            .map(|e| (e, (e.job.units_done, e.job.phase == crate::job::JobPhase::Cancelled)))
+            .filter(|(e, now)| saved.get(&e.job.id) != Some(now))
+            .map(|(e, now)| (e.job.id.clone(), now, checkpoint::Snapshot::of(&e.spec, &e.job)))
             .collect()
     };
-    for (id, snap) in snaps {
+    for (id, now, snap) in snaps {
         let dir = root.join(&id);
-        let done = snap.units_done() as u64;
-        tokio::task::spawn_blocking(move || -> anyhow::Result<()> {
-            std::fs::create_dir_all(&dir)?;
+        let written = tokio::task::spawn_blocking(move || -> anyhow::Result<()> {
+            std::fs::create_dir_all(&dir).with_context(|| format!("creating {}", dir.display()))?;
             checkpoint::write(&dir, &snap)?;
+            if snap.job.cancelled {
+                checkpoint::mark_cancelled(&dir)?;
+            }
             Ok(())
         })
-        .await??;
-        saved.insert(id, done);
+        .await
+        .map_err(anyhow::Error::from)
+        .and_then(|r| r);
+        match written {
+            Ok(()) => {
+                saved.insert(id, now);
+            }
+            Err(e) => tracing::warn!(job = %id, "checkpoint not written, retrying at the next interval: {e:#}"),
+        }
     }
-    Ok(())
 }
 
 /// Restores the jobs checkpointed under `root`. A damaged checkpoint is reported and
@@ -204,9 +219,15 @@ fn restore_jobs(shared: &Arc<Shared>, root: &Path) -> anyhow::Result<()> {
         let mut settings = snap.spec.settings.clone().unwrap_or_default();
         settings.spp = 0;
         let (done, total) = (snap.units_done(), snap.job.units.len());
-        let id =
-            crate::service::submit_job(shared, scene, assets, settings, Some((snap.spec.job_id.clone(), snap.job)))
-                .map_err(|s| anyhow::anyhow!("restoring {}: {}", dir.display(), s.message()))?;
+        let id = crate::service::submit_job(
+            shared,
+            snap.name.clone(),
+            scene,
+            assets,
+            settings,
+            Some((snap.spec.job_id.clone(), snap.job)),
+        )
+        .map_err(|s| anyhow::anyhow!("restoring {}: {}", dir.display(), s.message()))?;
         tracing::info!(job = %id, done, total, "job restored from its checkpoint");
     }
     Ok(())

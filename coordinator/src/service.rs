@@ -78,6 +78,7 @@ pub fn tile_to(t: Tile) -> proto::Tile {
 /// Creates a job from files already in the store and loads its scene in the background.
 pub fn submit_job(
     shared: &Arc<Shared>,
+    name: String,
     scene: AssetRef,
     assets: Vec<AssetRef>,
     settings: proto::RenderSettings,
@@ -87,13 +88,33 @@ pub fn submit_job(
         let store = shared.store();
         for a in std::iter::once(&scene).chain(&assets) {
             crate::assets::safe_relative_path(&a.path).map_err(|e| Status::invalid_argument(e.to_string()))?;
-            if !store.contains(&a.sha256) {
-                return Err(Status::failed_precondition(format!("asset {} ({}) was not uploaded", a.path, a.sha256)));
+            // A declared size that is not the stored blob's would make every worker's
+            // download fail its check, and the job would never end: refuse it now.
+            match store.size_of(&a.sha256) {
+                None => {
+                    return Err(Status::failed_precondition(format!(
+                        "asset {} ({}) was not uploaded",
+                        a.path, a.sha256
+                    )));
+                }
+                Some(size) if size != a.size => {
+                    return Err(Status::invalid_argument(format!(
+                        "asset {} is declared as {} bytes, but its upload ({}) has {size}",
+                        a.path, a.size, a.sha256
+                    )));
+                }
+                Some(_) => {}
             }
         }
     }
     if !settings.integrator.is_empty() {
         settings.integrator.parse::<Integrator>().map_err(Status::invalid_argument)?;
+    }
+    if !settings.up.is_empty() {
+        settings
+            .up
+            .parse::<tracer::scene::UpAxis>()
+            .map_err(|e| Status::invalid_argument(format!("settings.up: {e}")))?;
     }
     let (wanted_id, restore) = match restore {
         Some((id, r)) => (id, Some(r)),
@@ -105,8 +126,9 @@ pub fn submit_job(
         assets: assets.iter().map(Into::into).collect(),
         settings: Some(settings.clone()),
     };
-    let id = shared.farm().add_job(scene.path.clone(), spec);
-    tracing::info!(job = %id, scene = %scene.path, files = assets.len() + 1, "job submitted");
+    let name = if name.trim().is_empty() { scene.path.clone() } else { name.chars().take(200).collect() };
+    let id = shared.farm().add_job(name.clone(), spec);
+    tracing::info!(job = %id, name = %name, scene = %scene.path, files = assets.len() + 1, "job submitted");
     let shared = Arc::clone(shared);
     let job = id.clone();
     std::thread::spawn(move || {
@@ -133,6 +155,7 @@ pub fn overrides_of(s: &proto::RenderSettings) -> tracer::scene::Overrides {
         height: nonzero(s.height),
         max_depth: s.max_depth,
         seed: s.seed,
+        up: if s.up.is_empty() { tracer::scene::UpAxis::Y } else { s.up.parse().unwrap_or_default() },
     }
 }
 
@@ -149,8 +172,9 @@ fn load_job(
         let dir = store.dir().join("jobs").join(job);
         store.materialize(&dir, scene, assets)?
     };
-    let mut loaded = tracer::scene::load_scene(&scene_path)?;
-    overrides_of(settings).apply(&mut loaded).map_err(anyhow::Error::msg)?;
+    let overrides = overrides_of(settings);
+    let mut loaded = tracer::scene::load_scene_up(&scene_path, overrides.up)?;
+    overrides.apply(&mut loaded).map_err(anyhow::Error::msg)?;
     let integrator: Integrator = if settings.integrator.is_empty() {
         Integrator::Path
     } else {
@@ -341,7 +365,7 @@ impl proto::jobs_server::Jobs for JobsService {
         let r = req.into_inner();
         let scene = r.scene.as_ref().map(AssetRef::from).ok_or_else(|| Status::invalid_argument("missing scene"))?;
         let assets = r.assets.iter().map(AssetRef::from).collect();
-        let job_id = submit_job(&self.0, scene, assets, r.settings.unwrap_or_default(), None)?;
+        let job_id = submit_job(&self.0, r.name, scene, assets, r.settings.unwrap_or_default(), None)?;
         Ok(Response::new(proto::SubmitJobReply { job_id }))
     }
 

@@ -40,6 +40,24 @@ fn readme_render_command_writes_an_exr_of_the_builtin_cornell_box() {
     assert!(mean > 0.05, "mean {mean}");
 }
 
+/// The README's run command on a fresh clone builds only `coordinator` (cargo run -p
+/// coordinator): a render must need nothing beside it. A copy of the binary alone in an
+/// empty folder renders with local worker processes.
+#[test]
+fn the_binary_alone_in_an_empty_folder_renders_with_local_workers() {
+    let dir = TempDir::new("alone");
+    let exe = dir.0.join("coordinator");
+    std::fs::copy(env!("CARGO_BIN_EXE_coordinator"), &exe).unwrap();
+    let out = Command::new(&exe)
+        .current_dir(&dir.0)
+        .args(["render", "-q", "--spp", "2", "--width", "16", "--local-workers", "2", "-o", "cornell.exr"])
+        .output()
+        .unwrap();
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    let img = tracer::output::read_exr(&dir.0.join("cornell.exr")).unwrap();
+    assert!(img.counts.iter().all(|&c| c == 2));
+}
+
 #[test]
 fn bad_scenes_fail_with_a_message_naming_the_problem() {
     let dir = TempDir::new("bad");

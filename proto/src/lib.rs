@@ -14,3 +14,22 @@ pub const MAX_MESSAGE_BYTES: usize = 64 * 1024 * 1024;
 
 /// Size of one asset chunk on the wire.
 pub const ASSET_CHUNK_BYTES: usize = 1024 * 1024;
+
+/// The coordinator's address as users give it — `host:port` or a URL — as the URL a
+/// channel connects to (`http://` is assumed when no scheme is given). Both sides map
+/// the address here, so `worker`, `submit`, `fetch`, `status` and `cancel` accept the
+/// same forms.
+pub fn coordinator_url(address: &str) -> String {
+    let a = address.trim();
+    if a.contains("://") { a.to_string() } else { format!("http://{a}") }
+}
+
+#[cfg(test)]
+mod tests {
+    #[test]
+    fn addresses_without_a_scheme_get_http() {
+        assert_eq!(super::coordinator_url("10.0.0.5:7878"), "http://10.0.0.5:7878");
+        assert_eq!(super::coordinator_url(" http://h:1 "), "http://h:1");
+        assert_eq!(super::coordinator_url("https://h:1"), "https://h:1");
+    }
+}

@@ -24,16 +24,30 @@ pub struct Camera {
 
 #[derive(Debug, thiserror::Error, PartialEq)]
 pub enum CameraError {
-    #[error("camera: position and look_at coincide")]
+    #[error("coincides with camera.position")]
     NoDirection,
-    #[error("camera: up is parallel to the viewing direction")]
+    #[error("is parallel to the viewing direction")]
     UpParallel,
-    #[error("camera: fov must be in (0, 180) degrees, got {0}")]
+    #[error("must be in (0, 180) degrees, got {0}")]
     Fov(f32),
-    #[error("camera: width and height must be positive, got {0}×{1}")]
+    #[error("must be at least 1 (the image is {0}×{1})")]
     Size(u32, u32),
-    #[error("camera: aperture must be ≥ 0 and focus_distance > 0")]
+    #[error("aperture must be ≥ 0 and focus_distance > 0")]
     Lens,
+}
+
+impl CameraError {
+    /// The scene-file field the error is about.
+    pub fn field(&self) -> &'static str {
+        match self {
+            CameraError::NoDirection => "camera.look_at",
+            CameraError::UpParallel => "camera.up",
+            CameraError::Fov(_) => "camera.fov",
+            CameraError::Size(0, _) => "camera.width",
+            CameraError::Size(..) => "camera.height",
+            CameraError::Lens => "camera.aperture",
+        }
+    }
 }
 
 impl Camera {

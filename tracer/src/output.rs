@@ -18,12 +18,58 @@ pub enum OutputError {
     Read { path: String, message: String },
 }
 
+/// The output formats, by the path's extension.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Format {
+    Exr,
+    Png,
+}
+
+impl Format {
+    pub fn of(path: &Path) -> Result<Self, OutputError> {
+        match path.extension().and_then(|e| e.to_str()).map(|e| e.to_ascii_lowercase()).as_deref() {
+            Some("exr") => Ok(Self::Exr),
+            Some("png") => Ok(Self::Png),
+            _ => Err(OutputError::Format { path: path.display().to_string() }),
+        }
+    }
+}
+
+/// Checks before a render that `path` can be written — a known extension, an existing
+/// folder that accepts a new file, not a folder itself — so that a typo in `-o` fails at
+/// once instead of throwing the finished render away.
+pub fn check_output_path(path: &Path) -> Result<Format, OutputError> {
+    let format = Format::of(path)?;
+    let shown = path.display().to_string();
+    let fail = |message: String| OutputError::Write { path: shown.clone(), message };
+    if path.is_dir() {
+        return Err(fail("is a folder; give a file name ending in .exr or .png".into()));
+    }
+    let parent = match path.parent() {
+        Some(p) if !p.as_os_str().is_empty() => p,
+        _ => Path::new("."),
+    };
+    if !parent.is_dir() {
+        return Err(fail(format!("the folder {} does not exist", parent.display())));
+    }
+    // Only creating a file proves that the folder takes one (permissions, a read-only
+    // mount, ACLs): a probe beside the output, removed at once.
+    let name = path.file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_default();
+    let probe = parent.join(format!(".{name}.{}.probe", std::process::id()));
+    match std::fs::OpenOptions::new().write(true).create_new(true).open(&probe) {
+        Ok(_) => {
+            let _ = std::fs::remove_file(&probe);
+            Ok(format)
+        }
+        Err(e) => Err(fail(format!("cannot write in {}: {e}", parent.display()))),
+    }
+}
+
 /// Writes `image` to `path`: `.exr` for HDR data, `.png` for a tone-mapped preview.
 pub fn write_image(image: &Image, path: &Path) -> Result<(), OutputError> {
-    match path.extension().and_then(|e| e.to_str()).map(|e| e.to_ascii_lowercase()).as_deref() {
-        Some("exr") => write_exr(image, path),
-        Some("png") => write_png(image, path),
-        _ => Err(OutputError::Format { path: path.display().to_string() }),
+    match Format::of(path)? {
+        Format::Exr => write_exr(image, path),
+        Format::Png => write_png(image, path),
     }
 }
 
@@ -127,6 +173,22 @@ mod tests {
         assert_eq!(back, img);
         write_image(&img, &dir.join("t.png")).unwrap();
         assert!(write_image(&img, &dir.join("t.bmpx")).is_err());
+        std::fs::remove_dir_all(&dir).ok();
+    }
+
+    #[test]
+    fn output_paths_are_checked_before_rendering() {
+        let dir = std::env::temp_dir().join(format!("tilefarm-outcheck-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        assert_eq!(check_output_path(&dir.join("a.EXR")).unwrap(), Format::Exr);
+        assert_eq!(check_output_path(&dir.join("a.png")).unwrap(), Format::Png);
+        assert_eq!(std::fs::read_dir(&dir).unwrap().count(), 0, "the probe file is removed");
+        let e = check_output_path(&dir.join("a.jpg")).unwrap_err().to_string();
+        assert!(e.contains("a.jpg") && e.contains(".exr or .png"), "{e}");
+        let e = check_output_path(&dir.join("no-such-folder/a.exr")).unwrap_err().to_string();
+        assert!(e.contains("no-such-folder") && e.contains("does not exist"), "{e}");
+        std::fs::create_dir_all(dir.join("d.exr")).unwrap();
+        assert!(check_output_path(&dir.join("d.exr")).unwrap_err().to_string().contains("is a folder"));
         std::fs::remove_dir_all(&dir).ok();
     }
 

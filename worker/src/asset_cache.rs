@@ -361,7 +361,7 @@ pub async fn prepare_job(
 /// overrides. Blocking.
 pub fn load_job(cache: &AssetCache, job: &JobSpec) -> anyhow::Result<LoadedJob> {
     let scene_path = cache.lay_out_job(job)?;
-    let mut scene = tracer::scene::load_scene(&scene_path).map_err(|e| anyhow!("{e}"))?;
+    let mut scene = tracer::scene::load_scene_up(&scene_path, job.overrides.up).map_err(|e| anyhow!("{e}"))?;
     job.overrides.apply(&mut scene).map_err(|e| anyhow!("{}: settings: {e}", job.scene.path))?;
     Ok(LoadedJob { spec: job.clone(), scene, integrator: job.integrator })
 }

@@ -76,6 +76,7 @@ pub fn settings_from_proto(s: Option<&proto::RenderSettings>) -> Result<(Overrid
         height: nonzero(s.height),
         max_depth: s.max_depth,
         seed: s.seed,
+        up: if s.up.is_empty() { tracer::scene::UpAxis::Y } else { s.up.parse()? },
     };
     let integrator = if s.integrator.is_empty() { Integrator::Path } else { s.integrator.parse()? };
     Ok((overrides, integrator))
@@ -182,6 +183,7 @@ mod tests {
                     integrator: "normals".into(),
                     tile_size: 32,
                     batch_spp: 4,
+                    up: "z".into(),
                 }),
             }),
             unit_id: 7,
@@ -200,7 +202,14 @@ mod tests {
         assert_eq!(u.job.integrator, Integrator::Normals);
         assert_eq!(
             u.job.overrides,
-            Overrides { spp: Some(16), width: None, height: Some(120), max_depth: Some(4), seed: None }
+            Overrides {
+                spp: Some(16),
+                width: None,
+                height: Some(120),
+                max_depth: Some(4),
+                seed: None,
+                up: tracer::scene::UpAxis::Z
+            }
         );
     }
 

@@ -81,7 +81,7 @@ pub async fn call<T>(
 /// A lazily connecting client: it (re)connects on demand, so a coordinator that is not
 /// up yet, or restarts, is just a transport failure of the calls in between.
 pub fn connect(url: &str) -> anyhow::Result<Client> {
-    let url = if url.contains("://") { url.to_string() } else { format!("http://{url}") };
+    let url = proto::coordinator_url(url);
     let endpoint = Endpoint::from_shared(url.clone())
         .with_context(|| format!("invalid coordinator address '{url}'"))?
         .connect_timeout(Duration::from_secs(3))

@@ -95,11 +95,47 @@ impl Scale {
     }
 }
 
+/// Which axis of a model points up. Many CAD, robotics and 3D-scanning tools write Z-up
+/// files; the scene (and the auto-framed camera) is Y-up.
+#[derive(Clone, Copy, Debug, Default, Deserialize, PartialEq, Eq)]
+#[serde(rename_all = "lowercase")]
+pub enum UpAxis {
+    #[default]
+    Y,
+    Z,
+}
+
+impl UpAxis {
+    /// The rotation that brings the model's coordinates into the scene's Y-up frame:
+    /// for Z-up, (x, y, z) → (x, z, −y), a proper rotation (−90° about x), so faces
+    /// keep their winding.
+    pub fn to_y_up(self) -> glam::Mat3 {
+        match self {
+            UpAxis::Y => glam::Mat3::IDENTITY,
+            UpAxis::Z => glam::Mat3::from_cols(glam::Vec3::X, -glam::Vec3::Z, glam::Vec3::Y),
+        }
+    }
+}
+
+impl std::str::FromStr for UpAxis {
+    type Err = String;
+    fn from_str(s: &str) -> Result<Self, String> {
+        match s.to_ascii_lowercase().as_str() {
+            "y" => Ok(UpAxis::Y),
+            "z" => Ok(UpAxis::Z),
+            _ => Err(format!("'{s}' is not an up axis: expected y or z")),
+        }
+    }
+}
+
 #[derive(Clone, Debug, Deserialize, PartialEq)]
 #[serde(deny_unknown_fields)]
 pub struct MeshDesc {
     /// Path of the OBJ file, relative to the scene file.
     pub obj: String,
+    /// The model's up axis (`"y"`, the default, or `"z"`), applied before scale, rotation
+    /// and translation.
+    pub up: Option<UpAxis>,
     pub translate: Option<[f32; 3]>,
     pub scale: Option<Scale>,
     /// Rotation about +y in degrees (right-handed).
@@ -139,6 +175,47 @@ pub enum LightDesc {
 pub struct BackgroundDesc {
     #[serde(default)]
     pub radiance: [f32; 3],
+}
+
+/// The 1-based line of `field` (as the loader names it: `render.spp`, `mesh[2].scale`,
+/// `camera`) in a scene file's text: the key's own line, else its table's header line.
+/// A plain line scan: keys written as inline tables or dotted keys find their table.
+pub fn line_of(text: &str, field: &str) -> Option<usize> {
+    let (table, key) = match field.split_once('.') {
+        Some((t, k)) => (t, Some(k)),
+        None => (field, None),
+    };
+    let (name, index) = match table.split_once('[') {
+        Some((n, i)) => (n, i.trim_end_matches(']').parse::<usize>().ok()?),
+        None => (table, 0),
+    };
+    let mut header = None;
+    let mut seen = 0usize;
+    for (i, raw) in text.lines().enumerate() {
+        let line = raw.split('#').next().unwrap_or("").trim();
+        if line.starts_with('[') {
+            if header.is_some() {
+                break; // the next table: the key is not written in this one
+            }
+            let inner = line.trim_start_matches('[').trim_end_matches(']').trim();
+            if inner == name {
+                if seen == index {
+                    header = Some(i + 1);
+                    if key.is_none() {
+                        break;
+                    }
+                }
+                seen += 1;
+            }
+            continue;
+        }
+        if let (Some(_), Some(key)) = (header, key)
+            && line.strip_prefix(key).is_some_and(|rest| rest.trim_start().starts_with('='))
+        {
+            return Some(i + 1);
+        }
+    }
+    header
 }
 
 #[cfg(test)]
@@ -196,6 +273,30 @@ radiance = [0.0, 0.0, 0.0]
         assert_eq!(f.mesh[1].scale, Some(Scale::PerAxis([1.0, 2.0, 3.0])));
         assert_eq!(f.light.len(), 3);
         assert!(matches!(f.light[1], LightDesc::Spot { cone_angle: 30.0, .. }));
+    }
+
+    #[test]
+    fn fields_are_found_on_their_lines() {
+        let line = |f: &str| line_of(EXAMPLE, f);
+        let find = |needle: &str| EXAMPLE.lines().position(|l| l.starts_with(needle)).map(|i| i + 1);
+        assert_eq!(line("render.spp"), find("spp = 64"));
+        assert_eq!(line("camera"), find("[camera]"));
+        assert_eq!(line("camera.fov"), find("fov"));
+        assert_eq!(line("mesh[1].scale"), find("scale = [1.0"));
+        assert_eq!(line("mesh[0].translate"), find("obj = \"cbox.obj\"").map(|l| l - 1), "its table's header");
+        let last_direction = EXAMPLE.lines().enumerate().filter(|(_, l)| l.starts_with("direction")).last();
+        assert_eq!(line("light[2].direction"), last_direction.map(|(i, _)| i + 1));
+        assert_eq!(line("sphere[3].radius"), None);
+    }
+
+    #[test]
+    fn up_axis_z_is_a_proper_rotation_to_y_up() {
+        let m = UpAxis::Z.to_y_up();
+        assert_eq!(m * glam::Vec3::Z, glam::Vec3::Y);
+        assert_eq!(m * glam::Vec3::X, glam::Vec3::X);
+        assert_eq!(m.determinant(), 1.0);
+        assert_eq!("Z".parse::<UpAxis>(), Ok(UpAxis::Z));
+        assert!("x".parse::<UpAxis>().is_err());
     }
 
     #[test]

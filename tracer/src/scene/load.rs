@@ -5,7 +5,7 @@ use std::path::{Path, PathBuf};
 
 use glam::{Mat3, Vec3};
 
-use super::file::{LightDesc, SceneFile, SphereDesc};
+use super::file::{LightDesc, SceneFile, SphereDesc, UpAxis};
 use super::obj::{ObjError, ObjModel, load_obj};
 use super::{Geometry, NONE, Scene, Sphere, TriangleMesh};
 use crate::accel::packed::PackedTriangles;
@@ -46,22 +46,42 @@ impl Default for RenderSettings {
 
 /// Loads a scene: a `.toml` scene file, or a bare `.obj` that is framed automatically.
 pub fn load_scene(path: &Path) -> Result<Scene, SceneError> {
-    let is_obj = path.extension().and_then(|e| e.to_str()).is_some_and(|e| e.eq_ignore_ascii_case("obj"));
-    if is_obj {
-        let model = load_obj(path)?;
-        return Ok(scene_from_bare_obj(model));
+    load_scene_up(path, UpAxis::Y)
+}
+
+/// [`load_scene`], with the up axis of a bare `.obj` (a scene file sets each mesh's own).
+pub fn load_scene_up(path: &Path, up: UpAxis) -> Result<Scene, SceneError> {
+    let display = path.display().to_string();
+    let io = |message: String| SceneError::Io { path: display.clone(), message };
+    let ext = path.extension().and_then(|e| e.to_str()).map(str::to_ascii_lowercase);
+    if path.is_dir() || !matches!(ext.as_deref(), Some("toml" | "obj")) {
+        let what = if path.is_dir() { "a folder" } else { "another kind of file" };
+        return Err(io(format!("not a scene file ({what}): expected a .toml scene or an .obj model")));
     }
-    let text = std::fs::read_to_string(path)
-        .map_err(|e| SceneError::Io { path: path.display().to_string(), message: e.to_string() })?;
+    if ext.as_deref() == Some("obj") {
+        let model = load_obj(path)?;
+        return Ok(scene_from_bare_obj(model, up));
+    }
+    if up != UpAxis::Y {
+        return Err(SceneError::Invalid {
+            path: display,
+            field: "up".into(),
+            message: "an up axis is given for a bare .obj; in a scene file, set up = \"z\" in its [[mesh]] tables"
+                .into(),
+        });
+    }
+    let bytes = std::fs::read(path).map_err(|e| io(e.to_string()))?;
+    let text = String::from_utf8(bytes)
+        .map_err(|_| io("not a scene file: it is not text (a scene is a .toml file, a model an .obj)".into()))?;
     let base = path.parent().unwrap_or(Path::new(".")).to_path_buf();
-    scene_from_toml(&text, &path.display().to_string(), &base)
+    scene_from_toml(&text, &display, &base)
 }
 
 /// Parses and assembles a scene file's text; relative paths resolve against `base`.
 pub fn scene_from_toml(text: &str, display_name: &str, base: &Path) -> Result<Scene, SceneError> {
     let file: SceneFile = toml::from_str(text)
         .map_err(|e| SceneError::Syntax { path: display_name.to_string(), message: e.to_string() })?;
-    assemble(&file, display_name, base)
+    assemble(&file, text, display_name, base)
 }
 
 #[derive(Default)]
@@ -119,8 +139,15 @@ fn vec3(v: [f32; 3]) -> Vec3 {
     Vec3::from_array(v)
 }
 
-fn assemble(file: &SceneFile, name: &str, base: &Path) -> Result<Scene, SceneError> {
-    let invalid = |field: String, message: String| SceneError::Invalid { path: name.to_string(), field, message };
+fn assemble(file: &SceneFile, text: &str, name: &str, base: &Path) -> Result<Scene, SceneError> {
+    // Errors name the file and the field's line, as TOML's own errors do.
+    let invalid = |field: String, message: String| {
+        let path = match super::file::line_of(text, &field) {
+            Some(line) => format!("{name}:{line}"),
+            None => name.to_string(),
+        };
+        SceneError::Invalid { path, field, message }
+    };
     let finite3 = |field: String, v: [f32; 3]| {
         if v.iter().all(|x| x.is_finite()) { Ok(vec3(v)) } else { Err(invalid(field, "must be finite".into())) }
     };
@@ -142,10 +169,10 @@ fn assemble(file: &SceneFile, name: &str, base: &Path) -> Result<Scene, SceneErr
         c.width,
         c.height,
     )
-    .map_err(|e| invalid("camera".into(), e.to_string()))?;
+    .map_err(|e| invalid(e.field().into(), e.to_string()))?;
     let camera = if c.aperture != 0.0 || c.focus_distance.is_some() {
         let focus = c.focus_distance.unwrap_or_else(|| (vec3(c.look_at) - vec3(c.position)).length());
-        camera.with_lens(c.aperture, focus).map_err(|e| invalid("camera.aperture".into(), e.to_string()))?
+        camera.with_lens(c.aperture, focus).map_err(|e| invalid(e.field().into(), e.to_string()))?
     } else {
         camera
     };
@@ -178,7 +205,7 @@ fn assemble(file: &SceneFile, name: &str, base: &Path) -> Result<Scene, SceneErr
         // As glam's `Mat3::from_rotation_y`, with the platform-free sine and cosine.
         let (sin, cos) = math::sin_cos(angle.to_radians());
         let rotation = Mat3::from_cols(Vec3::new(cos, 0.0, -sin), Vec3::Y, Vec3::new(sin, 0.0, cos));
-        let linear = rotation * Mat3::from_diagonal(scale);
+        let linear = rotation * Mat3::from_diagonal(scale) * m.up.unwrap_or_default().to_y_up();
         b.add_model(model, linear, translate);
     }
 
@@ -367,11 +394,11 @@ fn finish(b: Builder, camera: Camera, settings: RenderSettings, mut lights: Vec<
 
 /// A bare OBJ: the camera frames its bounding box (OBJ files come at any scale) and, if
 /// nothing emits, a default light (a key "sun" plus a dim sky) makes the model visible.
-pub fn scene_from_bare_obj(model: ObjModel) -> Scene {
-    let bounds = crate::geometry::Aabb::from_points(&model.mesh.positions);
+pub fn scene_from_bare_obj(model: ObjModel, up: UpAxis) -> Scene {
     let any_emitter = model.materials.iter().any(|m| m.ke.max_element() > 0.0);
     let mut b = Builder::default();
-    b.add_model(model, Mat3::IDENTITY, Vec3::ZERO);
+    b.add_model(model, up.to_y_up(), Vec3::ZERO);
+    let bounds = crate::geometry::Aabb::from_points(&b.mesh.positions);
     let (center, radius) = if bounds.is_empty() {
         (Vec3::ZERO, 1.0)
     } else {
@@ -416,7 +443,7 @@ mod tests {
         let emissive = MaterialDesc { name: "lamp".into(), ke: Vec3::ONE, ..MaterialDesc::default() };
         let model =
             ObjModel { mesh, materials: vec![MaterialDesc::default_grey("grey"), emissive], ..ObjModel::default() };
-        let s = scene_from_bare_obj(model);
+        let s = scene_from_bare_obj(model, UpAxis::Y);
         let g = &s.geometry;
         assert!(s.packed.is_none(), "the test is about the kd-tree path");
         // The permutation moved triangles (else the test proves nothing).

@@ -11,6 +11,8 @@ pub struct Overrides {
     pub height: Option<u32>,
     pub max_depth: Option<i32>,
     pub seed: Option<u64>,
+    /// The up axis of a bare `.obj` (used when loading: [`super::load_scene_up`]).
+    pub up: super::UpAxis,
 }
 
 impl Overrides {

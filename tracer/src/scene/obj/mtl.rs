@@ -7,13 +7,13 @@ use std::collections::HashMap;
 use std::io::Cursor;
 use std::path::{Path, PathBuf};
 
-use glam::Vec3;
+use glam::{Vec2, Vec3};
 
 use super::ObjError;
 use super::scan::shorten;
 use crate::material::MaterialDesc;
 use crate::math;
-use crate::texture::Texture;
+use crate::texture::{TexMap, Texture};
 
 /// A material as read from an MTL file, its texture not yet loaded.
 #[derive(Clone, Debug)]
@@ -22,6 +22,8 @@ pub(super) struct RawMaterial {
     pub desc: MaterialDesc,
     /// The `map_Kd` file name (options stripped), relative to `dir`.
     pub map_kd: Option<String>,
+    /// Where `map_Kd`'s options place the image.
+    pub map_kd_placement: TexMap,
     /// Folder of the MTL file.
     pub dir: PathBuf,
     /// The MTL file, for messages.
@@ -38,7 +40,7 @@ pub struct MtlLibrary {
 }
 
 /// Loads an MTL file and its `map_Kd` textures. A missing file or a malformed statement is
-/// an error; a texture that cannot be loaded is a warning and turns its material grey.
+/// an error; a texture that cannot be loaded is a warning (the material keeps its `Kd`).
 pub fn load_mtl(path: &Path) -> Result<MtlLibrary, ObjError> {
     let display = path.display().to_string();
     let text = read_text(path, &display)?;
@@ -115,6 +117,9 @@ pub(super) fn parse_mtl_str(
 ) -> Result<Vec<RawMaterial>, ObjError> {
     let mut clean = String::with_capacity(text.len());
     let mut ignored: Vec<String> = Vec::new();
+    // The material being defined, and the placement of each material's map_Kd.
+    let mut current: Option<String> = None;
+    let mut placements: HashMap<String, TexMap> = HashMap::new();
     for (i, raw) in text.split('\n').enumerate() {
         let line_no = i + 1;
         let err = |message: String| ObjError::Parse { path: display.to_string(), line: line_no, message };
@@ -131,6 +136,7 @@ pub(super) fn parse_mtl_str(
                 }
                 clean.push_str("newmtl ");
                 clean.push_str(rest);
+                current = Some(rest.to_string());
             }
             "ka" | "kd" | "ks" | "ke" | "tf" => {
                 let key = match lower.as_str() {
@@ -174,14 +180,22 @@ pub(super) fn parse_mtl_str(
                     tok.parse().map_err(|_| err(format!("illum needs an integer 0-255, found '{}'", shorten(tok))))?;
                 clean.push_str(&format!("illum {model}"));
             }
-            "map_kd" => {
-                if rest.is_empty() {
-                    warnings.push(format!("{display}:{line_no}: map_Kd without a file name, ignored"));
-                } else {
+            "map_kd" => match parse_map_arg(rest) {
+                None => warnings.push(format!("{display}:{line_no}: map_Kd without a file name, ignored")),
+                Some(arg) => {
+                    if !arg.skipped.is_empty() {
+                        warnings.push(format!(
+                            "{display}:{line_no}: map_Kd options {} are not supported and were skipped",
+                            arg.skipped.join(", ")
+                        ));
+                    }
                     clean.push_str("map_Kd ");
-                    clean.push_str(rest);
+                    clean.push_str(&arg.name);
+                    if let Some(material) = &current {
+                        placements.insert(material.clone(), arg.map);
+                    }
                 }
-            }
+            },
             _ => {
                 let key = shorten(keyword);
                 if !ignored.contains(&key) && ignored.len() < 16 {
@@ -215,56 +229,103 @@ pub(super) fn parse_mtl_str(
                 illum: m.illumination_model.map(u32::from),
                 map_kd: None,
             };
-            let map_kd = m.diffuse_texture.as_deref().and_then(texture_file_name);
-            RawMaterial { desc, map_kd, dir: dir.to_path_buf(), mtl: display.to_string() }
+            let map_kd = m.diffuse_texture.as_deref().map(|t| t.trim().to_string()).filter(|t| !t.is_empty());
+            let map_kd_placement = placements.get(&m.name).copied().unwrap_or_default();
+            RawMaterial { desc, map_kd, map_kd_placement, dir: dir.to_path_buf(), mtl: display.to_string() }
         })
         .collect())
 }
 
-/// The file name of a `map_Kd` argument, skipping options such as `-s 1 1 1` or `-bm 0.5`.
-pub(super) fn texture_file_name(arg: &str) -> Option<String> {
+/// A `map_Kd` argument: the file name, the options that place the image, and the options
+/// that are read past without effect (named in a warning).
+#[derive(Clone, Debug, PartialEq)]
+pub(super) struct MapArg {
+    pub name: String,
+    pub map: TexMap,
+    pub skipped: Vec<String>,
+}
+
+/// Parses a `map_Kd` argument: `-s u [v [w]]` and `-o u [v [w]]` (uv scale and offset)
+/// and `-clamp on|off` are honoured; the other MTL options (`-bm`, `-mm`, `-blendu`, ...)
+/// are skipped with their values and listed in `skipped`. `None` when no file name is left.
+pub(super) fn parse_map_arg(arg: &str) -> Option<MapArg> {
     let mut rest = arg.trim();
+    let mut map = TexMap::default();
+    let mut skipped = Vec::new();
     loop {
         let opt = rest.split_whitespace().next()?;
-        let arity = match opt {
-            "-blendu" | "-blendv" | "-cc" | "-clamp" | "-bm" | "-boost" | "-texres" | "-imfchan" | "-type" => 1,
-            "-mm" => 2,
-            "-o" | "-s" | "-t" => 3,
+        let (min, max) = match opt {
+            "-blendu" | "-blendv" | "-cc" | "-clamp" | "-bm" | "-boost" | "-texres" | "-imfchan" | "-type" => (1, 1),
+            "-mm" => (2, 2),
+            "-o" | "-s" | "-t" => (1, 3),
             _ => break,
         };
         rest = rest[opt.len()..].trim_start();
-        for k in 0..arity {
-            let tok = rest.split_whitespace().next()?;
-            // -o/-s/-t take 1 to 3 numbers, -mm 2 numbers; stop at the first non-number.
-            if k > 0 && tok.parse::<f32>().is_err() {
+        let mut values: Vec<&str> = Vec::new();
+        while values.len() < max {
+            let Some(tok) = rest.split_whitespace().next() else { break };
+            // -o/-s/-t take 1 to 3 numbers; stop at the first non-number after the first.
+            if values.len() >= min && tok.parse::<f32>().is_err() {
                 break;
             }
+            values.push(tok);
             rest = rest[tok.len()..].trim_start();
+        }
+        let numbers: Vec<f32> = values.iter().filter_map(|v| v.parse().ok()).filter(|x: &f32| x.is_finite()).collect();
+        let uv = |default: f32| {
+            let u = numbers.first().copied().unwrap_or(default);
+            Vec2::new(u, numbers.get(1).copied().unwrap_or(default))
+        };
+        match opt {
+            "-s" if numbers.len() == values.len() => map.scale = uv(1.0),
+            "-o" if numbers.len() == values.len() => map.offset = uv(0.0),
+            "-clamp" if values.first().is_some_and(|v| v.eq_ignore_ascii_case("on")) => map.clamp = true,
+            "-clamp" if values.first().is_some_and(|v| v.eq_ignore_ascii_case("off")) => {}
+            _ => skipped.push(format!("{opt} {}", values.join(" ")).trim().to_string()),
         }
     }
     let name = rest.trim();
-    (!name.is_empty()).then(|| name.to_string())
+    (!name.is_empty()).then(|| MapArg { name: name.to_string(), map, skipped })
 }
 
-/// Decoded textures, one per distinct path.
+/// Decoded textures, one per distinct path and placement (an image is decoded once).
 #[derive(Default)]
 pub(super) struct TextureCache {
     pub textures: Vec<Texture>,
-    by_path: HashMap<PathBuf, Result<u32, String>>,
+    by_path: HashMap<PathBuf, Result<Vec<u32>, String>>,
 }
 
 impl TextureCache {
-    fn get(&mut self, path: &Path) -> Result<u32, String> {
+    fn get(&mut self, path: &Path, map: TexMap) -> Result<u32, String> {
         let key = std::fs::canonicalize(path).unwrap_or_else(|_| path.to_path_buf());
-        if let Some(r) = self.by_path.get(&key) {
-            return r.clone();
+        let known = match self.by_path.get(&key) {
+            Some(Err(e)) => return Err(e.clone()),
+            Some(Ok(known)) => known.clone(),
+            None => match decode_texture(path) {
+                Ok(tex) => {
+                    self.textures.push(tex);
+                    vec![self.textures.len() as u32 - 1]
+                }
+                Err(e) => {
+                    self.by_path.insert(key, Err(e.clone()));
+                    return Err(e);
+                }
+            },
+        };
+        let index = match known.iter().find(|&&i| self.textures[i as usize].map == map) {
+            Some(&i) => i,
+            None => {
+                let placed = Texture { map, ..self.textures[known[0] as usize].clone() };
+                self.textures.push(placed);
+                self.textures.len() as u32 - 1
+            }
+        };
+        let mut known = known;
+        if !known.contains(&index) {
+            known.push(index);
         }
-        let result = decode_texture(path).map(|tex| {
-            self.textures.push(tex);
-            self.textures.len() as u32 - 1
-        });
-        self.by_path.insert(key, result.clone());
-        result
+        self.by_path.insert(key, Ok(known));
+        Ok(index)
     }
 }
 
@@ -280,7 +341,8 @@ pub(super) fn resolve_path(dir: &Path, name: &str) -> PathBuf {
     direct
 }
 
-/// The final material: its texture loaded (or, when that fails, a warning and grey diffuse).
+/// The final material: its texture loaded (or, when that fails, a warning, and the
+/// material keeps its own `Kd`).
 pub(super) fn resolve_material(
     raw: &RawMaterial,
     cache: &mut TextureCache,
@@ -289,18 +351,15 @@ pub(super) fn resolve_material(
     let mut desc = raw.desc.clone();
     if let Some(name) = &raw.map_kd {
         let path = resolve_path(&raw.dir, name);
-        match cache.get(&path) {
+        match cache.get(&path, raw.map_kd_placement) {
             Ok(i) => desc.map_kd = Some(i),
             Err(e) => {
-                let msg = format!(
-                    "{}: material '{}': map_Kd texture '{}' could not be loaded ({e}); using grey diffuse",
+                warnings.push(format!(
+                    "{}: material '{}': map_Kd texture '{}' could not be loaded ({e}); using its Kd without a texture",
                     raw.mtl,
                     desc.name,
                     path.display()
-                );
-                tracing::warn!("{msg}");
-                warnings.push(msg);
-                desc.kd = MaterialDesc::default_grey("").kd;
+                ));
                 desc.map_kd = None;
             }
         }
@@ -352,5 +411,5 @@ pub(super) fn decode_texture(path: &Path) -> Result<Texture, String> {
     if width == 0 || height == 0 || texels.len() != width as usize * height as usize {
         return Err("empty image".into());
     }
-    Ok(Texture { width, height, texels })
+    Ok(Texture { width, height, texels, map: TexMap::default() })
 }

@@ -122,6 +122,8 @@ pub(super) fn scan(text: &str, display: &str) -> Result<ObjScan, ObjError> {
     let mut smoothing = 0u32;
     let mut material = NONE;
     let mut ignored: Vec<(String, usize, usize)> = Vec::new(); // keyword, count, first line
+    // Faces of fewer than 3 vertices, `l` and `p` elements, and the first line of any.
+    let mut arealess: (usize, usize, Option<usize>) = (0, 0, None);
 
     for (i, raw) in text.split('\n').enumerate() {
         let line_no = i + 1;
@@ -184,7 +186,11 @@ pub(super) fn scan(text: &str, display: &str) -> Result<ObjScan, ObjError> {
             "f" => {
                 let toks: Vec<&str> = args().collect();
                 if toks.len() < 3 {
-                    return Err(err(format!("face with {} vertices (at least 3 needed)", toks.len())));
+                    // Real models carry stray 1- and 2-vertex faces: no area, nothing to render.
+                    arealess.0 += 1;
+                    arealess.2.get_or_insert(line_no);
+                    out.text.push('\n');
+                    continue;
                 }
                 let first = out.corners.len();
                 for tok in &toks {
@@ -212,6 +218,10 @@ pub(super) fn scan(text: &str, display: &str) -> Result<ObjScan, ObjError> {
                 };
             }
             "g" | "o" => out.text.push_str(trimmed),
+            "l" | "p" => {
+                arealess.1 += 1;
+                arealess.2.get_or_insert(line_no);
+            }
             "usemtl" => {
                 material = if rest.is_empty() {
                     NONE
@@ -241,6 +251,12 @@ pub(super) fn scan(text: &str, display: &str) -> Result<ObjScan, ObjError> {
             }
         }
         out.text.push('\n');
+    }
+    if let (faces, lines, Some(first)) = arealess {
+        out.warnings.push(format!(
+            "{display}: skipped {faces} faces with fewer than 3 vertices and {lines} line or point elements \
+             (l, p), which have no area to render (first on line {first})"
+        ));
     }
     if !ignored.is_empty() {
         let list: Vec<String> = ignored.iter().map(|(k, n, l)| format!("'{k}' ({n}x, first on line {l})")).collect();

@@ -251,12 +251,14 @@ fn texture_is_loaded_once_and_sampled_linear() {
     assert!(close(tex.sample(Vec2::new(0.75, 0.75)), Vec3::Y));
     assert!(close(tex.sample(Vec2::new(0.25, 0.25)), Vec3::Z));
     assert!(close(tex.sample(Vec2::new(0.75, 0.25)), Vec3::splat(0.215_860_5)));
-    // The material whose texture is missing: warning, grey diffuse, no texture.
+    // The material whose texture is missing: one warning, its own Kd, no texture.
     let lost = &m.materials[2];
     assert_eq!(lost.name, "lost_texture");
     assert_eq!(lost.map_kd, None);
-    assert_eq!(lost.kd, Vec3::splat(0.5));
-    assert!(m.warnings.iter().any(|w| w.contains("does_not_exist.png") && w.contains("lost_texture")));
+    assert_eq!(lost.kd, Vec3::ONE);
+    assert_eq!(m.warnings.iter().filter(|w| w.contains("does_not_exist.png") && w.contains("lost_texture")).count(), 1);
+    // -bm is skipped, and said so with the line.
+    assert!(m.warnings.iter().any(|w| w.contains("textured.mtl:7") && w.contains("-bm 1")), "{:?}", m.warnings);
     // uvs come through.
     let t = m.mesh.tris[0];
     assert_eq!(t.uv.map(|i| m.mesh.uvs[i as usize]), [Vec2::ZERO, Vec2::X, Vec2::ONE]);
@@ -300,7 +302,6 @@ fn malformed_lines_report_their_line() {
         ("vn 0 1\n", 1, "normal needs 3"),
         ("v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 4\n", 4, "face index 4 out of range (3 vertices)"),
         ("v 0 0 0\nv 1 0 0\nv 0 1 0\nf -4 1 2\n", 4, "face index -4 out of range (3 vertices)"),
-        ("v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2\n", 4, "face with 2 vertices"),
         ("v 0 0 0\nv 1 0 0\nv 0 1 0\nf 0 1 2\n", 4, "index 0 is invalid"),
         ("v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3 x\n", 4, "bad index 'x'"),
         ("v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1/1/1/1 2 3\n", 4, "bad face vertex"),
@@ -365,7 +366,19 @@ fn lenient_details() {
     assert_eq!(m.mesh.uvs, vec![Vec2::new(0.5, 0.0)]);
     assert_eq!(m.materials[0].name, "one_value");
     assert_eq!(m.materials[1].name, "white");
-    assert!(m.warnings.iter().any(|w| w.contains("'l'")), "{:?}", m.warnings);
+    assert!(m.warnings.iter().any(|w| w.contains("1 line or point elements")), "{:?}", m.warnings);
+}
+
+/// Real models carry stray 2-vertex faces and `l`/`p` elements: they are skipped with one
+/// warning that counts them, and the rest of the model loads.
+#[test]
+fn faces_without_area_and_line_elements_are_skipped_with_one_warning() {
+    let m = load_str("v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2\nf 1 2 3\nf 3\nl 1 2\np 1\nf 2 3\n");
+    assert_eq!(m.mesh.tris.len(), 1);
+    let w: Vec<&String> = m.warnings.iter().filter(|w| w.contains("skipped")).collect();
+    assert_eq!(w.len(), 1, "{:?}", m.warnings);
+    assert!(w[0].contains("3 faces with fewer than 3 vertices") && w[0].contains("2 line or point"), "{}", w[0]);
+    assert!(w[0].contains("first on line 4"), "{}", w[0]);
 }
 
 #[test]
@@ -406,4 +419,57 @@ fn random_input_never_panics() {
             assert!(!e.contains("tobj") && !e.contains("internal"), "{e}\n{text}");
         }
     }
+}
+
+#[test]
+fn map_kd_options_place_the_image_or_are_skipped_by_name() {
+    let a = mtl::parse_map_arg("-s 2 3 1 -o 0.5 0.25 -clamp on -bm 0.3 -mm 0 1 wood grain.png").unwrap();
+    assert_eq!(a.name, "wood grain.png");
+    assert_eq!(a.map.scale, Vec2::new(2.0, 3.0));
+    assert_eq!(a.map.offset, Vec2::new(0.5, 0.25));
+    assert!(a.map.clamp);
+    assert_eq!(a.skipped, ["-bm 0.3", "-mm 0 1"]);
+    // As the MTL specification says, an omitted v scale is 1 (and an omitted offset 0).
+    let b = mtl::parse_map_arg("-s 4 -o 0.5 tex.png").unwrap();
+    assert_eq!((b.name.as_str(), b.map.scale, b.map.offset), ("tex.png", Vec2::new(4.0, 1.0), Vec2::new(0.5, 0.0)));
+    assert!(mtl::parse_map_arg("-clamp off").is_none(), "no file name");
+}
+
+/// Every common format the `image` crate reads is a texture: GIF, TIFF and EXR too.
+#[test]
+fn gif_tiff_and_exr_textures_load() {
+    let dir = std::env::temp_dir().join(format!("tilefarm-texformats-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let img =
+        image::RgbImage::from_fn(2, 2, |x, _| if x == 0 { image::Rgb([255, 0, 0]) } else { image::Rgb([0, 0, 255]) });
+    for ext in ["gif", "tiff", "png"] {
+        img.save(dir.join(format!("t.{ext}"))).unwrap();
+    }
+    image::DynamicImage::ImageRgb8(img.clone()).to_rgb32f().save(dir.join("t.exr")).unwrap();
+    for ext in ["gif", "tiff", "exr"] {
+        std::fs::write(dir.join("m.mtl"), format!("newmtl m\nKd 1 1 1\nmap_Kd t.{ext}\n")).unwrap();
+        let lib = load_mtl(&dir.join("m.mtl")).unwrap();
+        assert!(lib.warnings.is_empty(), "{ext}: {:?}", lib.warnings);
+        let tex = &lib.textures[0];
+        assert_eq!((tex.width, tex.height), (2, 2), "{ext}");
+        // 8-bit formats are sRGB-decoded and float EXR is linear: both give pure red here.
+        assert!(close(tex.sample(Vec2::new(0.25, 0.5)), Vec3::X), "{ext}: {}", tex.sample(Vec2::new(0.25, 0.5)));
+    }
+    std::fs::remove_dir_all(&dir).ok();
+}
+
+#[test]
+fn map_kd_offset_is_applied_when_rendering_uvs() {
+    let dir = std::env::temp_dir().join(format!("tilefarm-texoffset-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    image::RgbImage::from_fn(2, 1, |x, _| if x == 0 { image::Rgb([255, 0, 0]) } else { image::Rgb([0, 255, 0]) })
+        .save(dir.join("rg.png"))
+        .unwrap();
+    std::fs::write(dir.join("m.mtl"), "newmtl plain\nmap_Kd rg.png\nnewmtl moved\nmap_Kd -o 0.5 0 rg.png\n").unwrap();
+    let lib = load_mtl(&dir.join("m.mtl")).unwrap();
+    assert_eq!(lib.textures.len(), 2, "one decode, two placements");
+    let at = |m: usize| lib.textures[lib.materials[m].map_kd.unwrap() as usize].sample(Vec2::new(0.25, 0.5));
+    assert!(close(at(0), Vec3::X));
+    assert!(close(at(1), Vec3::Y));
+    std::fs::remove_dir_all(&dir).ok();
 }

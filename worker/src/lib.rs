@@ -1,0 +1,195 @@
+//! tilefarm's worker: registers with a coordinator, leases units of work (a tile × a
+//! range of samples of a job), renders them on all cores, and sends the results back.
+//!
+//! - this file: the command line ([`Args`], [`run`]), logging, signals and standard input.
+//!   It is a library so that `coordinator render` can start its local workers from its
+//!   own executable (`coordinator worker …`): a fresh `cargo run -p coordinator` then
+//!   needs no separately built `worker` binary.
+//! - [`lease_loop`]: the register/lease/heartbeat/submit state machine.
+//! - [`asset_cache`]: scene files by digest, job folders, loaded scenes.
+//! - [`render_pool`]: the render threads.
+//! - [`convert`]: checked conversions between wire messages and the worker's types.
+//! - [`rpc`]: the client, call timeouts, failure classes, backoff.
+
+mod asset_cache;
+mod convert;
+mod lease_loop;
+mod render_pool;
+mod rpc;
+
+use std::io::Read;
+use std::path::PathBuf;
+use std::sync::Arc;
+use std::time::Duration;
+
+use clap::Parser;
+use tokio::sync::watch;
+use tracing::{error, info, warn};
+
+use crate::lease_loop::Stop;
+
+/// tilefarm worker: leases units of rendering work from a coordinator, renders them on
+/// all cores, and streams the results back.
+#[derive(Parser, Debug)]
+#[command(name = "worker", version, about, long_about = None)]
+pub struct Args {
+    /// Address of the coordinator's gRPC endpoint, e.g. http://10.0.0.5:7878
+    /// (http:// is assumed when no scheme is given). The worker waits for it, retrying
+    /// with backoff, if it is not up yet.
+    #[arg(long, value_name = "URL")]
+    coordinator: String,
+
+    /// Render threads [default: all cores]. Up to twice this many units are kept
+    /// leased, so no core waits between units.
+    #[arg(long, value_name = "N", value_parser = clap::value_parser!(u32).range(1..=4096))]
+    threads: Option<u32>,
+
+    /// Cache folder for scene files (stored by SHA-256) and job folders
+    /// [default: tilefarm-worker-cache in the system temp folder].
+    #[arg(long, value_name = "DIR")]
+    cache: Option<PathBuf>,
+
+    /// Also exit when standard input reaches end of file. The coordinator's
+    /// `render --local-workers` gives its workers a pipe so that they exit with it.
+    #[arg(long)]
+    exit_on_stdin_eof: bool,
+
+    /// Longest wait between retries while the coordinator is unreachable (the backoff
+    /// starts at 100 ms and doubles up to this).
+    #[arg(long, value_name = "MS", default_value_t = 5000, value_parser = clap::value_parser!(u64).range(1..=3_600_000))]
+    max_backoff_ms: u64,
+
+    /// Exit (code 0) once the coordinator has been unreachable for this many
+    /// milliseconds. By default the worker waits for it forever, retrying with backoff,
+    /// so a farm survives a coordinator restart.
+    #[arg(long, value_name = "MS")]
+    give_up_after_ms: Option<u64>,
+}
+
+/// Runs a worker until it is told to stop, then exits the process.
+pub fn run(args: Args) -> ! {
+    init_logging("info");
+    let threads = args
+        .threads
+        .map(|n| n as usize)
+        .unwrap_or_else(|| std::thread::available_parallelism().map(|n| n.get()).unwrap_or(1));
+    let runtime = match tokio::runtime::Builder::new_multi_thread()
+        .worker_threads(2)
+        .thread_name("worker-io")
+        .enable_all()
+        .build()
+    {
+        Ok(rt) => rt,
+        Err(e) => {
+            error!("cannot start the async runtime: {e}");
+            std::process::exit(1);
+        }
+    };
+    let config = lease_loop::Config {
+        coordinator: args.coordinator,
+        threads,
+        cache_dir: args.cache.unwrap_or_else(asset_cache::default_cache_dir),
+        max_backoff: Duration::from_millis(args.max_backoff_ms),
+        give_up_after: args.give_up_after_ms.map(Duration::from_millis),
+    };
+    let code = runtime.block_on(async move {
+        let (stop_tx, stop_rx) = watch::channel(None);
+        let stop_tx = Arc::new(stop_tx);
+        watch_signals(stop_tx.clone());
+        if args.exit_on_stdin_eof {
+            watch_stdin(stop_tx);
+        }
+        match lease_loop::run(config, stop_rx).await {
+            Ok(()) => 0,
+            Err(e) => {
+                error!("{e:#}");
+                1
+            }
+        }
+    });
+    // Render threads may still be busy with units that were dropped on the way out, and
+    // a scene may still be loading: exit now rather than wait for them.
+    std::process::exit(code)
+}
+
+/// Logs to standard error at `default_level` (`RUST_LOG` overrides), with colour codes
+/// only on a terminal and never when `NO_COLOR` is set (<https://no-color.org>), so
+/// pipes and log files get plain text.
+pub fn init_logging(default_level: &str) {
+    let filter = tracing_subscriber::EnvFilter::try_from_default_env()
+        .unwrap_or_else(|_| tracing_subscriber::EnvFilter::new(default_level));
+    tracing_subscriber::fmt().with_env_filter(filter).with_writer(std::io::stderr).with_ansi(color_wanted()).init();
+}
+
+/// Colour on standard error: a terminal, and `NO_COLOR` unset or empty.
+pub fn color_wanted() -> bool {
+    let no_color = std::env::var_os("NO_COLOR").is_some_and(|v| !v.is_empty());
+    !no_color && std::io::IsTerminal::is_terminal(&std::io::stderr())
+}
+
+/// SIGINT/SIGTERM: stop (submitting finished results for up to ~2 s); a second signal
+/// exits at once.
+fn watch_signals(stop: Arc<watch::Sender<Option<Stop>>>) {
+    tokio::spawn(async move {
+        #[cfg(unix)]
+        let mut term = match tokio::signal::unix::signal(tokio::signal::unix::SignalKind::terminate()) {
+            Ok(s) => Some(s),
+            Err(e) => {
+                warn!("cannot watch SIGTERM: {e}");
+                None
+            }
+        };
+        let mut received = 0;
+        loop {
+            #[cfg(unix)]
+            {
+                let sigterm = async {
+                    match term.as_mut() {
+                        Some(t) => t.recv().await,
+                        None => std::future::pending().await,
+                    }
+                };
+                tokio::select! {
+                    r = tokio::signal::ctrl_c() => if let Err(e) = r {
+                        warn!("cannot watch SIGINT: {e}");
+                        std::future::pending::<()>().await;
+                    },
+                    _ = sigterm => {}
+                }
+            }
+            #[cfg(not(unix))]
+            if let Err(e) = tokio::signal::ctrl_c().await {
+                warn!("cannot watch Ctrl-C: {e}");
+                return;
+            }
+            received += 1;
+            if received == 1 {
+                let _ = stop.send(Some(Stop::Signal));
+            } else {
+                info!("second signal: exiting now");
+                std::process::exit(0);
+            }
+        }
+    });
+}
+
+/// `--exit-on-stdin-eof`: a plain thread blocks reading standard input (it never
+/// delays the runtime's shutdown) and asks the worker to stop at end of file.
+fn watch_stdin(stop: Arc<watch::Sender<Option<Stop>>>) {
+    let spawned = std::thread::Builder::new().name("stdin-watch".into()).spawn(move || {
+        let mut stdin = std::io::stdin().lock();
+        let mut buf = [0u8; 4096];
+        loop {
+            match stdin.read(&mut buf) {
+                Ok(0) => break,
+                Ok(_) => {}
+                Err(e) if e.kind() == std::io::ErrorKind::Interrupted => {}
+                Err(_) => break,
+            }
+        }
+        let _ = stop.send(Some(Stop::StdinEof));
+    });
+    if let Err(e) = spawned {
+        warn!("cannot watch standard input: {e}");
+    }
+}
