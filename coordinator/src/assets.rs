@@ -137,8 +137,10 @@ pub struct LocalScene {
 
 impl LocalScene {
     pub fn collect(scene_path: &Path) -> anyhow::Result<Self> {
+        // Named as the user gave it: a folder or a PNG is "not a scene file".
+        tracer::scene::load::scene_kind(scene_path, &scene_path.display().to_string())?;
         let scene = std::fs::canonicalize(scene_path).with_context(|| format!("{}", scene_path.display()))?;
-        let listed = tracer::scene::assets::scene_files(&scene)?;
+        let listed = tracer::scene::assets::scene_files(scene_path)?;
         let (mut files, mut missing) = (Vec::new(), Vec::new());
         for f in listed.into_iter().skip(1) {
             match std::fs::canonicalize(&f) {

@@ -175,17 +175,44 @@ pub fn submit(args: SubmitArgs) -> anyhow::Result<()> {
     })
 }
 
-async fn fetch_image(client: &mut JobsClient<Channel>, job: &str) -> anyhow::Result<tracer::film::Image> {
+/// The job's image as the coordinator encodes it: an EXR file with its header.
+async fn fetch_exr(client: &mut JobsClient<Channel>, job: &str) -> anyhow::Result<Vec<u8>> {
     let mut stream = client.fetch_image(proto::JobRequest { job_id: job.to_string() }).await?.into_inner();
     let mut exr = Vec::new();
     while let Some(chunk) = stream.message().await? {
         exr.extend_from_slice(&chunk.exr);
     }
+    Ok(exr)
+}
+
+async fn fetch_image(client: &mut JobsClient<Channel>, job: &str) -> anyhow::Result<tracer::film::Image> {
+    decode_exr(&fetch_exr(client, job).await?, job)
+}
+
+fn decode_exr(exr: &[u8], job: &str) -> anyhow::Result<tracer::film::Image> {
     let tmp = std::env::temp_dir().join(format!("tilefarm-fetch-{}-{job}.exr", std::process::id()));
-    std::fs::write(&tmp, &exr)?;
+    std::fs::write(&tmp, exr)?;
     let image = tracer::output::read_exr(&tmp);
     let _ = std::fs::remove_file(&tmp);
     Ok(image?)
+}
+
+/// Writes a fetched image: an EXR as the coordinator made it (header and all), a PNG
+/// tone-mapped from it. Returns the image.
+async fn fetch_and_write(
+    client: &mut JobsClient<Channel>,
+    job: &str,
+    output: &std::path::Path,
+) -> anyhow::Result<tracer::film::Image> {
+    let exr = fetch_exr(client, job).await?;
+    let image = decode_exr(&exr, job)?;
+    match tracer::output::Format::of(output)? {
+        tracer::output::Format::Exr => {
+            std::fs::write(output, &exr).with_context(|| format!("writing {}", output.display()))?
+        }
+        tracer::output::Format::Png => tracer::output::write_png(&image, output)?,
+    }
+    Ok(image)
 }
 
 /// `coordinator fetch`: follows a job to its end and writes its image.
@@ -237,8 +264,7 @@ async fn wait(
     let status = last.context("the coordinator closed the progress stream without a status")?;
     match status.state() {
         proto::JobState::Done => {
-            let image = fetch_image(client, job).await?;
-            tracer::output::write_image(&image, output)?;
+            let image = fetch_and_write(client, job, output).await?;
             if let Some(p) = preview {
                 tracer::output::write_png(&image, p)?;
             }
@@ -248,7 +274,7 @@ async fn wait(
         proto::JobState::Failed => anyhow::bail!("job {job} failed: {}", status.error),
         proto::JobState::Cancelled if status.width > 0 => {
             // What was rendered before the cancel is still worth having.
-            tracer::output::write_image(&fetch_image(client, job).await?, output)?;
+            fetch_and_write(client, job, output).await?;
             anyhow::bail!(
                 "job {job} was cancelled; wrote the image so far ({:.1}% of its samples; the samples channel \
                  shows each pixel's) to {}",

@@ -46,6 +46,18 @@ pub struct JobEntry {
     pub job: Job,
     pub spec: proto::JobSpec,
     pub scene: Option<Arc<Scene>>,
+    /// What the image's EXR header records, once the scene has loaded.
+    pub info: Option<tracer::output::RenderInfo>,
+}
+
+impl JobEntry {
+    /// The header record of the image as it is now (render time so far).
+    pub fn render_info(&self) -> Option<tracer::output::RenderInfo> {
+        let mut info = self.info.clone()?;
+        info.seconds = self.job.elapsed().as_secs_f64();
+        info.spp = self.job.spp;
+        Some(info)
+    }
 }
 
 #[derive(Debug, thiserror::Error, PartialEq, Eq)]
@@ -119,7 +131,7 @@ impl Farm {
         };
         spec.job_id = id.clone();
         self.index.insert(id.clone(), self.jobs.len());
-        self.jobs.push(JobEntry { job: Job::loading(id.clone(), name), spec, scene: None });
+        self.jobs.push(JobEntry { job: Job::loading(id.clone(), name), spec, scene: None, info: None });
         id
     }
 

@@ -85,7 +85,7 @@ fn main() -> std::process::ExitCode {
     match &cli.command {
         Command::Worker(_) => {} // logs as the worker executable does
         Command::Serve(_) => worker::init_logging("info"),
-        _ => worker::init_logging("warn"),
+        _ => worker::init_plain_logging("warn"),
     }
     let result = match cli.command {
         Command::Worker(args) => worker::run(args),

@@ -414,12 +414,12 @@ async fn execute(plan: Plan, args: &RunArgs) -> anyhow::Result<()> {
         write_partial(&shared, &job, &args.output)?;
     }
     let status = outcome?;
-    let (image, nonfinite, total) = {
+    let (image, info, nonfinite, total) = {
         let farm = shared.farm();
-        let j = &farm.entry(&job)?.job;
-        (j.image(), j.nonfinite, j.units.len() as u64)
+        let e = farm.entry(&job)?;
+        (e.job.image(), e.render_info(), e.job.nonfinite, e.job.units.len() as u64)
     };
-    tracer::output::write_image(&image, &args.output)?;
+    tracer::output::write_image_with(&image, info.as_ref(), &args.output)?;
     if let Some(p) = &args.preview {
         tracer::output::write_png(&image, p)?;
     }
@@ -438,15 +438,15 @@ async fn execute(plan: Plan, args: &RunArgs) -> anyhow::Result<()> {
 /// Writes the image of an interrupted render so far: each pixel the mean of the samples
 /// it has, its count in the `samples` channel.
 fn write_partial(shared: &Shared, job: &str, output: &Path) -> anyhow::Result<()> {
-    let (image, done, total) = {
+    let (image, info, done, total) = {
         let farm = shared.farm();
-        let j = &farm.entry(job)?.job;
-        if j.width == 0 {
+        let e = farm.entry(job)?;
+        if e.job.width == 0 {
             return Ok(()); // the scene never loaded: there is no image
         }
-        (j.image(), j.samples_done, j.samples_total())
+        (e.job.image(), e.render_info(), e.job.samples_done, e.job.samples_total())
     };
-    tracer::output::write_image(&image, output)?;
+    tracer::output::write_image_with(&image, info.as_ref(), output)?;
     eprintln!(
         "wrote the image so far to {} ({:.1}% of its samples; --no-partial writes nothing)",
         output.display(),

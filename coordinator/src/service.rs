@@ -138,7 +138,9 @@ pub fn submit_job(
             match result {
                 Ok(()) => {}
                 Err(err) => {
-                    tracing::error!(job = %job, "job failed: {err:#}");
+                    // A job event like "job started": the farm's log keeps it at info, and
+                    // the job's owner gets the error itself, once, from the job's status.
+                    tracing::info!(job = %job, "job failed: {err:#}");
                     e.job.fail(format!("{err:#}"));
                 }
             }
@@ -173,7 +175,12 @@ fn load_job(
         store.materialize(&dir, scene, assets)?
     };
     let overrides = overrides_of(settings);
-    let mut loaded = tracer::scene::load_scene_up(&scene_path, overrides.up)?;
+    // Named as the user named them (`quad.mtl`), not as the job folder's copies.
+    let mut loaded = tracer::scene::load_scene_as(&scene_path, &scene.path, overrides.up)?;
+    // The one report of the scene's problems for this job (workers keep theirs quiet).
+    for w in &loaded.warnings {
+        tracing::warn!(job = %job, "{w}");
+    }
     overrides.apply(&mut loaded).map_err(anyhow::Error::msg)?;
     let integrator: Integrator = if settings.integrator.is_empty() {
         Integrator::Path
@@ -204,6 +211,7 @@ fn load_job(
             }
         }
     }
+    e.info = Some(tracer::output::RenderInfo::of(&loaded, &scene.path, integrator.name()));
     e.scene = Some(Arc::new(loaded));
     tracing::info!(job = %job, width = w, height = h, spp, tile, batch, units = e.job.units.len(), "job started");
     Ok(())
@@ -411,9 +419,9 @@ impl proto::jobs_server::Jobs for JobsService {
             if e.job.width == 0 {
                 return Err(Status::failed_precondition(format!("job {job} has no image (its scene did not load)")));
             }
-            e.job.image()
+            (e.job.image(), e.render_info())
         };
-        let bytes = tokio::task::spawn_blocking(move || tracer::output::exr_bytes(&image))
+        let bytes = tokio::task::spawn_blocking(move || tracer::output::exr_bytes(&image.0, image.1.as_ref()))
             .await
             .map_err(|e| Status::internal(e.to_string()))?
             .map_err(Status::internal)?;

@@ -78,3 +78,184 @@ fn bad_scenes_fail_with_a_message_naming_the_problem() {
     assert!(err.contains("nope.obj"), "{err}");
     assert!(!err.contains("panicked"), "{err}");
 }
+
+/// A quad facing +z at the origin, textured by a file that does not exist.
+fn write_quad_with_missing_texture(dir: &std::path::Path) -> PathBuf {
+    std::fs::write(
+        dir.join("quad.obj"),
+        "mtllib quad.mtl\nv -1 -1 0\nv 1 -1 0\nv 1 1 0\nv -1 1 0\nvt 0 0\nvt 1 0\nvt 1 1\nvt 0 1\n\
+         usemtl m\nf 1/1 2/2 3/3 4/4\n",
+    )
+    .unwrap();
+    std::fs::write(dir.join("quad.mtl"), "newmtl m\nKd 0.8 0.1 0.1\nmap_Kd tex/missing.png\n").unwrap();
+    let scene = dir.join("scene.toml");
+    std::fs::write(
+        &scene,
+        "[camera]\nposition = [0.0, 0.0, 3.0]\nlook_at = [0.0, 0.0, 0.0]\nwidth = 16\nheight = 16\n\
+         [render]\nspp = 4\n[[mesh]]\nobj = \"quad.obj\"\n\
+         [[light]]\ntype = \"point\"\nposition = [0.0, 0.0, 3.0]\nintensity = [5.0, 5.0, 5.0]\n",
+    )
+    .unwrap();
+    scene
+}
+
+/// One warning for the job, naming the texture as the MTL file names it (not a copy in
+/// a temporary folder), and the material keeps its own Kd: the quad renders red.
+#[test]
+fn a_missing_texture_is_warned_about_once_with_the_users_path_and_keeps_kd() {
+    let dir = TempDir::new("missing-tex");
+    let scene = write_quad_with_missing_texture(&dir.0);
+    let exr = dir.0.join("quad.exr");
+    let out = coordinator()
+        .args(["render", "-q", "--local-workers", "2", "-o"])
+        .arg(&exr)
+        .arg(&scene)
+        .env_remove("RUST_LOG")
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(out.status.success(), "{err}");
+    let lines: Vec<&str> = err.lines().filter(|l| l.contains("missing.png")).collect();
+    assert_eq!(lines.len(), 1, "{err}");
+    assert!(lines[0].starts_with("warning: quad.mtl: material 'm': map_Kd texture 'tex/missing.png'"), "{err}");
+    assert!(!err.contains("tilefarm-render-") && !err.contains("os error"), "{err}");
+    assert!(!err.contains('\x1b'), "no colour codes in a pipe: {err}");
+    let img = tracer::output::read_exr(&exr).unwrap();
+    let centre = img.pixels[(8 * 16 + 8) as usize];
+    assert!(centre.x > 4.0 * centre.y && centre.x > 0.05, "Kd kept, not grey: {centre}");
+}
+
+#[test]
+fn zero_counts_and_sizes_are_refused() {
+    for flag in ["--spp", "--width", "--height", "--tile", "--batch-spp"] {
+        let out = coordinator().args(["render", "-q", flag, "0", "-o", "never.exr"]).output().unwrap();
+        assert!(!out.status.success(), "{flag} 0 was accepted");
+        let err = String::from_utf8_lossy(&out.stderr);
+        assert!(err.contains(flag) && err.contains("'0'"), "{flag}: {err}");
+    }
+}
+
+/// A typo in -o is found before rendering, not after: this render would take minutes.
+#[test]
+fn a_bad_output_path_fails_before_anything_is_rendered() {
+    let dir = TempDir::new("bad-out");
+    std::fs::create_dir_all(dir.0.join("d.exr")).unwrap();
+    for (path, expect) in [
+        (dir.0.join("no-such-folder/out.exr"), "does not exist"),
+        (dir.0.join("out.jpg"), ".exr or .png"),
+        (dir.0.join("d.exr"), "is a folder"),
+    ] {
+        let start = std::time::Instant::now();
+        let out = coordinator().args(["render", "-q", "--spp", "100000", "-o"]).arg(&path).output().unwrap();
+        let err = String::from_utf8_lossy(&out.stderr);
+        assert!(!out.status.success() && err.contains(expect), "{}: {err}", path.display());
+        assert!(start.elapsed() < std::time::Duration::from_secs(5), "took {:?}", start.elapsed());
+    }
+}
+
+#[test]
+fn a_file_that_is_not_a_scene_is_said_to_be_so() {
+    let dir = TempDir::new("not-scene");
+    let png = dir.0.join("photo.png");
+    std::fs::write(&png, [0x89, b'P', b'N', b'G', 0, 0, 0xff]).unwrap();
+    for path in [png, dir.0.clone()] {
+        let out = coordinator().args(["render", "-q", "-o"]).arg(dir.0.join("x.exr")).arg(&path).output().unwrap();
+        let err = String::from_utf8_lossy(&out.stderr);
+        assert!(!out.status.success() && err.contains("not a scene file"), "{err}");
+        assert!(!err.contains("UTF-8"), "{err}");
+    }
+}
+
+/// A scene value's error names the file and line, once, without a doubled prefix.
+#[test]
+fn scene_value_errors_name_the_line() {
+    let dir = TempDir::new("value");
+    let scene = dir.0.join("s.toml");
+    std::fs::write(&scene, "[camera]\nposition = [0,0,0]\nlook_at = [0,0,1]\nwidth = 0\n[render]\nspp = 4\n").unwrap();
+    let out = coordinator().args(["render", "-q", "-o"]).arg(dir.0.join("x.exr")).arg(&scene).output().unwrap();
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(!out.status.success(), "{err}");
+    assert!(err.contains("s.toml:4: camera.width: must be at least 1"), "{err}");
+    assert_eq!(err.matches("camera.width").count(), 1, "reported once: {err}");
+    assert!(!err.contains("camera: camera"), "{err}");
+}
+
+/// A Z-up model (a 1 × 1 × 8 emissive box along +z, with the stray 2-vertex faces and
+/// `l` lines of real files) stands upright with --up z: taller than wide in the image.
+#[test]
+fn a_z_up_obj_renders_upright_and_stray_elements_are_skipped() {
+    let dir = TempDir::new("zup");
+    let mut obj = String::from("mtllib glow.mtl\nusemtl glow\n");
+    for z in [0.0, 8.0] {
+        for (x, y) in [(0.0, 0.0), (1.0, 0.0), (1.0, 1.0), (0.0, 1.0)] {
+            obj += &format!("v {x} {y} {z}\n");
+        }
+    }
+    // Outward (counter-clockwise seen from outside) faces of the box.
+    obj += "f 1 4 3 2\nf 5 6 7 8\nf 1 2 6 5\nf 2 3 7 6\nf 3 4 8 7\nf 4 1 5 8\nf 1 2\nl 1 5\n";
+    std::fs::write(dir.0.join("pole.obj"), obj).unwrap();
+    std::fs::write(dir.0.join("glow.mtl"), "newmtl glow\nKd 0 0 0\nKe 1 1 1\n").unwrap();
+    let extent = |up: &str| {
+        let exr = dir.0.join(format!("pole-{up}.exr"));
+        let out = coordinator()
+            .args(["render", "-q", "--local-workers", "0", "--spp", "1", "--width", "64", "--up", up, "-o"])
+            .arg(&exr)
+            .arg(dir.0.join("pole.obj"))
+            .output()
+            .unwrap();
+        let err = String::from_utf8_lossy(&out.stderr);
+        assert!(out.status.success(), "{err}");
+        assert!(err.contains("skipped 1 faces with fewer than 3 vertices and 1 line or point"), "{err}");
+        let img = tracer::output::read_exr(&exr).unwrap();
+        let lit: Vec<(u32, u32)> = (0..img.height)
+            .flat_map(|y| (0..img.width).map(move |x| (x, y)))
+            .filter(|&(x, y)| img.pixels[(y * img.width + x) as usize].x > 0.5)
+            .collect();
+        let (xs, ys): (Vec<u32>, Vec<u32>) = lit.into_iter().unzip();
+        let span = |v: &[u32]| v.iter().max().unwrap() - v.iter().min().unwrap() + 1;
+        (span(&xs), span(&ys))
+    };
+    let (w, h) = extent("z");
+    assert!(h > 2 * w, "upright with --up z: {w}×{h} pixels");
+    let (w, h) = extent("y");
+    assert!(h < 2 * w, "lying on its side without: {w}×{h} pixels");
+}
+
+/// The EXR records what made it, in standard attributes where OpenEXR has them.
+#[test]
+fn the_exr_header_records_how_the_image_was_made() {
+    let dir = TempDir::new("header");
+    let exr_path = dir.0.join("cornell.exr");
+    let out = coordinator()
+        .args(["render", "-q", "--spp", "2", "--width", "24", "--max-depth", "5", "--seed", "7", "-o"])
+        .arg(&exr_path)
+        .output()
+        .unwrap();
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    let meta = exr::meta::MetaData::read_from_file(&exr_path, false).unwrap();
+    let header = &meta.headers[0];
+    let own = &header.own_attributes;
+    let software = own.software_name.as_ref().unwrap().to_string();
+    assert!(software.starts_with("tilefarm ") && software.contains(env!("CARGO_PKG_VERSION")), "{software}");
+    let c = header.shared_attributes.chromaticities.unwrap();
+    assert_eq!((c.red.0, c.red.1, c.white.0), (0.64, 0.33, 0.3127), "Rec. 709 / sRGB, D65");
+    let w2c = own.world_to_camera.unwrap();
+    assert_eq!(w2c[15], 1.0);
+    let w2ndc = own.world_to_normalized_device.unwrap();
+    assert!(w2ndc.iter().any(|&v| v != 0.0));
+    use exr::meta::attribute::AttributeValue;
+    let attr = |k: &str| own.other.get(&exr::meta::attribute::Text::from(k)).cloned();
+    assert_eq!(attr("tilefarm/spp"), Some(AttributeValue::I32(2)));
+    assert_eq!(attr("tilefarm/sppReached"), Some(AttributeValue::I32(2)));
+    assert_eq!(attr("tilefarm/maxDepth"), Some(AttributeValue::I32(5)));
+    assert_eq!(attr("tilefarm/seed"), Some(AttributeValue::Text("7".into())));
+    assert_eq!(attr("tilefarm/integrator"), Some(AttributeValue::Text("path".into())));
+    assert_eq!(attr("tilefarm/scene"), Some(AttributeValue::Text("scene.toml".into())));
+    assert!(matches!(attr("tilefarm/renderSeconds"), Some(AttributeValue::F64(s)) if s > 0.0));
+    // The camera matrix maps the camera's own position to the origin of camera space.
+    // (The built-in scene is the bundled Cornell box.)
+    let bundled = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../scenes/cornell-box/scene.toml");
+    let cam = tracer::scene::load_scene(&bundled).unwrap().camera;
+    let m = glam::Mat4::from_cols_array(&w2c);
+    assert!(m.transform_point3(cam.position).length() < 1e-3);
+}

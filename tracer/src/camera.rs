@@ -121,6 +121,29 @@ impl Camera {
         Ray::new(origin, (focus - origin).normalize())
     }
 
+    /// World to camera space as OpenEXR's `worldToCamera` defines it: origin at the
+    /// camera, +x right, +y up, +z the viewing direction (left-handed). Column vectors
+    /// (`m * p`); OpenEXR's row-vector matrix is the same numbers in column order.
+    pub fn world_to_camera(&self) -> glam::Mat4 {
+        let row = |axis: Vec3| axis.extend(-axis.dot(self.position));
+        glam::Mat4::from_cols(row(self.right), row(self.up), row(self.forward), glam::Vec4::W).transpose()
+    }
+
+    /// World to OpenEXR's normalised device coordinates: (0, 0) the top left corner of
+    /// the image, (1, 1) the bottom right, after division by w (the distance along the
+    /// viewing direction). Column vectors, as [`Camera::world_to_camera`].
+    pub fn world_to_ndc(&self) -> glam::Mat4 {
+        let aspect = self.width as f32 / self.height as f32;
+        let (sx, sy) = (0.5 / (self.tan_half_fov * aspect), 0.5 / self.tan_half_fov);
+        let projection = glam::Mat4::from_cols(
+            glam::Vec4::new(sx, 0.0, 0.0, 0.0),
+            glam::Vec4::new(0.0, -sy, 0.0, 0.0),
+            glam::Vec4::new(0.5, 0.5, 0.0, 1.0),
+            glam::Vec4::new(0.0, 0.0, 1.0, 0.0),
+        );
+        projection * self.world_to_camera()
+    }
+
     /// Projects a world point to film coordinates (pixels), if it is in front.
     pub fn project(&self, p: Vec3) -> Option<Vec2> {
         let v = p - self.position;
@@ -138,6 +161,19 @@ impl Camera {
 #[cfg(test)]
 #[allow(clippy::disallowed_methods)] // values checked, not platform-free bits
 mod tests {
+    #[test]
+    fn exr_matrices_agree_with_the_projection() {
+        let cam = Camera::look_at(Vec3::new(1.0, 2.0, 3.0), Vec3::new(0.5, 1.0, -2.0), Vec3::Y, 50.0, 64, 48).unwrap();
+        let p = Vec3::new(0.3, 1.4, -1.0);
+        let c = cam.world_to_camera().transform_point3(p);
+        let v = p - cam.position;
+        assert!((c - Vec3::new(v.dot(cam.right), v.dot(cam.up), v.dot(cam.forward))).length() < 1e-5);
+        let h = cam.world_to_ndc() * p.extend(1.0);
+        let ndc = glam::Vec2::new(h.x / h.w, h.y / h.w);
+        let film = cam.project(p).unwrap() / glam::Vec2::new(64.0, 48.0);
+        assert!((ndc - film).length() < 1e-5, "{ndc} {film}");
+    }
+
     use super::*;
 
     fn cam() -> Camera {

@@ -67,21 +67,83 @@ pub fn check_output_path(path: &Path) -> Result<Format, OutputError> {
 
 /// Writes `image` to `path`: `.exr` for HDR data, `.png` for a tone-mapped preview.
 pub fn write_image(image: &Image, path: &Path) -> Result<(), OutputError> {
+    write_image_with(image, None, path)
+}
+
+/// [`write_image`], an EXR's header recording `info`.
+pub fn write_image_with(image: &Image, info: Option<&RenderInfo>, path: &Path) -> Result<(), OutputError> {
     match Format::of(path)? {
-        Format::Exr => write_exr(image, path),
+        Format::Exr => write_exr_with(image, info, path),
         Format::Png => write_png(image, path),
     }
 }
 
+/// What made an image, recorded in its EXR header.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct RenderInfo {
+    /// The scene file, as the user named it.
+    pub scene: String,
+    /// Samples per pixel asked for.
+    pub spp: u32,
+    pub max_depth: i32,
+    pub seed: u64,
+    pub integrator: String,
+    /// Wall-clock time of the render so far.
+    pub seconds: f64,
+    /// OpenEXR's `worldToCamera` and `worldToNDC` (see [`crate::camera::Camera`]).
+    pub world_to_camera: [f32; 16],
+    pub world_to_ndc: [f32; 16],
+}
+
+impl RenderInfo {
+    /// Everything but the time, from the scene as it is rendered.
+    pub fn of(scene: &crate::scene::Scene, name: &str, integrator: &str) -> Self {
+        Self {
+            scene: name.to_string(),
+            spp: scene.settings.spp,
+            max_depth: scene.settings.max_depth,
+            seed: scene.settings.seed,
+            integrator: integrator.to_string(),
+            seconds: 0.0,
+            world_to_camera: scene.camera.world_to_camera().to_cols_array(),
+            world_to_ndc: scene.camera.world_to_ndc().to_cols_array(),
+        }
+    }
+}
+
+/// The header attributes' names for what has no standard one.
+pub mod keys {
+    pub const SPP: &str = "tilefarm/spp";
+    pub const SPP_REACHED: &str = "tilefarm/sppReached";
+    pub const MAX_DEPTH: &str = "tilefarm/maxDepth";
+    pub const SEED: &str = "tilefarm/seed";
+    pub const INTEGRATOR: &str = "tilefarm/integrator";
+    pub const RENDER_SECONDS: &str = "tilefarm/renderSeconds";
+    pub const SCENE: &str = "tilefarm/scene";
+}
+
 /// Linear float32 R, G, B, A (= 1) and `samples` (u32) channels, lossless ZIP.
 pub fn write_exr(image: &Image, path: &Path) -> Result<(), OutputError> {
-    let bytes = exr_bytes(image).map_err(|message| OutputError::Write { path: path.display().to_string(), message })?;
+    write_exr_with(image, None, path)
+}
+
+/// [`write_exr`], its header recording `info`.
+pub fn write_exr_with(image: &Image, info: Option<&RenderInfo>, path: &Path) -> Result<(), OutputError> {
+    let bytes =
+        exr_bytes(image, info).map_err(|message| OutputError::Write { path: path.display().to_string(), message })?;
     std::fs::write(path, bytes)
         .map_err(|e| OutputError::Write { path: path.display().to_string(), message: e.to_string() })
 }
 
-/// The EXR file of [`write_exr`] in memory (for sending over the network).
-pub fn exr_bytes(image: &Image) -> Result<Vec<u8>, String> {
+/// The EXR file of [`write_exr_with`] in memory (for sending over the network).
+///
+/// Channels: `R`, `G`, `B` (linear Rec. 709 radiance, the mean of each pixel's samples),
+/// `A` (1), and `samples`, each pixel's sample count (u32; fewer than the header's spp
+/// where a render was stopped early). The header: `software`, `chromaticities` (Rec. 709
+/// primaries, D65: sRGB's, linear), and with `info` the standard `worldToCamera` and
+/// `worldToNDC` and `tilefarm/*` attributes for spp asked and reached (the least count of
+/// any pixel), max depth, seed, integrator, render seconds and the scene file.
+pub fn exr_bytes(image: &Image, info: Option<&RenderInfo>) -> Result<Vec<u8>, String> {
     use exr::prelude::*;
     let size = (image.width as usize, image.height as usize);
     let channel = |name: &str, f: &dyn Fn(&Vec3) -> f32| {
@@ -94,14 +156,38 @@ pub fn exr_bytes(image: &Image) -> Result<Vec<u8>, String> {
         channel("A", &|_| 1.0),
         AnyChannel::new("samples", FlatSamples::U32(image.counts.clone())),
     ];
-    let layer = Layer::new(
-        size,
-        LayerAttributes::named("tilefarm"),
-        Encoding::SMALL_LOSSLESS,
-        AnyChannels::sort(channels.into()),
-    );
+    let mut attributes = LayerAttributes::named("tilefarm");
+    attributes.software_name = Some(Text::from(concat!("tilefarm ", env!("CARGO_PKG_VERSION"))));
+    if let Some(info) = info {
+        attributes.world_to_camera = Some(info.world_to_camera);
+        attributes.world_to_normalized_device = Some(info.world_to_ndc);
+        let reached = image.counts.iter().copied().min().unwrap_or(0);
+        let clamp = |v: u64| AttributeValue::I32(i32::try_from(v).unwrap_or(i32::MAX));
+        let text = |s: &str| AttributeValue::Text(Text::new_or_none(s).unwrap_or_default());
+        for (name, value) in [
+            (keys::SPP, clamp(info.spp.into())),
+            (keys::SPP_REACHED, clamp(reached.into())),
+            (keys::MAX_DEPTH, AttributeValue::I32(info.max_depth)),
+            // Seeds are 64-bit; OpenEXR has no 64-bit integer attribute.
+            (keys::SEED, text(&info.seed.to_string())),
+            (keys::INTEGRATOR, text(&info.integrator)),
+            (keys::RENDER_SECONDS, AttributeValue::F64(info.seconds)),
+            (keys::SCENE, text(&info.scene)),
+        ] {
+            attributes.other.insert(Text::from(name), value);
+        }
+    }
+    let layer = Layer::new(size, attributes, Encoding::SMALL_LOSSLESS, AnyChannels::sort(channels.into()));
+    let mut exr = Image::from_layer(layer);
+    // Rec. 709 / sRGB primaries and D65 white: what the linear RGB values mean.
+    exr.attributes.chromaticities = Some(exr::meta::attribute::Chromaticities {
+        red: Vec2(0.64, 0.33),
+        green: Vec2(0.30, 0.60),
+        blue: Vec2(0.15, 0.06),
+        white: Vec2(0.3127, 0.3290),
+    });
     let mut out = std::io::Cursor::new(Vec::new());
-    Image::from_layer(layer).write().to_buffered(&mut out).map_err(|e| e.to_string())?;
+    exr.write().to_buffered(&mut out).map_err(|e| e.to_string())?;
     Ok(out.into_inner())
 }
 

@@ -351,8 +351,9 @@ pub async fn prepare_job(
         1 + job.assets.len(),
         start.elapsed()
     );
+    // The coordinator reports a job's scene warnings, once; every worker would repeat them.
     for w in &loaded.scene.warnings {
-        tracing::warn!("job {}: {w}", job.job_id);
+        tracing::debug!("job {}: {w}", job.job_id);
     }
     Ok(loaded)
 }
@@ -361,7 +362,8 @@ pub async fn prepare_job(
 /// overrides. Blocking.
 pub fn load_job(cache: &AssetCache, job: &JobSpec) -> anyhow::Result<LoadedJob> {
     let scene_path = cache.lay_out_job(job)?;
-    let mut scene = tracer::scene::load_scene_up(&scene_path, job.overrides.up).map_err(|e| anyhow!("{e}"))?;
+    let mut scene =
+        tracer::scene::load_scene_as(&scene_path, &job.scene.path, job.overrides.up).map_err(|e| anyhow!("{e}"))?;
     job.overrides.apply(&mut scene).map_err(|e| anyhow!("{}: settings: {e}", job.scene.path))?;
     Ok(LoadedJob { spec: job.clone(), scene, integrator: job.integrator })
 }

@@ -5,19 +5,18 @@ use std::path::{Path, PathBuf};
 
 use super::SceneError;
 use super::file::SceneFile;
+use super::load::{SceneKind, read_scene_text, scene_kind};
 use super::obj::obj_dependencies;
 
 /// The scene file itself first, then every file it refers to (OBJ, MTL, textures),
 /// each once. Files that do not exist are listed too: loading will report them.
 pub fn scene_files(scene_path: &Path) -> Result<Vec<PathBuf>, SceneError> {
     let mut files = vec![scene_path.to_path_buf()];
-    let is_obj = scene_path.extension().and_then(|e| e.to_str()).is_some_and(|e| e.eq_ignore_ascii_case("obj"));
-    let objs = if is_obj {
+    let display = scene_path.display().to_string();
+    let objs = if scene_kind(scene_path, &display)? == SceneKind::Obj {
         vec![scene_path.to_path_buf()]
     } else {
-        let display = scene_path.display().to_string();
-        let text = std::fs::read_to_string(scene_path)
-            .map_err(|e| SceneError::Io { path: display.clone(), message: e.to_string() })?;
+        let text = read_scene_text(scene_path, &display)?;
         let file: SceneFile =
             toml::from_str(&text).map_err(|e| SceneError::Syntax { path: display, message: e.to_string() })?;
         let base = scene_path.parent().unwrap_or(Path::new(""));

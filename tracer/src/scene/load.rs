@@ -6,7 +6,7 @@ use std::path::{Path, PathBuf};
 use glam::{Mat3, Vec3};
 
 use super::file::{LightDesc, SceneFile, SphereDesc, UpAxis};
-use super::obj::{ObjError, ObjModel, load_obj};
+use super::obj::{ObjError, ObjModel, load_obj_as};
 use super::{Geometry, NONE, Scene, Sphere, TriangleMesh};
 use crate::accel::packed::PackedTriangles;
 use crate::accel::{BuildParams, KdTree, Primitives};
@@ -51,15 +51,16 @@ pub fn load_scene(path: &Path) -> Result<Scene, SceneError> {
 
 /// [`load_scene`], with the up axis of a bare `.obj` (a scene file sets each mesh's own).
 pub fn load_scene_up(path: &Path, up: UpAxis) -> Result<Scene, SceneError> {
-    let display = path.display().to_string();
-    let io = |message: String| SceneError::Io { path: display.clone(), message };
-    let ext = path.extension().and_then(|e| e.to_str()).map(str::to_ascii_lowercase);
-    if path.is_dir() || !matches!(ext.as_deref(), Some("toml" | "obj")) {
-        let what = if path.is_dir() { "a folder" } else { "another kind of file" };
-        return Err(io(format!("not a scene file ({what}): expected a .toml scene or an .obj model")));
-    }
-    if ext.as_deref() == Some("obj") {
-        let model = load_obj(path)?;
+    load_scene_as(path, &path.display().to_string(), up)
+}
+
+/// [`load_scene_up`], naming the scene file `display` in errors and warnings and the
+/// files it refers to relative to that name: a job's copy of a scene is reported as the
+/// user's own files (`quad.mtl`), not as where the copy lies.
+pub fn load_scene_as(path: &Path, display: &str, up: UpAxis) -> Result<Scene, SceneError> {
+    let display = display.to_string();
+    if scene_kind(path, &display)? == SceneKind::Obj {
+        let model = load_obj_as(path, &display)?;
         return Ok(scene_from_bare_obj(model, up));
     }
     if up != UpAxis::Y {
@@ -70,11 +71,40 @@ pub fn load_scene_up(path: &Path, up: UpAxis) -> Result<Scene, SceneError> {
                 .into(),
         });
     }
-    let bytes = std::fs::read(path).map_err(|e| io(e.to_string()))?;
-    let text = String::from_utf8(bytes)
-        .map_err(|_| io("not a scene file: it is not text (a scene is a .toml file, a model an .obj)".into()))?;
+    let text = read_scene_text(path, &display)?;
     let base = path.parent().unwrap_or(Path::new(".")).to_path_buf();
     scene_from_toml(&text, &display, &base)
+}
+
+/// The two kinds of scene input.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum SceneKind {
+    Toml,
+    Obj,
+}
+
+/// What kind of scene `path` is, by its extension; a folder or another kind of file (a
+/// PNG given by mistake) is "not a scene file", named as `display`.
+pub fn scene_kind(path: &Path, display: &str) -> Result<SceneKind, SceneError> {
+    let not = |what: &str| SceneError::Io {
+        path: display.to_string(),
+        message: format!("not a scene file ({what}): expected a .toml scene or an .obj model"),
+    };
+    if path.is_dir() {
+        return Err(not("a folder"));
+    }
+    match path.extension().and_then(|e| e.to_str()).map(str::to_ascii_lowercase).as_deref() {
+        Some("toml") => Ok(SceneKind::Toml),
+        Some("obj") => Ok(SceneKind::Obj),
+        _ => Err(not("another kind of file")),
+    }
+}
+
+/// A scene file's text; binary content is "not a scene file" rather than a UTF-8 error.
+pub(crate) fn read_scene_text(path: &Path, display: &str) -> Result<String, SceneError> {
+    let io = |message: String| SceneError::Io { path: display.to_string(), message };
+    let bytes = std::fs::read(path).map_err(|e| io(e.to_string()))?;
+    String::from_utf8(bytes).map_err(|_| io("not a scene file: it is not text (a scene is a .toml file)".into()))
 }
 
 /// Parses and assembles a scene file's text; relative paths resolve against `base`.
@@ -192,7 +222,7 @@ fn assemble(file: &SceneFile, text: &str, name: &str, base: &Path) -> Result<Sce
     for (i, m) in file.mesh.iter().enumerate() {
         let field = |k: &str| format!("mesh[{i}].{k}");
         let path: PathBuf = base.join(&m.obj);
-        let model = load_obj(&path)?;
+        let model = load_obj_as(&path, &super::obj::shown_beside(name, &m.obj))?;
         let scale = finite3(field("scale"), m.scale.map_or([1.0; 3], |s| s.to_vec()))?;
         if scale.cmpeq(Vec3::ZERO).any() {
             return Err(invalid(field("scale"), "must not be zero".into()));
@@ -309,9 +339,6 @@ fn finish(b: Builder, camera: Camera, settings: RenderSettings, mut lights: Vec<
     let Builder { mesh, spheres, materials, material_names, textures, warnings } = b;
     // From here on the scene keeps only the compact runtime form of the mesh.
     let mut geometry = Geometry::new(mesh, spheres);
-    for w in &warnings {
-        tracing::warn!("{w}");
-    }
     let mut accel =
         KdTree::build(&geometry, &BuildParams::for_scene(geometry.triangle_count(), geometry.spheres.len()));
     let packed = PackedTriangles::for_small_scene(&geometry);

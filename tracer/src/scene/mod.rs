@@ -12,7 +12,9 @@ pub mod overrides;
 
 pub use file::UpAxis;
 pub use geometry::{Geometry, GeometryBytes, PrimRef, Sphere};
-pub use load::{RenderSettings, SceneError, load_scene, load_scene_up, scene_from_bare_obj, scene_from_toml};
+pub use load::{
+    RenderSettings, SceneError, load_scene, load_scene_as, load_scene_up, scene_from_bare_obj, scene_from_toml,
+};
 pub use mesh::{NONE, Tri, TriangleMesh};
 pub use overrides::Overrides;
 

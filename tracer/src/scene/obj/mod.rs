@@ -51,9 +51,23 @@ pub const DEFAULT_MATERIAL_NAME: &str = "default";
 /// Loads an OBJ file, its MTL libraries (relative to the OBJ's folder) and their `map_Kd`
 /// textures (relative to each MTL's folder).
 pub fn load_obj(path: &Path) -> Result<ObjModel, ObjError> {
-    let display = path.display().to_string();
-    let text = mtl::read_text(path, &display)?;
-    load_obj_from_str(&text, path.parent().unwrap_or(Path::new("")), &display)
+    load_obj_as(path, &path.display().to_string())
+}
+
+/// [`load_obj`], naming the file `display` in errors and warnings (and the files it
+/// refers to relative to that name), e.g. as the user wrote it rather than where a job's
+/// copy of it lies.
+pub fn load_obj_as(path: &Path, display: &str) -> Result<ObjModel, ObjError> {
+    let text = mtl::read_text(path, display)?;
+    load_obj_from_str(&text, path.parent().unwrap_or(Path::new("")), display)
+}
+
+/// How a file referred to as `name` from the file shown as `from` is shown: beside it.
+pub(crate) fn shown_beside(from: &str, name: &str) -> String {
+    match Path::new(from).parent() {
+        Some(dir) if !dir.as_os_str().is_empty() => dir.join(name).display().to_string(),
+        _ => name.to_string(),
+    }
 }
 
 /// Loads OBJ text; `base_dir` is where `mtllib` paths are resolved, `display_name` names
@@ -64,11 +78,7 @@ pub fn load_obj_from_str(text: &str, base_dir: &Path, display_name: &str) -> Res
     let models = parse_with_tobj(&scan, display_name)?;
     let mut warnings = scan.warnings.clone();
     let library = load_libraries(&scan, base_dir, display_name, &mut warnings)?;
-    let model = Builder::new(&scan, display_name, library, warnings).build(&models)?;
-    for w in &model.warnings {
-        tracing::warn!("{w}");
-    }
-    Ok(model)
+    Builder::new(&scan, display_name, library, warnings).build(&models)
 }
 
 fn parse_with_tobj(scan: &ObjScan, display: &str) -> Result<Vec<tobj::Model>, ObjError> {
@@ -109,13 +119,14 @@ fn load_libraries(
         };
         for file in files {
             let path = mtl::resolve_path(base_dir, file);
-            let mtl_display = path.display().to_string();
+            let mtl_display = shown_beside(display, file);
             let text = match std::fs::read(&path) {
                 Ok(bytes) => mtl::decode_utf8(bytes, &mtl_display)?,
                 Err(e) => {
                     warnings.push(format!(
-                        "{display}:{line}: material library '{file}' could not be read ({mtl_display}: {e}); \
-                         its materials will be grey diffuse"
+                        "{display}:{line}: material library '{file}' could not be read ({}); its materials will be \
+                         grey diffuse",
+                        mtl::io_reason(&e)
                     ));
                     continue;
                 }

@@ -49,16 +49,27 @@ pub fn load_mtl(path: &Path) -> Result<MtlLibrary, ObjError> {
     let raws = parse_mtl_str(&text, &display, &dir, &mut warnings)?;
     let mut cache = TextureCache::default();
     let materials = raws.iter().map(|raw| resolve_material(raw, &mut cache, &mut warnings)).collect();
-    for w in &warnings {
-        tracing::warn!("{w}");
-    }
     Ok(MtlLibrary { materials, textures: cache.textures, warnings })
+}
+
+/// An I/O error in plain words, without the OS's error number.
+pub(super) fn io_reason(e: &std::io::Error) -> String {
+    match e.kind() {
+        std::io::ErrorKind::NotFound => "no such file".into(),
+        std::io::ErrorKind::PermissionDenied => "permission denied".into(),
+        _ => {
+            let s = e.to_string();
+            s.split(" (os error").next().unwrap_or(&s).to_string()
+        }
+    }
 }
 
 /// Reads a text file, errors naming it (with the line of invalid UTF-8).
 pub(super) fn read_text(path: &Path, display: &str) -> Result<String, ObjError> {
-    let bytes = std::fs::read(path)
-        .map_err(|e| ObjError::Io { path: display.to_string(), message: format!("cannot read file: {e}") })?;
+    let bytes = std::fs::read(path).map_err(|e| ObjError::Io {
+        path: display.to_string(),
+        message: format!("cannot read file: {}", io_reason(&e)),
+    })?;
     decode_utf8(bytes, display)
 }
 
@@ -358,7 +369,7 @@ pub(super) fn resolve_material(
                     "{}: material '{}': map_Kd texture '{}' could not be loaded ({e}); using its Kd without a texture",
                     raw.mtl,
                     desc.name,
-                    path.display()
+                    super::shown_beside(&raw.mtl, name)
                 ));
                 desc.map_kd = None;
             }
@@ -384,7 +395,7 @@ fn clean_texel(c: Vec3) -> Vec3 {
 pub(super) fn decode_texture(path: &Path) -> Result<Texture, String> {
     use image::DynamicImage;
     let img = image::ImageReader::open(path)
-        .map_err(|e| e.to_string())?
+        .map_err(|e| io_reason(&e))?
         .with_guessed_format()
         .map_err(|e| e.to_string())?
         .decode()
