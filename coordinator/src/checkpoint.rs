@@ -256,8 +256,12 @@ pub fn write(dir: &Path, s: &Snapshot) -> anyhow::Result<u64> {
     let dest = path(dir);
     let tmp = dir.join(format!("{FILE}.tmp"));
     let mut f = std::fs::File::create(&tmp).with_context(|| format!("creating {}", tmp.display()))?;
-    f.write_all(&bytes)?;
-    f.sync_all()?;
+    if let Err(e) = f.write_all(&bytes).and_then(|()| f.sync_all()) {
+        drop(f);
+        // Leave no partial file behind to fill the disk further.
+        let _ = std::fs::remove_file(&tmp);
+        return Err(e).with_context(|| format!("writing {}", dest.display()));
+    }
     drop(f);
     std::fs::rename(&tmp, &dest).with_context(|| format!("replacing {}", dest.display()))?;
     // The rename itself must reach the disk before we count the checkpoint as written.

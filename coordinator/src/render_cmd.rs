@@ -404,10 +404,14 @@ async fn execute(plan: Plan, args: &RunArgs) -> anyhow::Result<()> {
         s.stop().await;
     }
     // Whatever happened, keep what was rendered.
+    // (A checkpoint that cannot be written must not cost the image: say so, write it.)
     if let Some(dir) = &checkpoint_dir {
-        save_checkpoint(&shared, &job, dir).await?;
-        if outcome.is_err() {
-            eprintln!("checkpoint saved in {}; continue with `coordinator resume {}`", dir.display(), dir.display());
+        match save_checkpoint(&shared, &job, dir).await {
+            Ok(()) if outcome.is_err() => {
+                eprintln!("checkpoint saved in {}; continue with `coordinator resume {}`", dir.display(), dir.display())
+            }
+            Ok(()) => {}
+            Err(e) => bar.warn(&format!("the last checkpoint was not written: {e:#}")),
         }
     }
     if interrupted && !args.no_partial {

@@ -164,6 +164,30 @@ pub fn run(cmd: &mut Command, limit: Duration) -> Output {
     }
 }
 
+/// The farm's jobs, as `status` lists them.
+pub fn list_jobs(url: &str) -> Vec<proto::JobStatus> {
+    let rt = tokio::runtime::Builder::new_current_thread().enable_all().build().expect("runtime");
+    rt.block_on(async {
+        let mut c = proto::jobs_client::JobsClient::connect(url.to_string()).await.expect("connect");
+        c.list_jobs(proto::ListRequest {}).await.expect("list_jobs").into_inner().jobs
+    })
+}
+
+/// Polls (within `limit`) until the first job has done at least `fraction` of its units.
+pub fn wait_for_progress(url: &str, fraction: f64, limit: Duration) -> proto::JobStatus {
+    let start = Instant::now();
+    loop {
+        assert!(start.elapsed() < limit, "no progress");
+        if let Some(j) = list_jobs(url).into_iter().next()
+            && j.units_total > 0
+            && j.units_done as f64 >= fraction * j.units_total as f64
+        {
+            return j;
+        }
+        std::thread::sleep(Duration::from_millis(20));
+    }
+}
+
 pub fn read_exr(p: &Path) -> Image {
     tracer::output::read_exr(p).unwrap_or_else(|e| panic!("reading {}: {e}", p.display()))
 }

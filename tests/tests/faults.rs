@@ -28,27 +28,8 @@ fn signal(pid: u32, sig: &str) {
     assert!(ok, "kill {sig} {pid}");
 }
 
-fn list_jobs(url: &str) -> Vec<proto::JobStatus> {
-    let rt = tokio::runtime::Builder::new_current_thread().enable_all().build().unwrap();
-    rt.block_on(async {
-        let mut c = proto::jobs_client::JobsClient::connect(url.to_string()).await.unwrap();
-        c.list_jobs(proto::ListRequest {}).await.unwrap().into_inner().jobs
-    })
-}
-
-/// Polls until the first job has done at least `fraction` of its units.
 fn wait_for_progress(url: &str, fraction: f64) -> proto::JobStatus {
-    let start = Instant::now();
-    loop {
-        assert!(start.elapsed() < LIMIT, "no progress");
-        if let Some(j) = list_jobs(url).into_iter().next()
-            && j.units_total > 0
-            && j.units_done as f64 >= fraction * j.units_total as f64
-        {
-            return j;
-        }
-        std::thread::sleep(Duration::from_millis(20));
-    }
+    tilefarm_e2e::wait_for_progress(url, fraction, LIMIT)
 }
 
 fn submit_wait(coord: &Coordinator, out: &Path) -> Proc {

@@ -1,0 +1,185 @@
+//! An operator's first hour, tried as a person would: a cancel that survives a restart,
+//! uploads that lie about their size, scenes with missing files, and a full disk.
+
+use std::process::Command;
+use std::time::{Duration, Instant};
+
+use tilefarm_e2e::*;
+
+const LIMIT: Duration = Duration::from_secs(240);
+
+fn cornell() -> std::path::PathBuf {
+    scenes().join("cornell-box/scene.toml")
+}
+
+/// Long enough (hundreds of units) that a cancel lands mid-render.
+const JOB: [&str; 8] = ["--width", "96", "--spp", "64", "--tile", "16", "--batch-spp", "4"];
+
+fn job_of(url: &str, id: &str) -> proto::JobStatus {
+    list_jobs(url).into_iter().find(|j| j.job_id == id).expect("the job is listed")
+}
+
+fn workers_of(url: &str) -> Vec<proto::WorkerInfo> {
+    let rt = tokio::runtime::Builder::new_current_thread().enable_all().build().unwrap();
+    rt.block_on(async {
+        let mut c = proto::jobs_client::JobsClient::connect(url.to_string()).await.unwrap();
+        c.list_workers(proto::ListRequest {}).await.unwrap().into_inner().workers
+    })
+}
+
+/// Polls `f` until it is true, within `LIMIT`.
+fn eventually(what: &str, mut f: impl FnMut() -> bool) {
+    let start = Instant::now();
+    while !f() {
+        assert!(start.elapsed() < LIMIT, "{what}: not within {LIMIT:?}");
+        std::thread::sleep(Duration::from_millis(50));
+    }
+}
+
+#[test]
+fn a_cancelled_job_stays_cancelled_across_a_restart_and_its_image_so_far_can_be_fetched() {
+    let dir = TempDir::new("cancel-restart");
+    let ckpt = dir.path("ckpt");
+    let listen = format!("127.0.0.1:{}", free_port());
+    let serve_args = [
+        "--listen",
+        listen.as_str(),
+        "--checkpoint",
+        ckpt.to_str().unwrap(),
+        "--checkpoint-interval-ms",
+        "200",
+        "--lease-ms",
+        "1500",
+        "--heartbeat-ms",
+        "300",
+    ];
+    let mut first = Coordinator::serve(&serve_args);
+    let mut cmd = Command::new(bin("worker"));
+    cmd.args(["--coordinator", &first.url, "--threads", "1", "--max-backoff-ms", "200", "--cache"])
+        .arg(dir.path("cache"));
+    let _worker = Proc::spawn("worker", &mut cmd);
+    let sub = first.submit(&cornell(), &JOB, LIMIT);
+    assert!(sub.status.success(), "{}", String::from_utf8_lossy(&sub.stderr));
+    let job = String::from_utf8_lossy(&sub.stdout).trim().to_string();
+    wait_for_progress(&first.url, 0.1, LIMIT);
+    let cancel = run(Command::new(bin("coordinator")).args(["cancel", &job, "--coordinator", &first.url]), LIMIT);
+    assert!(cancel.status.success(), "{}", String::from_utf8_lossy(&cancel.stderr));
+    // The worker is told at once: it holds nothing of the cancelled job.
+    eventually("the worker abandons its units", || workers_of(&first.url).iter().all(|w| w.units_held == 0));
+    let done_at_cancel = job_of(&first.url, &job).units_done;
+    assert!(done_at_cancel < job_of(&first.url, &job).units_total, "finished before the cancel");
+    // Let a checkpoint pass record the cancel, then stop and start the farm again.
+    std::thread::sleep(Duration::from_millis(800));
+    signal_int(first.proc.pid());
+    assert!(first.proc.wait(Duration::from_secs(30)).success(), "a clean stop");
+    let second = Coordinator::serve(&serve_args);
+    eventually("the job is restored", || {
+        list_jobs(&second.url).iter().any(|j| j.job_id == job && j.state() != proto::JobState::Loading)
+    });
+    let restored = job_of(&second.url, &job);
+    assert_eq!(restored.state(), proto::JobState::Cancelled, "{restored:?}");
+    assert_eq!(restored.units_done, done_at_cancel);
+    // Its image so far is written, and the command says it was cancelled.
+    let out = dir.path("partial.exr");
+    let fetch = run(
+        Command::new(bin("coordinator")).args(["fetch", &job, "--coordinator", &second.url, "-q", "-o"]).arg(&out),
+        LIMIT,
+    );
+    let err = String::from_utf8_lossy(&fetch.stderr);
+    assert!(!fetch.status.success() && err.contains("was cancelled") && err.contains("image so far"), "{err}");
+    let img = read_exr(&out);
+    assert!(img.counts.iter().any(|&c| c > 0), "some samples were rendered before the cancel");
+    assert!(img.counts.iter().any(|&c| c < 64), "and not all");
+    assert_eq!(job_of(&second.url, &job).units_done, done_at_cancel, "nothing more was rendered");
+}
+
+fn signal_int(pid: u32) {
+    assert!(Command::new("kill").args(["-INT", &pid.to_string()]).status().unwrap().success());
+}
+
+/// A job whose declared asset size is not its upload's would never end (every worker's
+/// download fails its check): it is refused at submit, naming the file.
+#[test]
+fn a_job_whose_asset_size_is_wrong_is_refused_at_submit() {
+    let dir = TempDir::new("asset-size");
+    let coord = Coordinator::start(&dir.path("store"), &[]);
+    let rt = tokio::runtime::Builder::new_current_thread().enable_all().build().unwrap();
+    let status = rt.block_on(async {
+        let mut jobs = proto::jobs_client::JobsClient::connect(coord.url.clone()).await.unwrap();
+        let bytes = std::fs::read(cornell()).unwrap();
+        let chunk = proto::AssetChunk { data: bytes.clone() };
+        let stored = jobs.upload_asset(tokio_stream_of(chunk)).await.unwrap().into_inner();
+        assert_eq!(stored.size, bytes.len() as u64);
+        let scene = proto::AssetRef { path: "scene.toml".into(), sha256: stored.sha256, size: stored.size + 1 };
+        jobs.submit_job(proto::SubmitJobRequest { scene: Some(scene), ..Default::default() }).await.unwrap_err()
+    });
+    assert_eq!(status.code(), tonic::Code::InvalidArgument, "{status:?}");
+    assert!(status.message().contains("scene.toml") && status.message().contains("bytes"), "{status:?}");
+    assert!(list_jobs(&coord.url).is_empty(), "no job was made");
+}
+
+fn tokio_stream_of(chunk: proto::AssetChunk) -> impl tonic::IntoStreamingRequest<Message = proto::AssetChunk> {
+    tokio_stream::iter([chunk])
+}
+
+/// Missing files are listed before a job exists.
+#[test]
+fn submit_refuses_a_scene_with_missing_files_listing_them() {
+    let dir = TempDir::new("submit-missing");
+    let scene = dir.path("broken.toml");
+    std::fs::write(
+        &scene,
+        "[camera]\nposition = [0,0,-5]\nlook_at = [0,0,0]\n[[mesh]]\nobj = \"a.obj\"\n[[mesh]]\nobj = \"b.obj\"\n",
+    )
+    .unwrap();
+    let coord = Coordinator::start(&dir.path("store"), &[]);
+    let out = coord.submit(&scene, &[], LIMIT);
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(!out.status.success() && err.contains("a.obj") && err.contains("b.obj"), "{err}");
+    assert!(err.contains("nothing was submitted"), "{err}");
+    assert!(list_jobs(&coord.url).is_empty());
+}
+
+/// A checkpoint folder on a full disk: the render warns, naming the file, and finishes.
+/// Needs a tiny tmpfs, which only root (with CAP_SYS_ADMIN) can mount.
+#[test]
+fn a_full_disk_warns_but_does_not_stop_a_render() {
+    let dir = TempDir::new("full-disk");
+    let mnt = dir.path("tiny");
+    std::fs::create_dir_all(&mnt).unwrap();
+    let mounted = Command::new("mount").args(["-t", "tmpfs", "-o", "size=64k", "tmpfs"]).arg(&mnt).output();
+    match mounted {
+        Ok(o) if o.status.success() => {}
+        Ok(o) => {
+            println!("SKIPPED: cannot mount a tmpfs here ({})", String::from_utf8_lossy(&o.stderr).trim());
+            return;
+        }
+        Err(e) => {
+            println!("SKIPPED: no mount command ({e})");
+            return;
+        }
+    }
+    struct Unmount(std::path::PathBuf);
+    impl Drop for Unmount {
+        fn drop(&mut self) {
+            let _ = Command::new("umount").arg(&self.0).status();
+        }
+    }
+    let _unmount = Unmount(mnt.clone());
+    // A scene of spheres only (tiny files), whose checkpoint (about 20 B a pixel) cannot fit.
+    let scene = dir.path("spheres.toml");
+    std::fs::write(
+        &scene,
+        "[camera]\nposition = [0,0,-5]\nlook_at = [0,0,0]\nwidth = 128\nheight = 128\n[render]\nspp = 8\n\
+         [[sphere]]\ncenter = [0,0,0]\nradius = 1\nkd = [0.5,0.5,0.5]\n[background]\nradiance = [1,1,1]\n",
+    )
+    .unwrap();
+    let out = dir.path("out.exr");
+    let ckpt = mnt.join("ckpt");
+    let args = ["--checkpoint", ckpt.to_str().unwrap(), "--checkpoint-interval-ms", "1", "--batch-spp", "1"];
+    let o = render(&scene, &out, &[&args[..], &["--local-workers", "1"]].concat(), LIMIT);
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(err.contains("checkpoint not written") && err.contains("checkpoint.tfck"), "{err}");
+    let img = read_exr(&out);
+    assert!(img.counts.iter().all(|&c| c == 8), "the render finished");
+}
