@@ -135,17 +135,7 @@ async fn stdin_closed(watch: bool) {
     }
     let (tx, rx) = tokio::sync::oneshot::channel::<()>();
     let spawned = std::thread::Builder::new().name("stdin-watch".into()).spawn(move || {
-        use std::io::Read;
-        let mut buf = [0u8; 4096];
-        let mut stdin = std::io::stdin().lock();
-        loop {
-            match stdin.read(&mut buf) {
-                Ok(0) => break,
-                Ok(_) => {}
-                Err(e) if e.kind() == std::io::ErrorKind::Interrupted => {}
-                Err(_) => break,
-            }
-        }
+        worker::block_until_stdin_eof();
         let _ = tx.send(());
     });
     match spawned {

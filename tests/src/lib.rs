@@ -138,6 +138,21 @@ impl Coordinator {
         Proc::spawn("worker", &mut cmd)
     }
 
+    /// A one-thread worker that retries every 200 ms at most while this coordinator is
+    /// away (for tests that restart it on the same address).
+    pub fn retrying_worker(&self, cache: &Path) -> Proc {
+        let mut cmd = Command::new(bin("worker"));
+        cmd.args(["--coordinator", &self.url, "--threads", "1", "--max-backoff-ms", "200", "--cache"]).arg(cache);
+        Proc::spawn("worker", &mut cmd)
+    }
+
+    /// Submits `scene` and returns the job's id (panics, with the error, if refused).
+    pub fn submit_id(&self, scene: &Path, args: &[&str], limit: Duration) -> String {
+        let sub = self.submit(scene, args, limit);
+        assert!(sub.status.success(), "{}", String::from_utf8_lossy(&sub.stderr));
+        String::from_utf8_lossy(&sub.stdout).trim().to_string()
+    }
+
     /// `coordinator submit SCENE --coordinator URL ARGS…` run to completion (bounded).
     pub fn submit(&self, scene: &Path, args: &[&str], limit: Duration) -> Output {
         let mut cmd = Command::new(bin("coordinator"));

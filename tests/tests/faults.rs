@@ -235,13 +235,8 @@ fn a_farm_stopped_with_ctrl_c_checkpoints_and_continues_after_restart() {
     let serve_args =
         ["--listen", listen.as_str(), "--checkpoint", ckpt.to_str().unwrap(), "--checkpoint-interval-ms", "200"];
     let mut first = Coordinator::serve(&serve_args);
-    let mut cmd = Command::new(bin("worker"));
-    cmd.args(["--coordinator", &first.url, "--threads", "1", "--max-backoff-ms", "200", "--cache"])
-        .arg(dir.path("cache"));
-    let _worker = Proc::spawn("worker", &mut cmd);
-    let sub = first.submit(&cornell(), &JOB, LIMIT);
-    assert!(sub.status.success(), "{}", String::from_utf8_lossy(&sub.stderr));
-    let job = String::from_utf8_lossy(&sub.stdout).trim().to_string();
+    let _worker = first.retrying_worker(&dir.path("cache"));
+    let job = first.submit_id(&cornell(), &JOB, LIMIT);
     let at_stop = wait_for_progress(&first.url, 0.3);
     assert!(at_stop.units_done < at_stop.units_total, "finished before the stop");
     signal(first.proc.pid(), "-INT");

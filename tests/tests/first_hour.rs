@@ -54,13 +54,8 @@ fn a_cancelled_job_stays_cancelled_across_a_restart_and_its_image_so_far_can_be_
         "300",
     ];
     let mut first = Coordinator::serve(&serve_args);
-    let mut cmd = Command::new(bin("worker"));
-    cmd.args(["--coordinator", &first.url, "--threads", "1", "--max-backoff-ms", "200", "--cache"])
-        .arg(dir.path("cache"));
-    let _worker = Proc::spawn("worker", &mut cmd);
-    let sub = first.submit(&cornell(), &JOB, LIMIT);
-    assert!(sub.status.success(), "{}", String::from_utf8_lossy(&sub.stderr));
-    let job = String::from_utf8_lossy(&sub.stdout).trim().to_string();
+    let _worker = first.retrying_worker(&dir.path("cache"));
+    let job = first.submit_id(&cornell(), &JOB, LIMIT);
     wait_for_progress(&first.url, 0.1, LIMIT);
     let cancel = run(Command::new(bin("coordinator")).args(["cancel", &job, "--coordinator", &first.url]), LIMIT);
     assert!(cancel.status.success(), "{}", String::from_utf8_lossy(&cancel.stderr));

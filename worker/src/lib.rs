@@ -219,20 +219,26 @@ fn watch_signals(stop: Arc<watch::Sender<Option<Stop>>>) {
     });
 }
 
+/// Blocks until standard input reaches end of file (or cannot be read): how a process
+/// started with a pipe learns that its parent is gone.
+pub fn block_until_stdin_eof() {
+    let mut stdin = std::io::stdin().lock();
+    let mut buf = [0u8; 4096];
+    loop {
+        match stdin.read(&mut buf) {
+            Ok(0) => return,
+            Ok(_) => {}
+            Err(e) if e.kind() == std::io::ErrorKind::Interrupted => {}
+            Err(_) => return,
+        }
+    }
+}
+
 /// `--exit-on-stdin-eof`: a plain thread blocks reading standard input (it never
 /// delays the runtime's shutdown) and asks the worker to stop at end of file.
 fn watch_stdin(stop: Arc<watch::Sender<Option<Stop>>>) {
     let spawned = std::thread::Builder::new().name("stdin-watch".into()).spawn(move || {
-        let mut stdin = std::io::stdin().lock();
-        let mut buf = [0u8; 4096];
-        loop {
-            match stdin.read(&mut buf) {
-                Ok(0) => break,
-                Ok(_) => {}
-                Err(e) if e.kind() == std::io::ErrorKind::Interrupted => {}
-                Err(_) => break,
-            }
-        }
+        block_until_stdin_eof();
         let _ = stop.send(Some(Stop::StdinEof));
     });
     if let Err(e) = spawned {
