@@ -266,6 +266,7 @@ pub fn status_of(j: &Job, workers: usize) -> proto::JobStatus {
         elapsed_s: j.elapsed().as_secs_f64(),
         rays: j.rays,
         samples_per_s: if j.phase == JobPhase::Running { j.samples_per_second() } else { 0.0 },
+        warnings: j.warnings.clone(),
     }
 }
 

@@ -143,6 +143,22 @@ pub struct Job {
     pub finished: Option<Instant>,
     /// Samples already merged when the job (re)started.
     samples_at_start: u64,
+    /// The scene's problems, found when it loaded (see [`bounded_warnings`]).
+    pub warnings: Vec<String>,
+}
+
+/// A scene's warnings as a job keeps them: at most 20, each at most 500 characters, so
+/// that a model with thousands of problems cannot swell every status message.
+pub fn bounded_warnings(all: &[String]) -> Vec<String> {
+    const MAX: usize = 20;
+    let clip = |w: &String| {
+        if w.chars().count() > 500 { format!("{}…", w.chars().take(500).collect::<String>()) } else { w.clone() }
+    };
+    let mut out: Vec<String> = all.iter().take(MAX).map(clip).collect();
+    if all.len() > MAX {
+        out.push(format!("… and {} more warnings", all.len() - MAX));
+    }
+    out
 }
 
 impl Job {
@@ -168,6 +184,7 @@ impl Job {
             started: Instant::now(),
             finished: None,
             samples_at_start: 0,
+            warnings: Vec::new(),
         }
     }
 

@@ -9,6 +9,8 @@ use indicatif::{ProgressBar, ProgressStyle};
 pub struct JobBar {
     bar: ProgressBar,
     rate: Rate,
+    /// The job's scene warnings have been printed.
+    warned: bool,
 }
 
 impl JobBar {
@@ -19,10 +21,17 @@ impl JobBar {
                 .expect("static template"),
         );
         bar.enable_steady_tick(Duration::from_millis(250));
-        Self { bar, rate: Rate::default() }
+        Self { bar, rate: Rate::default(), warned: false }
     }
 
     pub fn update(&mut self, s: &proto::JobStatus) {
+        // The scene's problems, once, as soon as the job knows them (even with -q).
+        if !self.warned && !s.warnings.is_empty() {
+            for w in &s.warnings {
+                self.warn(w);
+            }
+            self.warned = true;
+        }
         let now = Instant::now();
         self.rate.observe(now, s.samples_done);
         self.bar.set_length(s.samples_total.max(1));

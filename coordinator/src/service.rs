@@ -177,10 +177,12 @@ fn load_job(
     let overrides = overrides_of(settings);
     // Named as the user named them (`quad.mtl`), not as the job folder's copies.
     let mut loaded = tracer::scene::load_scene_as(&scene_path, &scene.path, overrides.up)?;
-    // The one report of the scene's problems for this job (workers keep theirs quiet).
+    // The one report of the scene's problems: in the job's status, which whoever follows
+    // the job prints (workers keep theirs quiet), and the farm's log.
     for w in &loaded.warnings {
-        tracing::warn!(job = %job, "{w}");
+        tracing::info!(job = %job, "scene warning: {w}");
     }
+    let warnings = crate::job::bounded_warnings(&loaded.warnings);
     overrides.apply(&mut loaded).map_err(anyhow::Error::msg)?;
     let integrator: Integrator = if settings.integrator.is_empty() {
         Integrator::Path
@@ -212,6 +214,7 @@ fn load_job(
         }
     }
     e.info = Some(tracer::output::RenderInfo::of(&loaded, &scene.path, integrator.name()));
+    e.job.warnings = warnings;
     e.scene = Some(Arc::new(loaded));
     tracing::info!(job = %job, width = w, height = h, spp, tile, batch, units = e.job.units.len(), "job started");
     Ok(())

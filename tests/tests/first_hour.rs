@@ -65,6 +65,8 @@ fn a_cancelled_job_stays_cancelled_across_a_restart_and_its_image_so_far_can_be_
     assert!(done_at_cancel < job_of(&first.url, &job).units_total, "finished before the cancel");
     // Let a checkpoint pass record the cancel, then stop and start the farm again.
     std::thread::sleep(Duration::from_millis(800));
+    let first_ids: Vec<u64> = workers_of(&first.url).iter().map(|w| w.worker_id).collect();
+    assert_eq!(first_ids.len(), 1);
     signal_int(first.proc.pid());
     assert!(first.proc.wait(Duration::from_secs(30)).success(), "a clean stop");
     let second = Coordinator::serve(&serve_args);
@@ -86,6 +88,13 @@ fn a_cancelled_job_stays_cancelled_across_a_restart_and_its_image_so_far_can_be_
     assert!(img.counts.iter().any(|&c| c > 0), "some samples were rendered before the cancel");
     assert!(img.counts.iter().any(|&c| c < 64), "and not all");
     assert_eq!(job_of(&second.url, &job).units_done, done_at_cancel, "nothing more was rendered");
+    // The first worker registers again; a new one joins: two workers, two ids, none of
+    // them an id the first coordinator gave out.
+    let _second_worker = second.retrying_worker(&dir.path("cache2"));
+    eventually("both workers are registered", || workers_of(&second.url).len() == 2);
+    let ids: Vec<u64> = workers_of(&second.url).iter().map(|w| w.worker_id).collect();
+    assert_ne!(ids[0], ids[1], "{ids:?}");
+    assert!(ids.iter().all(|id| !first_ids.contains(id)));
 }
 
 fn signal_int(pid: u32) {
@@ -177,4 +186,77 @@ fn a_full_disk_warns_but_does_not_stop_a_render() {
     assert!(err.contains("checkpoint not written") && err.contains("checkpoint.tfck"), "{err}");
     let img = read_exr(&out);
     assert!(img.counts.iter().all(|&c| c == 8), "the render finished");
+}
+
+/// Ctrl-C on `render` writes the image so far: its samples channel shows how far each
+/// pixel got.
+#[test]
+fn ctrl_c_on_render_writes_the_image_so_far() {
+    let dir = TempDir::new("ctrl-c");
+    let out = dir.path("partial.exr");
+    let mut cmd = Command::new(bin("coordinator"));
+    // Minutes of work: the interrupt lands mid-render.
+    cmd.args(["render", "-q", "--width", "128", "--spp", "4096", "--batch-spp", "1", "--local-workers", "1", "-o"])
+        .arg(&out)
+        .stderr(std::process::Stdio::piped());
+    let mut render = Proc::spawn("render", &mut cmd);
+    std::thread::sleep(Duration::from_secs(3));
+    assert!(Command::new("kill").args(["-INT", &render.pid().to_string()]).status().unwrap().success());
+    let status = render.wait(Duration::from_secs(60));
+    let mut err = String::new();
+    std::io::Read::read_to_string(&mut render.child.stderr.take().unwrap(), &mut err).unwrap();
+    assert_eq!(status.code(), Some(130), "{err}");
+    assert!(err.contains("wrote the image so far"), "{err}");
+    let img = read_exr(&out);
+    assert!(img.counts.iter().all(|&c| c < 4096), "stopped early");
+    assert!(img.counts.iter().any(|&c| c > 0), "with the samples done before the interrupt");
+}
+
+/// Every farm command finds the coordinator in TILEFARM_COORDINATOR, as host:port.
+#[test]
+fn the_coordinator_address_comes_from_the_environment_as_host_and_port() {
+    let dir = TempDir::new("env-address");
+    let coord = Coordinator::start(&dir.path("store"), &[]);
+    let host_port = coord.url.trim_start_matches("http://").to_string();
+    let status = run(Command::new(bin("coordinator")).arg("status").env("TILEFARM_COORDINATOR", &host_port), LIMIT);
+    assert!(status.status.success(), "{}", String::from_utf8_lossy(&status.stderr));
+    assert!(String::from_utf8_lossy(&status.stdout).contains("jobs:"));
+    let id = run(
+        Command::new(bin("coordinator"))
+            .args(["submit", "-q", "--name", "box"])
+            .arg(cornell())
+            .env("TILEFARM_COORDINATOR", &host_port),
+        LIMIT,
+    );
+    assert!(id.status.success(), "{}", String::from_utf8_lossy(&id.stderr));
+    let job = String::from_utf8_lossy(&id.stdout).trim().to_string();
+    let listed = run(Command::new(bin("coordinator")).args(["status", "--coordinator", &host_port]), LIMIT);
+    let text = String::from_utf8_lossy(&listed.stdout);
+    assert!(text.lines().any(|l| l.contains(&job) && l.contains("box") && l.contains("samples")), "{text}");
+}
+
+/// A scene's problem (here a texture that is no image) reaches the user who submitted
+/// it, once, named as in their files.
+#[test]
+fn submit_wait_shows_the_scenes_warnings_once() {
+    let dir = TempDir::new("submit-warn");
+    let copy = dir.path("box");
+    std::fs::create_dir_all(&copy).unwrap();
+    for f in ["scene.toml", "cbox.obj", "cbox.mtl"] {
+        std::fs::copy(scenes().join("cornell-box").join(f), copy.join(f)).unwrap();
+    }
+    let mtl = std::fs::read_to_string(copy.join("cbox.mtl")).unwrap();
+    std::fs::write(copy.join("cbox.mtl"), format!("{mtl}\nmap_Kd gone.png\n")).unwrap();
+    std::fs::write(copy.join("gone.png"), b"not a picture").unwrap();
+    let coord = Coordinator::start(&dir.path("store"), &[]);
+    let _w = coord.worker(2, &dir.path("cache"));
+    let out = dir.path("out.exr");
+    let args = ["--width", "32", "--spp", "4", "--wait", "-o", out.to_str().unwrap()];
+    let sub = coord.submit(&copy.join("scene.toml"), &args, LIMIT);
+    let err = String::from_utf8_lossy(&sub.stderr);
+    assert!(sub.status.success(), "{err}");
+    let lines: Vec<&str> = err.lines().filter(|l| l.contains("gone.png")).collect();
+    assert_eq!(lines.len(), 1, "{err}");
+    assert!(lines[0].starts_with("warning: cbox.mtl: material"), "{err}");
+    assert!(!err.contains("/jobs/job-"), "no internal paths: {err}");
 }
