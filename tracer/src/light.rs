@@ -373,8 +373,8 @@ impl LightSet {
     /// With at most [`LOCAL_SELECTION_MAX`] lights, the probability is proportional to
     /// power / distance² (zero where a light cannot reach `p`); otherwise to power.
     /// [`Self::pmf_at`] gives the same probability, bit for bit, for MIS weights.
-    // Inline, as `Light::sample_li`: +2.7 % on the Cornell box, with `pmf_at` and the
-    // integrator's `transmittance` (Veach MIS +0.8 %), same images.
+    // Inline, as `Light::sample_li`, `pmf_at` and the integrator's `transmittance`: LLVM
+    // kept them as calls in the path loop (bench/RESULTS.md).
     #[inline(always)]
     pub fn select_at(&self, p: Vec3, u: f32) -> Option<(usize, f32, f32)> {
         if self.importance.is_empty() {

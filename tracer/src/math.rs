@@ -10,9 +10,8 @@
 //! unique, so it is the same whatever the compiler, the instruction set (see
 //! `.cargo/config.toml`) or the operating system.
 //!
-//! Not the `libm` crate: it is not correctly rounded (acos is off by 0.83 ulp in
-//! `accurate_against_f64`), and its `powf` and `sincosf` made a Veach MIS render 15 %
-//! slower than glibc's; CORE-MATH's cost 4 to 6 % there.
+//! Not the `libm` crate: it is not correctly rounded (`accurate_against_f64` finds acos
+//! off by 0.83 ulp), and it is much slower than CORE-MATH (`bench/RESULTS.md`).
 //!
 //! Only what sample values and scene data depend on goes through here (`clippy.toml`
 //! disallows the `std` functions elsewhere); tests may use `std`'s.

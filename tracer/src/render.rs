@@ -43,8 +43,8 @@ pub fn render_unit_counted(
 /// instead of about a dozen shifts and masks each. AVX2 brings three-operand VEX forms
 /// (fewer register copies), SSE4.1 rounding for the film's fixed point, and nothing
 /// that changes a result: not FMA (Rust never contracts `a * b + c` anyway), and the
-/// same IEEE operations, so every result is the same bit for bit. Measured against the
-/// GFNI-only loop: +3.6 to +4.2 % (Cornell box), +4.1 to +4.5 % (Veach MIS) samples/s.
+/// same IEEE operations, so every result is the same bit for bit; it is a few per cent
+/// faster than the GFNI-only loop (`bench/RESULTS.md`).
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx2,gfni")]
 fn render_unit_avx2_gfni(
@@ -376,9 +376,7 @@ radiance = [0.05, 0.06, 0.08]
     #[cfg(target_arch = "x86_64")]
     #[test]
     fn loop_variants_are_the_baseline_loop() {
-        if !std::is_x86_feature_detected!("avx2") {
-            return;
-        }
+        crate::wide::tests::require_avx2();
         let integrators = [Integrator::Path, Integrator::PathLightOnly, Integrator::PathBsdfOnly, Integrator::Normals];
         let mut in_packets = 0;
         for (name, mut scene) in test_scenes() {

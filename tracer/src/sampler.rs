@@ -340,9 +340,7 @@ mod tests {
     /// numbers, also past the Sobol slots (the hash fallback).
     #[test]
     fn lanes_draw_what_the_scalar_sampler_draws() {
-        if !crate::wide::tests::available() {
-            return;
-        }
+        crate::wide::tests::require_avx2();
         let mut lanes = SamplerLanes::default();
         let mut scalar: Vec<Sampler> = (0..W as u32).map(|l| Sampler::new(SEED, 3 + l, 7 * l, l * 1000 + 5)).collect();
         for (l, s) in scalar.iter().enumerate() {

@@ -90,8 +90,7 @@ pub fn sample_uniform_disk_concentric(u: Vec2) -> Vec2 {
         return Vec2::ZERO;
     }
     // The same values as choosing the wedge by a branch, but by selects: which wedge a
-    // random point falls in is a coin flip, which a branch mispredicts half the time
-    // (4.7 % of a Cornell box render went to this line).
+    // random point falls in is a coin flip, which a branch mispredicts half the time.
     // In the wedge |x| > |y| the angle is q = π/4 · y/x; in the other it is π/2 - q'
     // with q' = π/4 · x/y, whose cosine and sine are q's sine and cosine.
     let wide = o.x.abs() > o.y.abs();
@@ -374,9 +373,7 @@ mod tests {
     /// The eight-lane twins of the sine and cosine and of the warps give the scalar bits.
     #[test]
     fn wide_twins_are_the_scalar_functions() {
-        if !crate::wide::tests::available() {
-            return;
-        }
+        crate::wide::tests::require_avx2();
         let mut rng = Rng::new(11);
         for k in 0..20_000 {
             let u: [Vec2; 8] = std::array::from_fn(|l| match (k + l) % 5 {

@@ -662,21 +662,22 @@ impl V3w {
 pub(crate) mod tests {
     use super::*;
 
-    /// Whether the wide types may run here (see the module comment).
-    pub(crate) fn available() -> bool {
+    /// The twin tests compare the AVX2 path with its scalar original, so on x86_64 they
+    /// need a CPU with AVX2 (elsewhere the wide types are lane loops and always run). A
+    /// CPU without it fails the test, saying why, rather than letting it pass unchecked.
+    pub(crate) fn require_avx2() {
         #[cfg(target_arch = "x86_64")]
-        return std::is_x86_feature_detected!("avx2");
-        #[cfg(not(target_arch = "x86_64"))]
-        true
+        assert!(
+            std::is_x86_feature_detected!("avx2"),
+            "this CPU has no AVX2: the test of the eight-lane path against its scalar twin cannot run here"
+        );
     }
 
     /// Every operation gives, lane by lane, the scalar operation's bits, on ordinary
     /// values and on zeros of both signs, infinities, NaN and subnormals.
     #[test]
     fn operations_are_the_scalar_operations() {
-        if !available() {
-            return;
-        }
+        crate::wide::tests::require_avx2();
         let special =
             [0.0, -0.0, 1.0, -1.0, 0.5, f32::INFINITY, f32::NEG_INFINITY, f32::NAN, 1e-40, -3e-39, 7.25, -1e30];
         let mut h = 7u64;

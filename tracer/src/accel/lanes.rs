@@ -354,9 +354,7 @@ mod tests {
     /// past the ids or not triangles are never kept, and the latter are reported.
     #[test]
     fn gathered_lanes_are_the_scalar_test() {
-        if !std::is_x86_feature_detected!("avx2") {
-            return;
-        }
+        crate::wide::tests::require_avx2();
         let mut r = Rng(3);
         // Small triangles around the origin, some sharing corners (edges: zero lanes).
         let corners: Vec<[Vec3; 3]> = (0..64)

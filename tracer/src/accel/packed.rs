@@ -5,8 +5,8 @@
 //! triangle tests plus node steps and the bookkeeping that makes it exact; testing all
 //! 32 in blocks of eight lanes (structure-of-arrays, which the compiler vectorises) is
 //! several times cheaper, and brute force is exact by definition. With AVX-512 two
-//! blocks are tested at once (Cornell box, 256 px at 64 spp: about 9 % more samples/s
-//! than eight lanes, five alternated runs; `TILEFARM_SIMD=avx2` selects eight).
+//! blocks are tested at once, which pays (`bench/RESULTS.md`; `TILEFARM_SIMD=avx2`
+//! selects eight lanes).
 //!
 //! Exactness. Each block runs the eight-lane pass of `accel/lanes.rs`, whose kept lanes
 //! then finish with the scalar test's own last step (or run the scalar test, on an
@@ -308,8 +308,7 @@ impl PackedTriangles {
         let pre = RayPrecomp::new(ray);
         let pad = self.margin(ray);
         // From inside the (padded) bounds every ray reaches them, as the slab test would
-        // also say; the point test is cheaper (measured: Veach MIS +2.1 %, Cornell box
-        // +0.2 %).
+        // also say; the point test is cheaper.
         let inside = ray.origin.cmpge(self.bounds.min - Vec3::splat(pad)).all()
             && ray.origin.cmple(self.bounds.max + Vec3::splat(pad)).all();
         if !inside && !Self::reaches(&self.bounds, pad, ray, &pre, tmax) {
@@ -672,9 +671,7 @@ pub(super) mod tests {
     #[cfg(target_arch = "x86_64")]
     #[test]
     fn avx2_block_test_matches_the_portable_one() {
-        if !std::is_x86_feature_detected!("avx2") {
-            return;
-        }
+        crate::wide::tests::require_avx2();
         let mut r = Rng(9);
         let geo = scene(&mut r, 40, 11);
         let packed = PackedTriangles::for_small_scene(&geo).expect("small");

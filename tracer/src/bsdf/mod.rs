@@ -57,8 +57,8 @@ pub struct BsdfSample {
 }
 
 // `eval`, `pdf` and `sample` are forced inline into the path loop, like
-// `Light::sample_li` and `Scene::interaction`: LLVM kept them as calls, and inlining the
-// five measured +4.8 % (Cornell box) and +2.5 % (Veach MIS) samples/s, same images.
+// `Light::sample_li` and `Scene::interaction`: LLVM kept them as calls, which cost the
+// path loop several per cent (bench/RESULTS.md).
 impl Bsdf {
     /// f(wo, wi) |cos θi| (0 for delta BSDFs).
     #[inline(always)]

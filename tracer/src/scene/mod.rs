@@ -193,9 +193,7 @@ mod tests {
     /// on an edge) and on spheres.
     #[test]
     fn interaction_wide_is_the_interaction() {
-        if !crate::wide::tests::available() {
-            return;
-        }
+        crate::wide::tests::require_avx2();
         let dir = std::env::temp_dir().join(format!("tilefarm-interaction-{}", std::process::id()));
         std::fs::create_dir_all(&dir).unwrap();
         std::fs::write(

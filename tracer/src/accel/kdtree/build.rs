@@ -13,8 +13,8 @@
 //!   go to whichever side the SAH prefers; a test keeps the sweep as the reference). With
 //!   at most 16 references per node, counting each candidate's sides directly over
 //!   fixed-size arrays (vectorised, no data-dependent branches) is cheaper than sorting
-//!   the events and sweeping them (sorting and sweeping were about 30 % of the build's
-//!   time in a profile), and gives the same tree. Binning more of the tree is faster;
+//!   the events and sweeping them (which dominated the build's profile), and gives the
+//!   same tree. Binning more of the tree is faster;
 //!   the bin counts (`bins_for`) are chosen so that its planes cost little SAH quality
 //!   against the exact sweep.
 //!

@@ -19,48 +19,23 @@ const MAX_DEPTH: u32 = 60;
 
 /// Build parameters.
 ///
-/// The defaults were chosen by measuring single-thread throughput of incoherent rays
-/// (origins on the bounding sphere towards uniform points in the box) on this 2-core
-/// machine, whose timings swing by ±20 % between runs, so figures are medians (best) of
-/// five processes run interleaved. Leaves test their triangles eight at a time (corners
-/// loaded by index, `accel/lanes.rs`; gathered when these figures were taken), which
-/// makes a primitive test cheap against a node step (a likely cache miss), so big leaves
-/// and shallow trees win. (Ci/Ct 0.15, 0.18, 0.21, 0.25 against 0.12 with loaded
-/// corners, `KDTREE_AB`, 1M mesh: 0.99–1.16, one run each and 0.99 on a rerun of 0.18,
-/// within this host's noise, so 0.12 stays.) 1M-triangle
-/// displaced sphere (`KDTREE_CI=… KDTREE_QUICK=closest|any,1000000,5 cargo bench -p
-/// tracer --bench kdtree`), closest / any hit in Mrays/s, build on both threads:
-///
-/// | Ci/Ct | closest | any | build | tree |
-/// |------:|--------:|----:|------:|-----:|
-/// | 0.12  | 0.56 (0.62) | 0.71 (0.84) | 0.62–0.78 s | 10.4 B/tri |
-/// | 0.18  | 0.53 (0.66) | 0.72 (0.75) | 0.73–0.93 s | 13.5 B/tri |
-/// | 0.35  | 0.46 (0.55) | 0.54 (0.77) | 1.14–1.47 s | 23.1 B/tri |
-/// | 0.35, leaves one by one (before) | 0.46 (0.52) | 0.55 (0.66) | | |
-///
-/// One run each (`KDTREE_TUNE=0.08,0.12,0.2,0.35,1.0`): 100k-triangle mesh 0.75 / 0.94
-/// at 0.08, 0.79 / 1.00 at 0.12, 0.90 / 0.94 at 0.2, 0.76 / 0.85 at 0.35, 0.68 / 0.78 at
-/// 1; a scene of 10k random spheres and a 20k-triangle mesh 0.35 / 0.61, 0.38 / 0.65,
-/// 0.47 / 0.71, 0.49 / 0.57, 0.43 / 0.52: spheres are tested one by one and prefer
-/// smaller leaves ([`BuildParams::for_scene`] keeps 0.35 for such sets). The cup scene
-/// (4.4k triangles) renders at the same speed at 0.12 and 0.35 (0.77–0.79 against
-/// 0.75–0.77 M samples/s).
-///
-/// Those figures were taken with the binary walk. With treelets (three levels a step),
-/// 100k mesh, `KDTREE_AB`, medians of 200 slice pairs against 0.12, closest / any hit:
-/// 0.2 gives 0.96 / 0.92, 0.08 gives 1.06 / 0.97 (quartiles ±0.2), so 0.12 stays.
+/// Leaves test their triangles eight at a time (corners loaded by index,
+/// `accel/lanes.rs`), which makes a primitive test cheap against a node step (a likely
+/// cache miss), so big leaves and shallow trees win: the defaults are the best closest-
+/// and any-hit throughput of incoherent rays on large meshes. The measurements behind
+/// each default, with their commands, are in `bench/RESULTS.md` ("kd-tree build
+/// parameters").
 #[derive(Clone, Debug)]
 pub struct BuildParams {
     /// SAH cost of visiting an interior node. Default 1.
     pub traversal_cost: f32,
     /// SAH cost of one primitive test; only its ratio to `traversal_cost` shapes the
-    /// tree. Default 0.12: the best closest- and any-hit throughput in the table above,
-    /// and half the build time and tree size of 0.35.
+    /// tree. Default 0.12: the best throughput on large meshes, and half the build time
+    /// and tree size of 0.35.
     pub intersection_cost: f32,
     /// Fraction (0..1) by which the SAH discounts a split that cuts off empty space.
-    /// Default 0.2. Measured at Ci/Ct 0.35 with leaves tested one by one: 0 gives
-    /// 0.96 / 0.99 Mrays/s (mesh / spheres), 0.2 gives 1.02 / 0.98, 0.5 gives 0.88 / 0.61
-    /// (thin empty slabs around every sphere), 0.8 gives 0.89 / 0.53.
+    /// Default 0.2; larger values cut thin empty slabs around every sphere, which costs
+    /// sphere scenes much more than it gains on meshes.
     pub empty_bonus: f32,
     /// Deepest level; `None` is pbrt's `round(8 + 1.3 log2 N)` (34 for 1M primitives),
     /// deep enough that the SAH, not the limit, ends nearly every branch. Capped at 60
@@ -78,8 +53,7 @@ pub const SMALL_SCENE_PRIMS: usize = 1024;
 
 /// Cost ratio for sets where other primitives than triangles (spheres) are at least
 /// [`OTHER_PRIMS_SHARE`] of all: their tests run one by one, not eight lanes at a
-/// time, so smaller leaves pay (spheres scene of the table: 0.55–0.68 / 0.64–0.81
-/// Mrays/s at 0.35 against 0.38–0.44 / 0.39–0.41 at 0.12).
+/// time, so smaller leaves pay.
 pub const OTHER_PRIMS_INTERSECTION_COST: f32 = 0.35;
 /// See [`OTHER_PRIMS_INTERSECTION_COST`]: one primitive in ten.
 pub const OTHER_PRIMS_SHARE: f64 = 0.1;
@@ -89,11 +63,7 @@ impl BuildParams {
     /// primitives. The default cost ratio was tuned on large meshes, whose trees do not
     /// fit in cache, so each node step risks a miss. A small scene's tree and triangles
     /// stay in L1/L2, node steps are cheap, and a deeper tree with fewer primitive tests
-    /// per leaf wins: full renders at Ci/Ct 2 against 0.35 (`coordinator render SCENE
-    /// --local-workers 0 --width 256 --spp 16`, median of 5, samples/s): Cornell box (32
-    /// triangles) +7 %, Veach MIS +5 %, room +14 %, glass +7 %; the cup (4.4k triangles)
-    /// −2 %, hence the threshold. (Those scenes now take the packed brute force; the
-    /// threshold applies to 257–1024 primitives.) Sets of many spheres keep
+    /// per leaf wins, up to [`SMALL_SCENE_PRIMS`] primitives. Sets of many spheres keep
     /// [`OTHER_PRIMS_INTERSECTION_COST`].
     pub fn for_scene(triangles: usize, others: usize) -> Self {
         let n = triangles + others;
@@ -262,7 +232,7 @@ impl KdTree {
             Simd::Baseline => self.intersect_impl::<P, false>(prims, ray, tmax),
             #[cfg(target_arch = "x86_64")]
             // SAFETY: `Avx2` and `Avx512` are only chosen when the CPU reports AVX2. (The
-            // leaves stay at eight lanes with AVX-512: sixteen measured no faster.)
+            // leaves stay at eight lanes with AVX-512: sixteen were no faster.)
             Simd::Avx2 | Simd::Avx512 => unsafe { self.intersect_avx2(prims, ray, tmax) },
         }
     }

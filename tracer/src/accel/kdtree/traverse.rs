@@ -190,10 +190,8 @@ impl KdTree {
 
     /// Starts loading the lines of all of `t`'s children, before the step decides which
     /// are needed: the nearest one is needed right after it, and waiting for that load
-    /// was most of a walk's time on a large tree. Measured with `KDTREE_AB` against the
-    /// binary walk this replaced, 1M mesh, medians of 200 slice pairs, closest / any
-    /// hit: treelets without prefetching 1.04 / 1.06; prefetching only the pushed
-    /// children 1.11 / 1.09; all children 1.17 / 1.18 and 1.17 / 1.20. Branch-free: the
+    /// is most of a walk's time on a large tree; prefetching all children beats
+    /// prefetching only the pushed ones (`bench/RESULTS.md`). Branch-free: the
     /// kinds are unpredictable, and the other kinds fetch the first treelet's line, which
     /// is in the cache. (The eight-lane step does the same in vector registers.)
     #[inline(always)]
@@ -271,7 +269,7 @@ impl KdTree {
         let mut hit = false;
         let corners = gatherable(prims);
         // No mailbox here: the query ends at its first hit, so few primitives come up
-        // twice (measured: 1% more instructions, no faster).
+        // twice and the bookkeeping would not pay.
         let leaf = |ids: &[u32]| {
             if AVX2 && ids.len() >= GATHER_MIN_PRIMS && !corners.is_empty() {
                 leaf_lanes(prims, corners, ids, ray, &pre, tmax, |_, _| {

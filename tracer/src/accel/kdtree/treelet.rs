@@ -1,10 +1,10 @@
 //! The traversal's node format: the binary tree cut into treelets of three levels, one
 //! 64-byte cache line each, whose seven split planes are tested at once.
 //!
-//! Why. A binary kd-tree walk takes a node step per level (about 33 per incoherent ray
-//! on the 100k mesh), each a load, a plane distance and a compare that the next step
-//! depends on, and on the 1M mesh nearly half of its time was spent waiting for node
-//! loads (`perf`). Treelets take about 12 steps per closest-hit ray there (counted). A treelet
+//! Why. A binary kd-tree walk takes a node step per level, each a load, a plane
+//! distance and a compare that the next step depends on, so on a large tree much of its
+//! time goes to waiting for node loads; treelets take about a third of the steps
+//! (`bench/RESULTS.md`). A treelet
 //! holds a node, its two children and its four grandchildren in one line, so one load
 //! serves three levels, and their seven plane distances, the eight grandchild intervals
 //! and their front-to-back order are computed side by side in eight lanes (AVX2) with
@@ -557,9 +557,7 @@ mod tests {
     fn eight_lane_step_is_the_scalar_step() {
         #[cfg(target_arch = "x86_64")]
         {
-            if !std::arch::is_x86_feature_detected!("avx2") {
-                return;
-            }
+            crate::wide::tests::require_avx2();
             let mut r = Rng(3);
             for _ in 0..200_000 {
                 let (t, ray, lo, hi, reach) = case(&mut r);
