@@ -19,6 +19,9 @@ pub struct FarmConfig {
     /// When the queue is empty, a unit out for longer than this is leased again to an
     /// idle worker (speculative execution).
     pub speculate_after: Duration,
+    /// A worker not heard from for this long is forgotten (it registers again if it
+    /// comes back), so a farm's memory follows its live workers, not its history.
+    pub forget_worker_after: Duration,
 }
 
 impl Default for FarmConfig {
@@ -27,6 +30,7 @@ impl Default for FarmConfig {
             lease: Duration::from_secs(10),
             heartbeat: Duration::from_secs(2),
             speculate_after: Duration::from_secs(10),
+            forget_worker_after: Duration::from_secs(60),
         }
     }
 }
@@ -81,6 +85,8 @@ pub struct Farm {
     next_job: u64,
     /// Tell workers to stop (the local render is over).
     pub shutting_down: bool,
+    /// When silent workers were last looked for.
+    last_worker_sweep: Option<Instant>,
 }
 
 /// A unit handed out by [`Farm::lease`].
@@ -220,8 +226,18 @@ impl Farm {
         Ok(applied)
     }
 
-    /// Returns lapsed leases of every job to its queue.
+    /// Returns lapsed leases of every job to its queue, and (at most once a second)
+    /// forgets workers silent for longer than `forget_worker_after`.
     pub fn reap(&mut self, now: Instant) {
+        if self.last_worker_sweep.is_none_or(|t| now.duration_since(t) >= Duration::from_secs(1)) {
+            self.last_worker_sweep = Some(now);
+            let grace = self.config.forget_worker_after;
+            let before = self.workers.len();
+            self.workers.retain(|_, w| now.saturating_duration_since(w.last_seen) < grace);
+            if self.workers.len() < before {
+                tracing::info!(workers = before - self.workers.len(), "silent workers forgotten");
+            }
+        }
         for e in &mut self.jobs {
             let n = e.job.reap_expired(now);
             if n > 0 {
@@ -290,6 +306,22 @@ mod tests {
         let w = f.register("h".into(), 2, now);
         assert!(f.lease(w, 4, now).unwrap().is_empty());
         assert!(matches!(f.status("nope", now), Err(FarmError::UnknownJob(_))));
+    }
+
+    #[test]
+    fn silent_workers_are_forgotten_after_the_grace_period() {
+        let config = FarmConfig { forget_worker_after: Duration::from_secs(30), ..FarmConfig::default() };
+        let mut f = Farm::new(config);
+        let t0 = Instant::now();
+        let quiet = f.register("quiet".into(), 1, t0);
+        let busy = f.register("busy".into(), 1, t0);
+        f.reap(t0 + Duration::from_secs(20));
+        assert_eq!(f.workers.len(), 2, "within the grace period");
+        f.lease(busy, 1, t0 + Duration::from_secs(25)).unwrap();
+        f.reap(t0 + Duration::from_secs(40));
+        assert_eq!(f.workers.keys().copied().collect::<Vec<_>>(), [busy]);
+        // The forgotten worker is told to register again.
+        assert_eq!(f.lease(quiet, 1, t0 + Duration::from_secs(41)).err(), Some(FarmError::UnknownWorker(quiet)));
     }
 
     /// A restarted coordinator must not give a new worker the id of one registered with

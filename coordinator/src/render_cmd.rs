@@ -468,10 +468,8 @@ fn render_caught<R>(render: impl FnOnce() -> R) -> Result<R, String> {
 
 /// Renders a job's units in this process: leases from the same farm state as remote
 /// workers do and submits through the same checks and merge. `threads` threads each
-/// lease, render and submit one unit at a time, like a worker's threads. (Before, one
-/// thread leased a batch of 2 × `threads` units, rendered them on a pool and submitted
-/// them together; every batch waited for its slowest unit, which kept the CPU 180 %
-/// busy of 200 % on two cores.)
+/// lease, render and submit one unit at a time, like a worker's threads, so no thread
+/// waits for another's slowest unit.
 fn execute_in_process(shared: &Shared, job: &str, threads: usize) {
     let me = shared.farm().register("in-process".into(), threads as u32, Instant::now());
     let stop = AtomicBool::new(false);

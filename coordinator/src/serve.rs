@@ -53,6 +53,10 @@ pub struct FarmArgs {
     /// milliseconds is also given to an idle worker; the first result wins.
     #[arg(long, default_value_t = 10_000)]
     pub speculate_after_ms: u64,
+    /// Forget a worker not heard from for this many milliseconds (it registers again if
+    /// it comes back). Must exceed --lease-ms.
+    #[arg(long, default_value_t = 60_000)]
+    pub forget_worker_ms: u64,
 }
 
 impl FarmArgs {
@@ -61,10 +65,12 @@ impl FarmArgs {
             self.heartbeat_ms > 0 && self.lease_ms > self.heartbeat_ms,
             "--lease-ms must exceed --heartbeat-ms"
         );
+        anyhow::ensure!(self.forget_worker_ms > self.lease_ms, "--forget-worker-ms must exceed --lease-ms");
         Ok(FarmConfig {
             lease: Duration::from_millis(self.lease_ms),
             heartbeat: Duration::from_millis(self.heartbeat_ms),
             speculate_after: Duration::from_millis(self.speculate_after_ms),
+            forget_worker_after: Duration::from_millis(self.forget_worker_ms),
         })
     }
 }
