@@ -220,6 +220,20 @@ pub fn fetch(args: FetchArgs) -> anyhow::Result<()> {
     check_outputs(&args.output, args.preview.as_deref())?;
     runtime()?.block_on(async move {
         let mut client = connect(&args.coordinator.address).await?;
+        // A job that finished long ago is no longer listed, but its image is stored.
+        let listed = client.watch_job(proto::JobRequest { job_id: args.job.clone() }).await;
+        if let Err(s) = &listed
+            && s.code() == tonic::Code::NotFound
+        {
+            let Ok(image) = fetch_and_write(&mut client, &args.job, &args.output).await else {
+                anyhow::bail!("{}", s.message());
+            };
+            if let Some(p) = &args.preview {
+                tracer::output::write_png(&image, p)?;
+            }
+            println!("{} finished earlier; wrote {}", args.job, args.output.display());
+            return Ok(());
+        }
         wait(&mut client, &args.job, args.quiet, &args.output, args.preview.as_deref()).await
     })
 }

@@ -52,6 +52,8 @@ pub struct JobEntry {
     pub scene: Option<Arc<Scene>>,
     /// What the image's EXR header records, once the scene has loaded.
     pub info: Option<tracer::output::RenderInfo>,
+    /// Where the finished image was stored, when the job's sums have left memory.
+    pub stored: Option<std::path::PathBuf>,
 }
 
 impl JobEntry {
@@ -137,8 +139,23 @@ impl Farm {
         };
         spec.job_id = id.clone();
         self.index.insert(id.clone(), self.jobs.len());
-        self.jobs.push(JobEntry { job: Job::loading(id.clone(), name), spec, scene: None, info: None });
+        self.jobs.push(JobEntry { job: Job::loading(id.clone(), name), spec, scene: None, info: None, stored: None });
         id
+    }
+
+    /// Job ids up to `n` are taken (by finished jobs whose images are stored).
+    pub fn reserve_job_ids_through(&mut self, n: u64) {
+        self.next_job = self.next_job.max(n + 1);
+    }
+
+    /// Removes jobs for which `gone` is true, keeping the others' order.
+    pub fn remove_jobs(&mut self, gone: impl Fn(&JobEntry) -> bool) -> Vec<String> {
+        let removed: Vec<String> = self.jobs.iter().filter(|e| gone(e)).map(|e| e.job.id.clone()).collect();
+        if !removed.is_empty() {
+            self.jobs.retain(|e| !gone(e));
+            self.index = self.jobs.iter().enumerate().map(|(i, e)| (e.job.id.clone(), i)).collect();
+        }
+        removed
     }
 
     pub fn entry(&self, job: &str) -> Result<&JobEntry, FarmError> {
@@ -209,7 +226,7 @@ impl Farm {
                 width = j.width,
                 height = j.height,
                 spp = j.spp,
-                units = j.units.len(),
+                units = j.units_total(),
                 samples = j.samples_done,
                 rays = j.rays,
                 nonfinite = j.nonfinite,
@@ -272,7 +289,7 @@ pub fn status_of(j: &Job, workers: usize) -> proto::JobStatus {
         state: state as i32,
         error,
         units_done: j.units_done,
-        units_total: j.units.len() as u64,
+        units_total: j.units_total(),
         samples_done: j.samples_done,
         samples_total: j.samples_total(),
         workers: workers as u32,

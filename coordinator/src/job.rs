@@ -145,6 +145,8 @@ pub struct Job {
     samples_at_start: u64,
     /// The scene's problems, found when it loaded (see [`bounded_warnings`]).
     pub warnings: Vec<String>,
+    /// The unit count of a finished job whose units and sums were dropped ([`Job::evict`]).
+    evicted_units: Option<u64>,
 }
 
 /// A scene's warnings as a job keeps them: at most 20, each at most 500 characters, so
@@ -185,6 +187,7 @@ impl Job {
             finished: None,
             samples_at_start: 0,
             warnings: Vec::new(),
+            evicted_units: None,
         }
     }
 
@@ -278,7 +281,7 @@ impl Job {
     /// progressive order. The samples already rendered are kept, and since merging is
     /// exact the result equals a fresh render at the new count.
     pub fn extend_spp(&mut self, spp: u32) {
-        if spp <= self.spp || !matches!(self.phase, JobPhase::Running | JobPhase::Done) {
+        if spp <= self.spp || !matches!(self.phase, JobPhase::Running | JobPhase::Done) || self.is_evicted() {
             return;
         }
         let tiles: Vec<Tile> = self.tiles.iter().map(|a| a.tile).collect();
@@ -350,6 +353,27 @@ impl Job {
                 self.pending.insert(id as UnitId);
             }
         }
+    }
+
+    /// How many units the job has (also once evicted).
+    pub fn units_total(&self) -> u64 {
+        self.evicted_units.unwrap_or(self.units.len() as u64)
+    }
+
+    /// Drops a finished job's units and per-pixel sums (about 52 B a pixel) once its
+    /// image is stored elsewhere; what `status` shows stays. Only a done job can be
+    /// evicted: nothing about it can change any more.
+    pub fn evict(&mut self) {
+        if self.phase == JobPhase::Done && self.evicted_units.is_none() {
+            self.evicted_units = Some(self.units.len() as u64);
+            self.units = Vec::new();
+            self.tiles = Vec::new();
+            self.pending = BTreeSet::new();
+        }
+    }
+
+    pub fn is_evicted(&self) -> bool {
+        self.evicted_units.is_some()
     }
 
     pub fn samples_total(&self) -> u64 {
@@ -452,7 +476,7 @@ impl Job {
         match &self.phase {
             JobPhase::Running => {}
             JobPhase::Done => {
-                return if (r.unit as usize) < self.units.len() {
+                return if r.unit < self.units_total() {
                     Ok(Applied::Duplicate)
                 } else {
                     Err(Rejection::UnknownUnit(r.unit))
@@ -460,7 +484,7 @@ impl Job {
             }
             JobPhase::Loading => return Err(Rejection::NotRunning("still loading")),
             JobPhase::Failed(_) | JobPhase::Cancelled => {
-                return if (r.unit as usize) < self.units.len() {
+                return if r.unit < self.units_total() {
                     Ok(Applied::Discarded)
                 } else {
                     Err(Rejection::UnknownUnit(r.unit))
@@ -748,6 +772,25 @@ mod tests {
         finish_all(&mut j);
         assert_eq!(j.samples_done, j.samples_total());
         assert!(j.tile_accumulations()[0].counts.iter().all(|&c| c == 9));
+    }
+
+    #[test]
+    fn an_evicted_job_keeps_its_status_and_acknowledges_late_duplicates() {
+        let mut j = job();
+        let far = Instant::now() + Duration::from_secs(60);
+        let first = j.lease_next(1, Instant::now(), far, NEVER).unwrap();
+        let late = result_for(&j, first, 1);
+        j.evict();
+        assert!(!j.is_evicted(), "a running job keeps its sums");
+        j.apply(1, &late).unwrap();
+        finish_all(&mut j);
+        let (units, samples) = (j.units_total(), j.samples_done);
+        j.evict();
+        assert!(j.is_evicted());
+        assert!(j.tile_accumulations().is_empty() && j.units.is_empty());
+        assert_eq!((j.units_total(), j.samples_done, j.phase.clone()), (units, samples, JobPhase::Done));
+        assert_eq!(j.apply(1, &late), Ok(Applied::Duplicate));
+        assert_eq!(j.apply(1, &UnitResult { unit: units, ..late }), Err(Rejection::UnknownUnit(units)));
     }
 
     #[test]

@@ -31,6 +31,11 @@ pub struct ServeArgs {
     /// Shortest time between two checkpoints of a job, in milliseconds.
     #[arg(long, default_value_t = 5_000)]
     pub checkpoint_interval_ms: u64,
+    /// How long a finished job stays listed by `status`, in milliseconds. Its image
+    /// leaves memory as soon as it is stored (in the store's images/ folder), and
+    /// `fetch` reads it from there also after the job is no longer listed.
+    #[arg(long, value_name = "MS", default_value_t = 86_400_000)]
+    pub retain_finished_ms: u64,
     /// Stop (as on Ctrl-C) when standard input reaches end of file: a parent process
     /// that spawns `serve` and holds its stdin takes it down even when killed itself.
     #[arg(long, hide = true)]
@@ -90,9 +95,16 @@ pub fn run(args: ServeArgs) -> anyhow::Result<()> {
         changed: tokio::sync::Notify::new(),
     });
     let ckpt_root = args.checkpoint.as_ref().map(|d| d.join("job-checkpoints"));
+    let images = store_dir.join(IMAGES);
+    std::fs::create_dir_all(&images).with_context(|| format!("creating {}", images.display()))?;
+    // Ids of finished jobs whose images are stored stay taken.
+    if let Some(n) = stored_job_numbers(&images).max() {
+        shared.farm().reserve_job_ids_through(n);
+    }
     if let Some(root) = &ckpt_root {
         restore_jobs(&shared, root)?;
     }
+    let retain = Duration::from_millis(args.retain_finished_ms);
     let runtime =
         tokio::runtime::Builder::new_multi_thread().worker_threads(2).enable_all().build().context("async runtime")?;
     runtime.block_on(async move {
@@ -122,6 +134,8 @@ pub fn run(args: ServeArgs) -> anyhow::Result<()> {
                 save_jobs(&shared, root, &mut saved).await;
                 pacer.wrote(t.elapsed());
             }
+            store_finished(&shared, &images, ckpt_root.as_deref(), &mut saved).await;
+            forget_finished(&shared, retain);
         }
         tracing::info!("stopping");
         server.stop().await;
@@ -166,7 +180,7 @@ async fn save_jobs(shared: &Arc<Shared>, root: &Path, saved: &mut HashMap<String
         let farm = shared.farm();
         farm.jobs
             .iter()
-            .filter(|e| e.job.width > 0)
+            .filter(|e| e.job.width > 0 && !e.job.is_evicted())
             .map(|e| (e, (e.job.units_done, e.job.phase == crate::job::JobPhase::Cancelled)))
             .filter(|(e, now)| saved.get(&e.job.id) != Some(now))
             .map(|(e, now)| (e.job.id.clone(), now, checkpoint::Snapshot::of(&e.spec, &e.job)))
@@ -191,6 +205,79 @@ async fn save_jobs(shared: &Arc<Shared>, root: &Path, saved: &mut HashMap<String
             }
             Err(e) => tracing::warn!(job = %id, "checkpoint not written, retrying at the next interval: {e:#}"),
         }
+    }
+}
+
+/// The folder of the store where finished jobs' images are kept, as `<job id>.exr`.
+pub const IMAGES: &str = "images";
+
+/// The stored image of `job`, if its id is a job id (never a path of the user's choice).
+pub fn stored_image(store: &Path, job: &str) -> Option<PathBuf> {
+    let n = job.strip_prefix("job-")?;
+    (!n.is_empty() && n.bytes().all(|b| b.is_ascii_digit())).then(|| store.join(IMAGES).join(format!("{job}.exr")))
+}
+
+fn stored_job_numbers(images: &Path) -> impl Iterator<Item = u64> {
+    let names = std::fs::read_dir(images).into_iter().flatten().flatten().map(|e| e.file_name());
+    names.filter_map(|n| n.to_str()?.strip_prefix("job-")?.strip_suffix(".exr")?.parse().ok())
+}
+
+/// Stores the image of every newly finished job (atomically: temp file, fsync, rename)
+/// and then drops its sums from memory and its checkpoint from disk: a farm's memory
+/// follows its running jobs, not its history. A failed write is a warning, and is tried
+/// again on the next pass.
+async fn store_finished(
+    shared: &Arc<Shared>,
+    images: &Path,
+    ckpt_root: Option<&Path>,
+    saved: &mut HashMap<String, Saved>,
+) {
+    let done: Vec<(String, tracer::film::Image, Option<tracer::output::RenderInfo>)> = {
+        let farm = shared.farm();
+        farm.jobs
+            .iter()
+            .filter(|e| e.job.phase == crate::job::JobPhase::Done && !e.job.is_evicted())
+            .map(|e| (e.job.id.clone(), e.job.image(), e.render_info()))
+            .collect()
+    };
+    for (id, image, info) in done {
+        let path = images.join(format!("{id}.exr"));
+        let target = path.clone();
+        let written = tokio::task::spawn_blocking(move || -> anyhow::Result<()> {
+            let tmp = target.with_extension("exr.tmp");
+            tracer::output::write_exr_with(&image, info.as_ref(), &tmp)?;
+            std::fs::File::open(&tmp).and_then(|f| f.sync_all()).with_context(|| format!("{}", tmp.display()))?;
+            std::fs::rename(&tmp, &target).with_context(|| format!("replacing {}", target.display()))?;
+            Ok(())
+        })
+        .await
+        .map_err(anyhow::Error::from)
+        .and_then(|r| r);
+        if let Err(e) = written {
+            tracing::warn!(job = %id, "the finished image was not stored, retrying: {e:#}");
+            continue;
+        }
+        if let Ok(e) = shared.farm().entry_mut(&id) {
+            e.job.evict();
+            e.stored = Some(path);
+        }
+        if let Some(root) = ckpt_root {
+            // The image is all that is left to keep: a restart must not load it again.
+            let _ = std::fs::remove_dir_all(root.join(&id));
+            saved.remove(&id);
+        }
+        tracing::info!(job = %id, "finished image stored; its sums left memory");
+    }
+}
+
+/// Stops listing stored jobs that finished longer than `retain` ago.
+fn forget_finished(shared: &Arc<Shared>, retain: Duration) {
+    let now = std::time::Instant::now();
+    let gone = shared.farm().remove_jobs(|e| {
+        e.stored.is_some() && e.job.finished.is_some_and(|t| now.saturating_duration_since(t) >= retain)
+    });
+    for id in gone {
+        tracing::info!(job = %id, "finished job no longer listed; its image stays in the store");
     }
 }
 

@@ -416,6 +416,19 @@ impl proto::jobs_server::Jobs for JobsService {
 
     async fn fetch_image(&self, req: Request<proto::JobRequest>) -> Result<Response<Self::FetchImageStream>, Status> {
         let job = req.into_inner().job_id;
+        // A finished job's image lives in the store (also once the job is forgotten).
+        let known = self.0.farm().entry(&job).ok().map(|e| e.stored.clone());
+        let stored = match known {
+            Some(stored) => stored,
+            None => crate::serve::stored_image(self.0.store().dir(), &job).filter(|p| p.is_file()),
+        };
+        if let Some(path) = stored {
+            let bytes =
+                tokio::fs::read(&path).await.map_err(|e| Status::internal(format!("reading the stored image: {e}")))?;
+            let chunks: Vec<Result<proto::ImageChunk, Status>> =
+                bytes.chunks(proto::ASSET_CHUNK_BYTES).map(|c| Ok(proto::ImageChunk { exr: c.to_vec() })).collect();
+            return Ok(Response::new(Box::pin(tokio_stream::iter(chunks))));
+        }
         let image = {
             let farm = self.0.farm();
             let e = farm.entry(&job).map_err(status_of_error)?;

@@ -179,6 +179,15 @@ pub fn run(cmd: &mut Command, limit: Duration) -> Output {
     }
 }
 
+/// Polls `f` until it is true, within `limit`.
+pub fn eventually(what: &str, limit: Duration, mut f: impl FnMut() -> bool) {
+    let start = Instant::now();
+    while !f() {
+        assert!(start.elapsed() < limit, "{what}: not within {limit:?}");
+        std::thread::sleep(Duration::from_millis(50));
+    }
+}
+
 /// The farm's jobs, as `status` lists them.
 pub fn list_jobs(url: &str) -> Vec<proto::JobStatus> {
     let rt = tokio::runtime::Builder::new_current_thread().enable_all().build().expect("runtime");

@@ -238,3 +238,34 @@ fn the_load_test_merges_every_unit_its_simulated_workers_return() {
     assert!(out.status.success(), "{text}\n{}", String::from_utf8_lossy(&out.stderr));
     assert!(text.contains("merged 128 unit results"), "{text}");
 }
+
+/// A finished job's image leaves the coordinator's memory for its store: once the job is
+/// no longer listed, `fetch` still writes the same bits, and a restarted farm on the same
+/// store never gives its id to a new job.
+#[test]
+fn finished_images_are_fetched_from_the_store_after_the_job_is_forgotten() {
+    let dir = TempDir::new("retention");
+    let expected = reference(&dir);
+    let store = dir.path("store");
+    let coord = Coordinator::start(&store, &["--retain-finished-ms", "300"]);
+    let _w = coord.worker(2, &dir.path("cache"));
+    let first = dir.path("first.exr");
+    let sub = coord.submit(&cornell(), &[&JOB[..], &["--wait", "-o", first.to_str().unwrap()]].concat(), LIMIT);
+    assert!(sub.status.success(), "{}", String::from_utf8_lossy(&sub.stderr));
+    assert_same_bits(&read_exr(&first), &expected, "while listed");
+    eventually("the finished job is no longer listed", LIMIT, || list_jobs(&coord.url).is_empty());
+    assert!(store.join("images/job-1.exr").is_file());
+    let again = dir.path("again.exr");
+    let fetch = run(
+        std::process::Command::new(bin("coordinator"))
+            .args(["fetch", "job-1", "--coordinator", &coord.url, "-q", "-o"])
+            .arg(&again),
+        LIMIT,
+    );
+    assert!(fetch.status.success(), "{}", String::from_utf8_lossy(&fetch.stderr));
+    assert_same_bits(&read_exr(&again), &expected, "from the store");
+    drop(coord);
+    let restarted = Coordinator::start(&store, &[]);
+    let id = restarted.submit_id(&cornell(), &JOB, LIMIT);
+    assert_ne!(id, "job-1", "a stored job's id is not reused");
+}

@@ -2,7 +2,7 @@
 //! uploads that lie about their size, scenes with missing files, and a full disk.
 
 use std::process::Command;
-use std::time::{Duration, Instant};
+use std::time::Duration;
 
 use tilefarm_e2e::*;
 
@@ -27,13 +27,8 @@ fn workers_of(url: &str) -> Vec<proto::WorkerInfo> {
     })
 }
 
-/// Polls `f` until it is true, within `LIMIT`.
-fn eventually(what: &str, mut f: impl FnMut() -> bool) {
-    let start = Instant::now();
-    while !f() {
-        assert!(start.elapsed() < LIMIT, "{what}: not within {LIMIT:?}");
-        std::thread::sleep(Duration::from_millis(50));
-    }
+fn eventually(what: &str, f: impl FnMut() -> bool) {
+    tilefarm_e2e::eventually(what, LIMIT, f)
 }
 
 #[test]
