@@ -22,4 +22,4 @@ pub mod sampler;
 pub mod sampling;
 pub mod scene;
 pub mod texture;
-pub mod wide;
+pub(crate) mod wide;

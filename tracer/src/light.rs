@@ -461,7 +461,7 @@ impl LightSet {
     /// [`LightSet::select_at`] at eight points: `(light, pmf, u', chosen)` per lane
     /// (lanes not `chosen` had no light to choose). Only where [`LightSet::wide_ok`].
     #[inline(always)]
-    pub fn select_at_wide(&self, p: V3w, u: F8) -> (U8, F8, F8, M8) {
+    pub(crate) fn select_at_wide(&self, p: V3w, u: F8) -> (U8, F8, F8, M8) {
         let mut w = [F8::ZERO; LOCAL_SELECTION_MAX];
         let mut total = F8::ZERO;
         for (wi, imp) in w.iter_mut().zip(&self.importance) {
@@ -494,7 +494,7 @@ impl LightSet {
     /// [`Light::sample_li`] of light `light[l]` at `p[l]` for the lanes of `mask`; lanes
     /// not `some` have no sample.
     #[inline(always)]
-    pub fn sample_li_wide(&self, light: U8, p: V3w, u: V2w, mask: M8) -> LightSamplesW {
+    pub(crate) fn sample_li_wide(&self, light: U8, p: V3w, u: V2w, mask: M8) -> LightSamplesW {
         let zero = V3w::splat(Vec3::ZERO);
         let (mut tri, mut sph, mut pnt, mut spt) = (M8::NONE, M8::NONE, M8::NONE, M8::NONE);
         // Lights at infinity: the environment, directional lights (`dir` in `b`).
@@ -597,7 +597,7 @@ impl LightSet {
 }
 
 /// Eight [`LightSample`]s ([`LightSet::sample_li_wide`]).
-pub struct LightSamplesW {
+pub(crate) struct LightSamplesW {
     pub wi: V3w,
     pub li: V3w,
     pub pdf: F8,

@@ -160,7 +160,7 @@ fn slot_key(pixel_key: u64, d: u32, part: u64) -> u64 {
 /// Lane by lane the same operations as [`Sampler::next_1d`] and [`Sampler::next_2d`]
 /// (which the compiler vectorises), so the same numbers.
 #[derive(Clone, Debug)]
-pub struct SamplerLanes {
+pub(crate) struct SamplerLanes {
     pixel_key: [u64; W],
     index_reversed: U8,
     dimension: U8,

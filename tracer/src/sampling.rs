@@ -224,7 +224,7 @@ pub fn power_heuristic(nf: f32, f_pdf: f32, ng: f32, g_pdf: f32) -> f32 {
 
 /// The warps of the eight-path integrator: each is its scalar namesake (without
 /// `_wide`) lane by lane, with the same operations in the same order (see `wide.rs`).
-pub mod wide {
+pub(crate) mod wide {
     use std::f32::consts::FRAC_PI_4;
 
     use super::{INV_2PI, INV_PI};

@@ -11,8 +11,13 @@
 //!
 //! On x86_64 the operations are AVX2 instructions, written with `core::arch` (the
 //! compiler's own vectoriser left plain lane loops half scalar). **They may only run
-//! where the CPU has AVX2**: the eight-path renderer runs only after detecting it, and
-//! the tests that use these types check first. Elsewhere they are lane loops.
+//! where the CPU has AVX2.** That is kept by visibility: this module, and every type
+//! and function that holds or takes these types (`FrameW`, `LambertW`, `BlinnPhongW`,
+//! `LightSamplesW`, `SamplerLanes`, `sampling::wide`, the `*_wide` methods, the
+//! eight-path integrator), is `pub(crate)`, so safe code outside the crate can never
+//! make a lane value; inside it, the only way in is `render::render_unit_simd`, reached
+//! after `is_x86_feature_detected!("avx2")`, and the twin tests, which fail where the
+//! CPU lacks AVX2 (`tests::require_avx2`). Elsewhere the operations are lane loops.
 
 use std::ops::{Add, BitAnd, BitOr, Div, Mul, Neg, Not, Sub};
 

@@ -155,7 +155,7 @@ impl BlinnPhong {
 /// Eight normalised Blinn-Phong BSDFs, lane by lane [`BlinnPhong`]'s (the eight-path
 /// integrator's), from [`BlinnPhong::new`]'s values.
 #[derive(Clone, Copy, Debug)]
-pub struct BlinnPhongW {
+pub(crate) struct BlinnPhongW {
     kd: V3w,
     ks: V3w,
     exponent: F8,

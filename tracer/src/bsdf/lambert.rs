@@ -44,7 +44,7 @@ impl Lambert {
 
 /// Eight Lambertian BSDFs, lane by lane [`Lambert`]'s (the eight-path integrator's).
 #[derive(Clone, Copy, Debug)]
-pub struct LambertW {
+pub(crate) struct LambertW {
     pub kd: V3w,
 }
 

@@ -35,12 +35,14 @@ impl Frame {
 
 /// Eight frames, lane by lane [`Frame`]'s (the eight-path integrator's).
 #[derive(Clone, Copy, Debug)]
-pub struct FrameW {
+pub(crate) struct FrameW {
     pub s: V3w,
     pub t: V3w,
     pub n: V3w,
 }
 
+// `to_local` / `to_world` keep the signatures of their scalar twins on `Frame`.
+#[allow(clippy::wrong_self_convention)]
 impl FrameW {
     /// [`Frame::from_normal`], lane by lane.
     #[inline(always)]

@@ -34,7 +34,7 @@ pub fn offset_origin(p: Vec3, geometric_normal: Vec3, dir: Vec3) -> Vec3 {
 
 /// [`offset_origin`] lane by lane.
 #[inline(always)]
-pub fn offset_origin_wide(p: V3w, geometric_normal: V3w, dir: V3w) -> V3w {
+pub(crate) fn offset_origin_wide(p: V3w, geometric_normal: V3w, dir: V3w) -> V3w {
     let eps = 2e-5 * p.abs().max_element().max(1.0);
     let side = geometric_normal.dot(dir).ge(0.0).select(F8::ONE, F8::splat(-1.0));
     p + geometric_normal * (eps * side)

@@ -132,7 +132,14 @@ impl Scene {
     /// `sph` spheres; `prim`, `t`, `u`, `v` are the hits'. (Texture coordinates are not
     /// computed: the eight-path integrator takes lanes whose materials have no texture.)
     #[inline(always)]
-    pub fn interaction_wide(&self, origin: V3w, dir: V3w, hit: (U8, F8, F8, F8), tri: M8, sph: M8) -> (V3w, V3w, V3w) {
+    pub(crate) fn interaction_wide(
+        &self,
+        origin: V3w,
+        dir: V3w,
+        hit: (U8, F8, F8, F8),
+        tri: M8,
+        sph: M8,
+    ) -> (V3w, V3w, V3w) {
         let (prim, t, u, v) = hit;
         let g = &self.geometry;
         let zero = V3w::splat(Vec3::ZERO);
