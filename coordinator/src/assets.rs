@@ -46,6 +46,9 @@ pub fn safe_relative_path(p: &str) -> anyhow::Result<PathBuf> {
     Ok(path.to_path_buf())
 }
 
+/// The folder of the store where finished jobs' images are kept, as `<job id>.exr`.
+pub const IMAGES: &str = "images";
+
 /// The blob store: `<dir>/blobs/<sha256>`.
 pub struct AssetStore {
     dir: PathBuf,
@@ -70,6 +73,14 @@ impl AssetStore {
 
     pub fn dir(&self) -> &Path {
         &self.dir
+    }
+
+    /// Where the finished image of `job` is kept, if `job` is a job id (never a path of
+    /// the caller's choosing).
+    pub fn stored_image(&self, job: &str) -> Option<PathBuf> {
+        let n = job.strip_prefix("job-")?;
+        let valid = !n.is_empty() && n.bytes().all(|b| b.is_ascii_digit());
+        valid.then(|| self.dir.join(IMAGES).join(format!("{job}.exr")))
     }
 
     pub fn blob_path(&self, sha256: &str) -> PathBuf {
@@ -205,5 +216,16 @@ mod tests {
         let mut rel: Vec<String> = s.files.iter().map(|f| s.relative(f)).collect();
         rel.sort();
         assert_eq!(rel, ["cup.mtl", "cup.obj", "table.obj"]);
+    }
+
+    #[test]
+    fn stored_images_are_named_by_job_ids_only() {
+        let dir = std::env::temp_dir().join(format!("tilefarm-images-{}", std::process::id()));
+        let store = AssetStore::open(&dir).unwrap();
+        assert_eq!(store.stored_image("job-12"), Some(dir.join("images/job-12.exr")));
+        for bad in ["../job-1", "job-", "job-1/../../etc", "job-1.exr", "x"] {
+            assert_eq!(store.stored_image(bad), None, "{bad}");
+        }
+        std::fs::remove_dir_all(&dir).ok();
     }
 }

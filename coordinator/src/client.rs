@@ -104,19 +104,6 @@ fn job_name(scene: &std::path::Path) -> String {
     folder.map_or(stem, |f| f.to_string_lossy().into_owned())
 }
 
-/// The image and preview paths must be writable before waiting for a job.
-pub fn check_outputs(output: &std::path::Path, preview: Option<&std::path::Path>) -> anyhow::Result<()> {
-    tracer::output::check_output_path(output)?;
-    if let Some(p) = preview {
-        anyhow::ensure!(
-            tracer::output::check_output_path(p)? == tracer::output::Format::Png,
-            "{}: a preview is a PNG: give a path ending in .png",
-            p.display()
-        );
-    }
-    Ok(())
-}
-
 fn runtime() -> anyhow::Result<tokio::runtime::Runtime> {
     tokio::runtime::Builder::new_multi_thread().worker_threads(2).enable_all().build().context("async runtime")
 }
@@ -139,7 +126,7 @@ pub(crate) async fn upload(
 pub fn submit(args: SubmitArgs) -> anyhow::Result<()> {
     runtime()?.block_on(async move {
         if args.wait {
-            check_outputs(&args.output, args.preview.as_deref())?;
+            tracer::output::check_output_paths(&args.output, args.preview.as_deref())?;
         }
         let local = LocalScene::collect(&args.scene)?;
         // Refused here, before a job exists: a job that cannot load only fails later.
@@ -217,7 +204,7 @@ async fn fetch_and_write(
 
 /// `coordinator fetch`: follows a job to its end and writes its image.
 pub fn fetch(args: FetchArgs) -> anyhow::Result<()> {
-    check_outputs(&args.output, args.preview.as_deref())?;
+    tracer::output::check_output_paths(&args.output, args.preview.as_deref())?;
     runtime()?.block_on(async move {
         let mut client = connect(&args.coordinator.address).await?;
         // A job that finished long ago is no longer listed, but its image is stored.

@@ -185,7 +185,7 @@ fn runtime() -> anyhow::Result<tokio::runtime::Runtime> {
 impl RunArgs {
     /// The output and preview paths must be writable before anything is rendered.
     fn check_outputs(&self) -> anyhow::Result<()> {
-        crate::client::check_outputs(&self.output, self.preview.as_deref())
+        Ok(tracer::output::check_output_paths(&self.output, self.preview.as_deref())?)
     }
 }
 

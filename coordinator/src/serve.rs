@@ -95,7 +95,7 @@ pub fn run(args: ServeArgs) -> anyhow::Result<()> {
         changed: tokio::sync::Notify::new(),
     });
     let ckpt_root = args.checkpoint.as_ref().map(|d| d.join("job-checkpoints"));
-    let images = store_dir.join(IMAGES);
+    let images = store_dir.join(crate::assets::IMAGES);
     std::fs::create_dir_all(&images).with_context(|| format!("creating {}", images.display()))?;
     // Ids of finished jobs whose images are stored stay taken.
     if let Some(n) = stored_job_numbers(&images).max() {
@@ -206,15 +206,6 @@ async fn save_jobs(shared: &Arc<Shared>, root: &Path, saved: &mut HashMap<String
             Err(e) => tracing::warn!(job = %id, "checkpoint not written, retrying at the next interval: {e:#}"),
         }
     }
-}
-
-/// The folder of the store where finished jobs' images are kept, as `<job id>.exr`.
-pub const IMAGES: &str = "images";
-
-/// The stored image of `job`, if its id is a job id (never a path of the user's choice).
-pub fn stored_image(store: &Path, job: &str) -> Option<PathBuf> {
-    let n = job.strip_prefix("job-")?;
-    (!n.is_empty() && n.bytes().all(|b| b.is_ascii_digit())).then(|| store.join(IMAGES).join(format!("{job}.exr")))
 }
 
 fn stored_job_numbers(images: &Path) -> impl Iterator<Item = u64> {

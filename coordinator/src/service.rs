@@ -420,7 +420,7 @@ impl proto::jobs_server::Jobs for JobsService {
         let known = self.0.farm().entry(&job).ok().map(|e| e.stored.clone());
         let stored = match known {
             Some(stored) => stored,
-            None => crate::serve::stored_image(self.0.store().dir(), &job).filter(|p| p.is_file()),
+            None => self.0.store().stored_image(&job).filter(|p| p.is_file()),
         };
         if let Some(path) = stored {
             let bytes =

@@ -65,6 +65,20 @@ pub fn check_output_path(path: &Path) -> Result<Format, OutputError> {
     }
 }
 
+/// [`check_output_path`] for an image and its optional preview, which must be a PNG.
+pub fn check_output_paths(output: &Path, preview: Option<&Path>) -> Result<(), OutputError> {
+    check_output_path(output)?;
+    if let Some(p) = preview
+        && check_output_path(p)? != Format::Png
+    {
+        return Err(OutputError::Write {
+            path: p.display().to_string(),
+            message: "a preview is a PNG: give a path ending in .png".into(),
+        });
+    }
+    Ok(())
+}
+
 /// Writes `image` to `path`: `.exr` for HDR data, `.png` for a tone-mapped preview.
 pub fn write_image(image: &Image, path: &Path) -> Result<(), OutputError> {
     write_image_with(image, None, path)

@@ -7,6 +7,7 @@ mod lanes;
 pub mod packed;
 #[cfg(target_arch = "x86_64")]
 pub mod packet;
+mod store;
 
 pub use kdtree::{BuildParams, KdTree, KdTreeStats};
 
@@ -44,30 +45,7 @@ impl RayPrecomp {
     }
 }
 
-/// Asks the kernel to back the whole 2 MiB pages inside `v`'s buffer with transparent
-/// huge pages, now (Linux; elsewhere nothing). A large tree on 4 KiB pages costs a TLB
-/// miss on nearly every node step near the root, and the system default here is
-/// `madvise` (huge pages only where asked for). Contents and addresses are unchanged;
-/// if the kernel declines, nothing changes. Used for the kd-tree's nodes and the scene's
-/// triangle corners (`Geometry::permute_triangles`).
-pub fn advise_huge_pages<T>(v: &[T]) {
-    #[cfg(target_os = "linux")]
-    {
-        const HUGE: usize = 2 << 20;
-        let start = v.as_ptr() as usize;
-        let (lo, hi) = (start.next_multiple_of(HUGE), (start + size_of_val(v)) / HUGE * HUGE);
-        if hi > lo {
-            // SAFETY: [lo, hi) lies inside `v`'s allocation; both advices keep the memory's
-            // contents and mapping (MADV_COLLAPSE copies populated pages into huge ones).
-            unsafe {
-                libc::madvise(lo as *mut libc::c_void, hi - lo, libc::MADV_HUGEPAGE);
-                libc::madvise(lo as *mut libc::c_void, hi - lo, libc::MADV_COLLAPSE);
-            }
-        }
-    }
-    #[cfg(not(target_os = "linux"))]
-    let _ = v;
-}
+pub use crate::memory::advise_huge_pages;
 
 /// A set of primitives addressed by index `0..len()`.
 pub trait Primitives: Sync {

@@ -25,7 +25,7 @@ use super::lanes::{WIDE, watertight_avx2, watertight_avx512};
 use super::{Hit, PrimHit, Primitives, RayPrecomp};
 use crate::geometry::triangle::RayShear;
 use crate::geometry::{Aabb, Ray};
-use crate::scene::Geometry;
+use crate::shapes::Geometry;
 
 /// Largest scene traced by [`PackedTriangles`] instead of the kd-tree. Full renders
 /// (`coordinator render SCENE --local-workers 0 --width 256 --spp 16`, median of 5,
@@ -564,7 +564,7 @@ fn sphere_candidates(b: &SphereBlock, ray: &Ray, a: f32) -> u32 {
 pub(super) mod tests {
     use super::*;
     use crate::accel::{brute_force_intersect, brute_force_occluded};
-    use crate::scene::{Sphere, Tri, TriangleMesh};
+    use crate::shapes::{Sphere, Tri, TriangleMesh};
 
     pub(crate) struct Rng(pub(crate) u64);
     impl Rng {
@@ -589,7 +589,7 @@ pub(super) mod tests {
     /// [`scene`] with every coordinate (and radius) multiplied by `scale`.
     pub(crate) fn scaled_scene(r: &mut Rng, n: usize, spheres: usize, scale: f32) -> Geometry {
         let mut mesh = TriangleMesh::default();
-        let none = [crate::scene::NONE; 3];
+        let none = [crate::shapes::NONE; 3];
         let tri = |mesh: &mut TriangleMesh, p: [Vec3; 3]| {
             let base = mesh.positions.len() as u32;
             mesh.positions.extend(p.map(|q| q * scale));

@@ -4,18 +4,15 @@
 pub mod assets;
 pub mod file;
 pub mod generate;
-pub mod geometry;
 pub mod load;
-pub mod mesh;
 pub mod obj;
 pub mod overrides;
 
+pub use crate::shapes::{Geometry, GeometryBytes, NONE, PrimRef, Sphere, Tri, TriangleMesh};
 pub use file::UpAxis;
-pub use geometry::{Geometry, GeometryBytes, PrimRef, Sphere};
 pub use load::{
     RenderSettings, SceneError, load_scene, load_scene_as, load_scene_up, scene_from_bare_obj, scene_from_toml,
 };
-pub use mesh::{NONE, Tri, TriangleMesh};
 pub use overrides::Overrides;
 
 use glam::{Vec2, Vec3};

@@ -8,7 +8,7 @@ use super::treelet::Treelet;
 use super::*;
 use crate::accel::{RayPrecomp, brute_force_intersect, brute_force_occluded};
 use crate::scene::generate::displaced_sphere;
-use crate::scene::{Geometry, NONE, Sphere, Tri, TriangleMesh};
+use crate::shapes::{Geometry, NONE, Sphere, Tri, TriangleMesh};
 
 /// Small deterministic generator so that one proptest seed describes a whole scene.
 pub(super) struct Rng(pub(super) u64);

@@ -1,14 +1,10 @@
 //! The scene's primitives — triangles then spheres in one index space — as the
-//! kd-tree sees them.
+//! aggregates (`accel`) see them: their ray tests are in `accel/store.rs`.
 
 use glam::{Vec2, Vec3};
 
 use super::{NONE, TriangleMesh};
-use crate::accel::{KdTree, PrimHit, Primitives, RayPrecomp};
-use crate::geometry::clip::clipped_triangle_bounds;
-use crate::geometry::sphere::intersect_sphere;
-use crate::geometry::triangle::intersect_triangle_corners;
-use crate::geometry::{Aabb, Ray};
+use crate::geometry::Aabb;
 
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct Sphere {
@@ -42,7 +38,7 @@ impl Sphere {
 #[derive(Clone, Debug, Default)]
 pub struct Geometry {
     pub spheres: Vec<Sphere>,
-    corners: Vec<[Vec3; 3]>,
+    pub(crate) corners: Vec<[Vec3; 3]>,
     materials: Vec<u32>,
     normal_idx: Vec<[u32; 3]>,
     uv_idx: Vec<[u32; 3]>,
@@ -155,23 +151,6 @@ impl Geometry {
         }
     }
 
-    /// Stores the triangles in `tree`'s leaf order ([`KdTree::leaf_order`]) and renames
-    /// the tree's indices to match, so that a leaf's triangles are adjacent in memory
-    /// (on large meshes nearly every triangle test is a cache miss otherwise). `tree`
-    /// must have been built over `self`. Spheres keep their indices. Returns the
-    /// permutation applied to the triangles, `order[new] = old`.
-    pub fn store_in_leaf_order(&mut self, tree: &mut KdTree) -> Vec<u32> {
-        let ntri = self.triangle_count();
-        let order: Vec<u32> = tree.leaf_order(self.len()).into_iter().filter(|&i| (i as usize) < ntri).collect();
-        let mut new_index: Vec<u32> = (0..self.len() as u32).collect();
-        for (new, &old) in order.iter().enumerate() {
-            new_index[old as usize] = new as u32;
-        }
-        tree.remap(&new_index);
-        self.permute_triangles(&order);
-        order
-    }
-
     /// Reorders the triangles: new triangle `i` is old triangle `order[i]` (`order` is a
     /// permutation of `0..triangle_count()`). Every per-triangle array moves; spheres are
     /// unchanged.
@@ -188,7 +167,13 @@ impl Geometry {
         permute(&mut self.uv_idx, order);
         // Ray queries read the corners in the tree's leaf order but jump between distant
         // leaves: on 4 KiB pages most of those reads also miss the TLB.
-        crate::accel::advise_huge_pages(&self.corners);
+        crate::memory::advise_huge_pages(&self.corners);
+    }
+
+    /// Triangles and spheres.
+    #[inline]
+    pub fn prim_count(&self) -> usize {
+        self.corners.len() + self.spheres.len()
     }
 
     #[inline]
@@ -198,81 +183,10 @@ impl Geometry {
     }
 }
 
-impl Primitives for Geometry {
-    fn len(&self) -> usize {
-        self.corners.len() + self.spheres.len()
-    }
-
-    fn bounds(&self, i: u32) -> Aabb {
-        match self.resolve(i) {
-            PrimRef::Triangle(t) => Aabb::from_points(&self.corners[t]),
-            PrimRef::Sphere(s) => self.spheres[s].bounds(),
-        }
-    }
-
-    fn clipped_bounds(&self, i: u32, clip: &Aabb) -> Aabb {
-        match self.resolve(i) {
-            PrimRef::Triangle(t) => clipped_triangle_bounds(self.corners[t], clip),
-            PrimRef::Sphere(s) => self.spheres[s].bounds().intersection(*clip),
-        }
-    }
-
-    // Inlined into the kd-tree's leaf loop (the triangle test then keeps the ray's
-    // shear in registers across a leaf's primitives); the rarer sphere test stays out of
-    // line so the loop stays small.
-    #[inline(always)]
-    fn intersect(&self, i: u32, ray: &Ray, pre: &RayPrecomp, tmax: f32) -> Option<PrimHit> {
-        match self.resolve(i) {
-            PrimRef::Triangle(t) => intersect_triangle_corners(&pre.shear, &self.corners[t], tmax).map(|h| PrimHit {
-                t: h.t,
-                u: h.b1,
-                v: h.b2,
-            }),
-            PrimRef::Sphere(s) => self.intersect_sphere(s, ray, tmax),
-        }
-    }
-
-    #[inline(always)]
-    fn triangle_corners(&self) -> &[[Vec3; 3]] {
-        &self.corners
-    }
-
-    #[inline(always)]
-    fn prefetch(&self, i: u32) {
-        // The 36 corner bytes may straddle two cache lines.
-        if let Some(c) = self.corners.get(i as usize) {
-            let p: *const u8 = (c as *const [Vec3; 3]).cast();
-            prefetch(p);
-            prefetch(p.wrapping_add(size_of::<[Vec3; 3]>() - 1));
-        }
-    }
-}
-
-/// Hints the cache to load `p`'s line (nothing is dereferenced).
-#[inline(always)]
-fn prefetch(p: *const u8) {
-    // SAFETY: a prefetch is a hint; it never faults, whatever the address (SSE is part
-    // of the x86_64 baseline).
-    #[cfg(target_arch = "x86_64")]
-    unsafe {
-        core::arch::x86_64::_mm_prefetch::<{ core::arch::x86_64::_MM_HINT_T0 }>(p.cast())
-    };
-    #[cfg(not(target_arch = "x86_64"))]
-    let _ = p;
-}
-
-impl Geometry {
-    #[inline(never)]
-    fn intersect_sphere(&self, s: usize, ray: &Ray, tmax: f32) -> Option<PrimHit> {
-        let sp = &self.spheres[s];
-        intersect_sphere(ray, sp.center, sp.radius, 0.0, tmax).map(|t| PrimHit { t, u: 0.0, v: 0.0 })
-    }
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::scene::Tri;
+    use crate::shapes::Tri;
 
     /// Four triangles over six positions: one with normals and uvs, one with normals
     /// only, one with uvs only, one with neither.
