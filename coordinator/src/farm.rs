@@ -217,7 +217,7 @@ impl Farm {
         self.touch(worker, now)?;
         let entry = self.entry_mut(job)?;
         let was_running = entry.job.phase == JobPhase::Running;
-        let applied = entry.job.apply(worker, result)?;
+        let applied = entry.job.apply_at(worker, result, now)?;
         if was_running && entry.job.phase == JobPhase::Done {
             let j = &entry.job;
             tracing::info!(

@@ -2,7 +2,7 @@
 //! each unit. Plain Rust, no network: the services call into this, and it is tested
 //! directly.
 
-use std::collections::BTreeSet;
+use std::collections::{BTreeSet, VecDeque};
 use std::time::{Duration, Instant};
 
 use tracer::film::{Accumulation, Image, SampleRange, Tile};
@@ -147,7 +147,17 @@ pub struct Job {
     pub warnings: Vec<String>,
     /// The unit count of a finished job whose units and sums were dropped ([`Job::evict`]).
     evicted_units: Option<u64>,
+    /// How long the last units took from lease to result, newest last (at most
+    /// [`UNIT_TIMES_KEPT`]): what tells a straggler from an ordinary unit.
+    unit_times: VecDeque<Duration>,
 }
+
+/// Unit times a job keeps for its median.
+const UNIT_TIMES_KEPT: usize = 64;
+/// A unit out for this many times the job's median unit time is a straggler...
+const STRAGGLER_FACTOR: u32 = 3;
+/// ...but never one out for less than this (tiny units would all look like stragglers).
+const STRAGGLER_FLOOR: Duration = Duration::from_millis(100);
 
 /// A scene's warnings as a job keeps them: at most 20, each at most 500 characters, so
 /// that a model with thousands of problems cannot swell every status message.
@@ -188,6 +198,7 @@ impl Job {
             samples_at_start: 0,
             warnings: Vec::new(),
             evicted_units: None,
+            unit_times: VecDeque::new(),
         }
     }
 
@@ -382,8 +393,9 @@ impl Job {
 
     /// Leases the next pending unit (progressive order) to `worker` until `deadline`.
     /// When none is pending, and a unit has been out with another worker for longer
-    /// than `speculate_after`, the oldest such unit is leased again as a spare
-    /// (speculative execution against stragglers): the first result wins.
+    /// than [`Job::straggler_after`] (`speculate_after` until the job has timed a few
+    /// units), the oldest such unit is leased again as a spare (speculative execution
+    /// against stragglers): the first result wins.
     pub fn lease_next(
         &mut self,
         worker: WorkerId,
@@ -403,6 +415,7 @@ impl Job {
             }
             return Some(id);
         }
+        let speculate_after = self.straggler_after(speculate_after);
         let (id, unit) = self
             .units
             .iter_mut()
@@ -470,9 +483,30 @@ impl Job {
         n
     }
 
-    /// Checks a result and, if valid and new, merges it. Merging is exact integer
-    /// addition, so the final image does not depend on the order results arrive in.
+    /// [`Job::apply_at`] now (the tests' shorthand).
+    #[cfg(test)]
     pub fn apply(&mut self, worker: WorkerId, r: &UnitResult) -> Result<Applied, Rejection> {
+        self.apply_at(worker, r, Instant::now())
+    }
+
+    /// After how long a leased unit counts as a straggler, to be leased again to an idle
+    /// worker: [`STRAGGLER_FACTOR`] times the median of the job's recent unit times (at
+    /// least [`STRAGGLER_FLOOR`]), or `fallback` until a few units have been timed. A
+    /// measure, not a constant: many jobs take less in all than any fixed wait would.
+    pub fn straggler_after(&self, fallback: Duration) -> Duration {
+        if self.unit_times.len() < 4 {
+            return fallback;
+        }
+        let mut times: Vec<Duration> = self.unit_times.iter().copied().collect();
+        let mid = times.len() / 2;
+        let (_, median, _) = times.select_nth_unstable(mid);
+        (*median * STRAGGLER_FACTOR).max(STRAGGLER_FLOOR)
+    }
+
+    /// Checks a result received at `now` and, if valid and new, merges it. Merging is
+    /// exact integer addition, so the final image does not depend on the order results
+    /// arrive in.
+    pub fn apply_at(&mut self, worker: WorkerId, r: &UnitResult, now: Instant) -> Result<Applied, Rejection> {
         match &self.phase {
             JobPhase::Running => {}
             JobPhase::Done => {
@@ -520,6 +554,12 @@ impl Job {
             return Ok(Applied::Duplicate);
         }
         let tile_index = unit.tile_index;
+        if let UnitState::Leased { since, .. } = unit.state {
+            if self.unit_times.len() == UNIT_TIMES_KEPT {
+                self.unit_times.pop_front();
+            }
+            self.unit_times.push_back(now.saturating_duration_since(since));
+        }
         let acc =
             Accumulation { tile: unit.tile, sums: r.sums.clone(), counts: r.counts.clone(), nonfinite: r.nonfinite };
         self.tiles[tile_index].merge(&acc).map_err(|e| malformed(e.to_string()))?;
@@ -791,6 +831,31 @@ mod tests {
         assert_eq!((j.units_total(), j.samples_done, j.phase.clone()), (units, samples, JobPhase::Done));
         assert_eq!(j.apply(1, &late), Ok(Applied::Duplicate));
         assert_eq!(j.apply(1, &UnitResult { unit: units, ..late }), Err(Rejection::UnknownUnit(units)));
+    }
+
+    /// Stragglers are told by the job's own unit times: a unit out for three times the
+    /// median is leased again long before any fixed wait would.
+    #[test]
+    fn stragglers_are_units_out_for_a_few_times_the_median() {
+        let mut j = job();
+        let t0 = Instant::now();
+        let far = t0 + Duration::from_secs(600);
+        let fallback = Duration::from_secs(10);
+        assert_eq!(j.straggler_after(fallback), fallback, "nothing timed yet");
+        // Worker 1 returns units after 200 ms each; worker 2 takes one and stalls.
+        let stalled = j.lease_next(2, t0, far, fallback).unwrap();
+        let mut t = t0;
+        while let Some(id) = j.lease_next(1, t, far, fallback) {
+            if id == stalled {
+                break; // worker 1 got the straggler as a spare
+            }
+            t += Duration::from_millis(200);
+            j.apply_at(1, &result_for(&j, id, 1), t).unwrap();
+        }
+        assert_eq!(j.straggler_after(fallback), Duration::from_millis(600));
+        assert!(j.units[stalled as usize].spare.is_some_and(|s| s.worker == 1));
+        // It was leased again once out for 600 ms: not at the 10 s of the fallback.
+        assert!(t.duration_since(t0) < Duration::from_secs(10), "{:?}", t.duration_since(t0));
     }
 
     #[test]

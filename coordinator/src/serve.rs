@@ -54,8 +54,9 @@ pub struct FarmArgs {
     /// How often workers renew their leases, in milliseconds.
     #[arg(long, default_value_t = 2_000)]
     pub heartbeat_ms: u64,
-    /// When no unit is left in the queue, a unit out with one worker for this many
-    /// milliseconds is also given to an idle worker; the first result wins.
+    /// When no unit is left in the queue, a unit out with one worker for three times the
+    /// job's median unit time is also given to an idle worker; the first result wins.
+    /// Until a job has timed a few units, this many milliseconds stands in for that.
     #[arg(long, default_value_t = 10_000)]
     pub speculate_after_ms: u64,
     /// Forget a worker not heard from for this many milliseconds (it registers again if
