@@ -7,6 +7,7 @@ use std::time::{Duration, Instant};
 
 use tracer::film::{Accumulation, Image, SampleRange, Tile};
 
+use crate::leases::{LeaseClock, Slot};
 use crate::schedule;
 
 pub type WorkerId = u64;
@@ -150,6 +151,8 @@ pub struct Job {
     /// How long the last units took from lease to result, newest last (at most
     /// [`UNIT_TIMES_KEPT`]): what tells a straggler from an ordinary unit.
     unit_times: VecDeque<Duration>,
+    /// The leases' deadlines and ages, in order.
+    clock: LeaseClock,
 }
 
 /// Unit times a job keeps for its median.
@@ -199,6 +202,7 @@ impl Job {
             warnings: Vec::new(),
             evicted_units: None,
             unit_times: VecDeque::new(),
+            clock: LeaseClock::default(),
         }
     }
 
@@ -217,6 +221,7 @@ impl Job {
             })
             .collect();
         self.pending = (0..self.units.len() as UnitId).collect();
+        self.clock.clear();
         self.tiles = tiles.into_iter().map(Accumulation::new).collect();
         (self.width, self.height, self.spp, self.non_negative) = (width, height, spp, non_negative);
         (self.tile_size, self.batch_spp) = (tile_size, batch_spp);
@@ -264,6 +269,7 @@ impl Job {
         }
         self.pending =
             units.iter().enumerate().filter(|(_, u)| u.state == UnitState::Pending).map(|(i, _)| i as UnitId).collect();
+        self.clock.clear();
         self.units_done = units.iter().filter(|u| u.state == UnitState::Done).count() as u64;
         self.samples_done = units
             .iter()
@@ -357,6 +363,7 @@ impl Job {
     /// An ended job holds no leases: its workers are told to abandon its units at their
     /// next heartbeat, nothing lapses later, and no worker counts them as held.
     fn release_leases(&mut self) {
+        self.clock.clear();
         for (id, u) in self.units.iter_mut().enumerate() {
             u.spare = None;
             if matches!(u.state, UnitState::Leased { .. }) {
@@ -380,6 +387,7 @@ impl Job {
             self.units = Vec::new();
             self.tiles = Vec::new();
             self.pending = BTreeSet::new();
+            self.clock.clear();
         }
     }
 
@@ -410,28 +418,30 @@ impl Job {
             let unit = &mut self.units[id as usize];
             unit.state = UnitState::Leased { worker, deadline, since: now };
             unit.spare = None;
+            self.clock.leased(id, now, deadline);
             if !unit.holders.contains(&worker) {
                 unit.holders.push(worker);
             }
             return Some(id);
         }
         let speculate_after = self.straggler_after(speculate_after);
-        let (id, unit) = self
-            .units
-            .iter_mut()
-            .enumerate()
-            .filter(|(_, u)| u.spare.is_none() && !u.holders.contains(&worker))
-            .filter_map(|(i, u)| match u.state {
-                UnitState::Leased { since, .. } if now.saturating_duration_since(since) >= speculate_after => {
-                    Some((since, i, u))
-                }
-                _ => None,
-            })
-            .min_by_key(|(since, i, _)| (*since, *i))
-            .map(|(_, i, u)| (i, u))?;
+        // Oldest leases first: the first that is old enough, has no spare and was never
+        // this worker's is the one; younger ones need not be looked at.
+        let units = &self.units;
+        let id = self
+            .clock
+            .oldest_out()
+            .take_while(|(since, _)| now.saturating_duration_since(*since) >= speculate_after)
+            .map(|(_, id)| id)
+            .find(|&id| {
+                let u = &units[id as usize];
+                u.spare.is_none() && !u.holders.contains(&worker) && matches!(u.state, UnitState::Leased { .. })
+            })?;
+        let unit = &mut self.units[id as usize];
         unit.spare = Some(Spare { worker, deadline });
         unit.holders.push(worker);
-        Some(id as UnitId)
+        self.clock.deadline(id, Slot::Spare, deadline);
+        Some(id)
     }
 
     /// Extends the lease of `unit` if `worker` holds it. Returns false when the worker
@@ -445,11 +455,13 @@ impl Job {
             && spare.worker == worker
         {
             spare.deadline = deadline;
+            self.clock.deadline(unit, Slot::Spare, deadline);
             return true;
         }
         match &mut u.state {
             UnitState::Leased { worker: w, deadline: d, .. } if *w == worker => {
                 *d = deadline;
+                self.clock.deadline(unit, Slot::Primary, deadline);
                 true
             }
             // Lapsed and re-queued or leased elsewhere: the worker may still finish it
@@ -463,21 +475,33 @@ impl Job {
     /// spare). Returns how many units went back to the queue.
     pub fn reap_expired(&mut self, now: Instant) -> usize {
         let mut n = 0;
-        for (id, unit) in self.units.iter_mut().enumerate() {
-            if unit.spare.is_some_and(|s| s.deadline <= now) {
-                unit.spare = None;
-            }
-            if let UnitState::Leased { deadline, .. } = unit.state
-                && deadline <= now
-            {
-                unit.state = match unit.spare.take() {
-                    Some(s) => UnitState::Leased { worker: s.worker, deadline: s.deadline, since: now },
-                    None => {
-                        self.pending.insert(id as UnitId);
-                        n += 1;
-                        UnitState::Pending
+        while let Some((due, id, slot)) = self.clock.pop_due(now) {
+            let unit = &mut self.units[id as usize];
+            match slot {
+                // Only the spare lease this deadline was for (not a renewed one).
+                Slot::Spare => {
+                    if unit.spare.is_some_and(|s| s.deadline == due) {
+                        unit.spare = None;
                     }
-                };
+                }
+                Slot::Primary => {
+                    let UnitState::Leased { deadline, since, .. } = unit.state else { continue };
+                    if deadline != due {
+                        continue; // renewed since
+                    }
+                    self.clock.ended(id, since);
+                    unit.state = match unit.spare.take().filter(|s| s.deadline > now) {
+                        Some(s) => {
+                            self.clock.leased(id, now, s.deadline);
+                            UnitState::Leased { worker: s.worker, deadline: s.deadline, since: now }
+                        }
+                        None => {
+                            self.pending.insert(id);
+                            n += 1;
+                            UnitState::Pending
+                        }
+                    };
+                }
             }
         }
         n
@@ -555,6 +579,7 @@ impl Job {
         }
         let tile_index = unit.tile_index;
         if let UnitState::Leased { since, .. } = unit.state {
+            self.clock.ended(r.unit, since);
             if self.unit_times.len() == UNIT_TIMES_KEPT {
                 self.unit_times.pop_front();
             }

@@ -8,6 +8,7 @@ mod checkpoint;
 mod client;
 mod farm;
 mod job;
+mod leases;
 mod loadtest;
 mod local;
 mod progress;
