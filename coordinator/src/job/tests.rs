@@ -1,0 +1,254 @@
+//! Tests of `job.rs`.
+
+use super::*;
+
+const NEVER: Duration = Duration::from_secs(1 << 30);
+
+fn job() -> Job {
+    let mut j = Job::loading("j1".into(), "test".into());
+    j.start(5, 3, 4, 2, 2, true);
+    j
+}
+
+fn result_for(j: &Job, unit: UnitId, value: i128) -> UnitResult {
+    let u = &j.units[unit as usize];
+    let n = u.tile.pixel_count();
+    UnitResult {
+        unit,
+        tile: u.tile,
+        samples: u.samples,
+        sums: vec![[value; 3]; n],
+        counts: vec![u.samples.len(); n],
+        nonfinite: 0,
+        rays: 10,
+    }
+}
+
+#[test]
+fn units_cover_every_pixel_and_sample_once_in_progressive_order() {
+    let j = job();
+    // 3×2 tiles of at most 2×2, spp 4 in batches of 2: 12 units, batch 0 first.
+    assert_eq!(j.units.len(), 12);
+    assert!(j.units[..6].iter().all(|u| u.samples == SampleRange::new(0, 2)));
+    assert!(j.units[6..].iter().all(|u| u.samples == SampleRange::new(2, 4)));
+    let total: u64 = j.units.iter().map(|u| u.tile.pixel_count() as u64 * u.samples.len() as u64).sum();
+    assert_eq!(total, j.samples_total());
+}
+
+#[test]
+fn results_merge_once_in_any_order_and_duplicates_are_ignored() {
+    let t = Instant::now();
+    let now = t + Duration::from_secs(60);
+    let mut a = job();
+    let mut b = job();
+    let ids_a: Vec<_> = (0..12).map(|_| a.lease_next(1, t, now, NEVER).unwrap()).collect();
+    let ids_b: Vec<_> = (0..12).map(|_| b.lease_next(1, t, now, NEVER).unwrap()).collect();
+    for &id in &ids_a {
+        let r = result_for(&a, id, 1000 + id as i128);
+        assert_eq!(a.apply(1, &r), Ok(Applied::Merged));
+    }
+    for &id in ids_b.iter().rev() {
+        let r = result_for(&b, id, 1000 + id as i128);
+        assert_eq!(b.apply(1, &r), Ok(Applied::Merged));
+        assert_eq!(b.apply(1, &r), Ok(Applied::Duplicate));
+    }
+    assert_eq!(a.phase, JobPhase::Done);
+    assert_eq!(a.image(), b.image());
+    assert_eq!(a.samples_done, a.samples_total());
+    assert_eq!(b.units_done, 12);
+}
+
+#[test]
+fn malformed_and_foreign_results_are_rejected_without_touching_state() {
+    let deadline = Instant::now() + Duration::from_secs(60);
+    let mut j = job();
+    let id = j.lease_next(7, Instant::now(), deadline, NEVER).unwrap();
+    let good = result_for(&j, id, 5);
+    let before = j.image();
+    assert_eq!(j.apply(8, &good), Err(Rejection::NotHolder(id, 8)));
+    let mut r = good.clone();
+    r.unit = 99;
+    assert_eq!(j.apply(7, &r), Err(Rejection::UnknownUnit(99)));
+    let mut r = good.clone();
+    r.tile.width += 1;
+    assert!(matches!(j.apply(7, &r), Err(Rejection::Malformed { .. })));
+    let mut r = good.clone();
+    r.sums.pop();
+    assert!(matches!(j.apply(7, &r), Err(Rejection::Malformed { .. })));
+    let mut r = good.clone();
+    r.counts[0] += 1;
+    assert!(matches!(j.apply(7, &r), Err(Rejection::Malformed { .. })));
+    let mut r = good.clone();
+    r.sums[0][1] = -1;
+    assert!(matches!(j.apply(7, &r), Err(Rejection::Malformed { .. })));
+    let mut r = good.clone();
+    r.samples.end += 1;
+    assert!(matches!(j.apply(7, &r), Err(Rejection::Malformed { .. })));
+    assert_eq!(j.image(), before);
+    assert_eq!(j.units_done, 0);
+    assert_eq!(j.apply(7, &good), Ok(Applied::Merged));
+}
+
+#[test]
+fn lapsed_leases_return_to_the_queue_and_late_results_still_count() {
+    let t0 = Instant::now();
+    let mut j = job();
+    let id = j.lease_next(1, t0, t0 + Duration::from_millis(10), NEVER).unwrap();
+    assert_eq!(j.reap_expired(t0 + Duration::from_millis(20)), 1);
+    // Re-leased to another worker; the first comes back late with the result.
+    assert_eq!(j.lease_next(2, t0, t0 + Duration::from_secs(60), NEVER), Some(id));
+    let r = result_for(&j, id, 3);
+    assert_eq!(j.apply(1, &r), Ok(Applied::Merged));
+    assert_eq!(j.apply(2, &r), Ok(Applied::Duplicate));
+    assert!(!j.renew(2, id, t0 + Duration::from_secs(90)), "done units are abandoned");
+}
+
+#[test]
+fn stragglers_get_a_spare_and_the_first_result_wins() {
+    let t0 = Instant::now();
+    let later = t0 + Duration::from_secs(100);
+    let mut j = job();
+    // Worker 1 takes everything; worker 2 finds the queue empty.
+    let ids: Vec<_> = (0..12).map(|_| j.lease_next(1, t0, later, NEVER).unwrap()).collect();
+    let wait = Duration::from_secs(5);
+    assert_eq!(j.lease_next(2, t0 + Duration::from_secs(1), later, wait), None, "too early to speculate");
+    let spare = j.lease_next(2, t0 + Duration::from_secs(6), later, wait).unwrap();
+    assert_eq!(spare, ids[0], "the oldest outstanding unit");
+    assert_eq!(j.held_by(2), 1);
+    // One spare per unit, and never to a worker that already holds it.
+    assert_eq!(j.lease_next(1, t0 + Duration::from_secs(6), later, wait), None);
+    assert_eq!(j.apply(2, &result_for(&j, spare, 4)), Ok(Applied::Merged));
+    assert_eq!(j.apply(1, &result_for(&j, spare, 4)), Ok(Applied::Duplicate));
+    assert!(!j.renew(1, spare, later), "the straggler abandons it");
+}
+
+#[test]
+fn a_lapsed_primary_hands_over_to_its_spare() {
+    let t0 = Instant::now();
+    let mut j = job();
+    for _ in 0..12 {
+        j.lease_next(1, t0, t0 + Duration::from_secs(10), NEVER).unwrap();
+    }
+    let id = j.lease_next(2, t0, t0 + Duration::from_secs(60), Duration::ZERO).unwrap();
+    assert_eq!(j.reap_expired(t0 + Duration::from_secs(11)), 11, "the others go back to the queue");
+    assert!(matches!(j.units[id as usize].state, UnitState::Leased { worker: 2, .. }));
+}
+
+fn finish_all(j: &mut Job) {
+    let far = Instant::now() + Duration::from_secs(60);
+    while let Some(id) = j.lease_next(1, Instant::now(), far, NEVER) {
+        let r = result_for(j, id, 1 + id as i128);
+        j.apply(1, &r).unwrap();
+    }
+}
+
+fn restored_of(j: &Job) -> Restored {
+    Restored {
+        width: j.width,
+        height: j.height,
+        spp: j.spp,
+        tile_size: j.tile_size,
+        batch_spp: j.batch_spp,
+        non_negative: j.non_negative,
+        units: j.records(),
+        tiles: j.tile_accumulations().to_vec(),
+        rays: j.rays,
+        nonfinite: j.nonfinite,
+        cancelled: false,
+    }
+}
+
+#[test]
+fn restore_continues_where_it_stopped_and_refuses_inconsistency() {
+    let mut j = job();
+    let far = Instant::now() + Duration::from_secs(60);
+    for _ in 0..5 {
+        let id = j.lease_next(1, Instant::now(), far, NEVER).unwrap();
+        let r = result_for(&j, id, 7);
+        j.apply(1, &r).unwrap();
+    }
+    let mut k = Job::loading("j1".into(), "test".into());
+    k.restore(restored_of(&j)).unwrap();
+    assert_eq!((k.units_done, k.pending.len()), (5, 7));
+    assert_eq!(k.image(), j.image());
+    let mut bad = restored_of(&j);
+    bad.units[0].done = !bad.units[0].done;
+    assert!(Job::loading("x".into(), "x".into()).restore(bad).is_err());
+    let mut bad = restored_of(&j);
+    bad.tile_size += 1;
+    assert!(Job::loading("x".into(), "x".into()).restore(bad).is_err());
+}
+
+#[test]
+fn extending_spp_adds_only_the_new_samples_on_the_batch_grid() {
+    let mut j = Job::loading("j".into(), "t".into());
+    j.start(4, 4, 5, 4, 2, true);
+    finish_all(&mut j);
+    assert_eq!(j.phase, JobPhase::Done);
+    j.extend_spp(9);
+    assert_eq!(j.phase, JobPhase::Running);
+    let new: Vec<_> =
+        j.units.iter().filter(|u| u.state == UnitState::Pending).map(|u| (u.samples.start, u.samples.end)).collect();
+    assert_eq!(new, [(5, 6), (6, 8), (8, 9)]);
+    finish_all(&mut j);
+    assert_eq!(j.samples_done, j.samples_total());
+    assert!(j.tile_accumulations()[0].counts.iter().all(|&c| c == 9));
+}
+
+#[test]
+fn an_evicted_job_keeps_its_status_and_acknowledges_late_duplicates() {
+    let mut j = job();
+    let far = Instant::now() + Duration::from_secs(60);
+    let first = j.lease_next(1, Instant::now(), far, NEVER).unwrap();
+    let late = result_for(&j, first, 1);
+    j.evict();
+    assert!(!j.is_evicted(), "a running job keeps its sums");
+    j.apply(1, &late).unwrap();
+    finish_all(&mut j);
+    let (units, samples) = (j.units_total(), j.samples_done);
+    j.evict();
+    assert!(j.is_evicted());
+    assert!(j.tile_accumulations().is_empty() && j.units.is_empty());
+    assert_eq!((j.units_total(), j.samples_done, j.phase.clone()), (units, samples, JobPhase::Done));
+    assert_eq!(j.apply(1, &late), Ok(Applied::Duplicate));
+    assert_eq!(j.apply(1, &UnitResult { unit: units, ..late }), Err(Rejection::UnknownUnit(units)));
+}
+
+/// Stragglers are told by the job's own unit times: a unit out for three times the
+/// median is leased again long before any fixed wait would.
+#[test]
+fn stragglers_are_units_out_for_a_few_times_the_median() {
+    let mut j = job();
+    let t0 = Instant::now();
+    let far = t0 + Duration::from_secs(600);
+    let fallback = Duration::from_secs(10);
+    assert_eq!(j.straggler_after(fallback), fallback, "nothing timed yet");
+    // Worker 1 returns units after 200 ms each; worker 2 takes one and stalls.
+    let stalled = j.lease_next(2, t0, far, fallback).unwrap();
+    let mut t = t0;
+    while let Some(id) = j.lease_next(1, t, far, fallback) {
+        if id == stalled {
+            break; // worker 1 got the straggler as a spare
+        }
+        t += Duration::from_millis(200);
+        j.apply_at(1, &result_for(&j, id, 1), t).unwrap();
+    }
+    assert_eq!(j.straggler_after(fallback), Duration::from_millis(600));
+    assert!(j.units[stalled as usize].spare.is_some_and(|s| s.worker == 1));
+    // It was leased again once out for 600 ms: not at the 10 s of the fallback.
+    assert!(t.duration_since(t0) < Duration::from_secs(10), "{:?}", t.duration_since(t0));
+}
+
+#[test]
+fn cancelled_jobs_lease_nothing_and_refuse_results() {
+    let mut j = job();
+    let id = j.lease_next(1, Instant::now(), Instant::now() + Duration::from_secs(5), NEVER).unwrap();
+    assert_eq!(j.held_by(1), 1);
+    j.cancel();
+    assert_eq!(j.held_by(1), 0, "a cancelled job's leases are released");
+    assert_eq!(j.reap_expired(Instant::now() + Duration::from_secs(60)), 0, "and never lapse");
+    assert!(!j.renew(1, id, Instant::now()), "the worker is told to abandon the unit");
+    assert_eq!(j.lease_next(1, Instant::now(), Instant::now(), NEVER), None);
+    assert_eq!(j.apply(1, &result_for(&j, id, 1)), Ok(Applied::Discarded), "acknowledged, no error");
+    assert_eq!(j.units_done, 0);
+}

@@ -1,0 +1,164 @@
+//! Tests of `light.rs`.
+#![allow(clippy::disallowed_methods)] // values checked, not platform-free bits
+
+use super::*;
+
+#[test]
+fn selection_follows_power() {
+    let lights = vec![
+        Light::Point { position: Vec3::ZERO, intensity: Vec3::ONE },
+        Light::Point { position: Vec3::ZERO, intensity: Vec3::ZERO },
+        Light::Point { position: Vec3::ZERO, intensity: Vec3::splat(3.0) },
+    ];
+    let set = LightSet::new(lights, 0, 1.0);
+    assert!((set.pmf(0) - 0.25).abs() < 1e-6 && set.pmf(1) == 0.0 && (set.pmf(2) - 0.75).abs() < 1e-6);
+    assert_eq!(set.select(0.1).unwrap().0, 0);
+    assert_eq!(set.select(0.25).unwrap().0, 2);
+    assert_eq!(set.select(0.999_999_9).unwrap().0, 2);
+    assert!(LightSet::new(vec![], 0, 1.0).select(0.5).is_none());
+}
+
+#[test]
+fn area_lights_are_found_by_primitive() {
+    let tri = |prim: u32| Light::Triangle {
+        prim,
+        p0: Vec3::ZERO,
+        e1: Vec3::X,
+        e2: Vec3::Z,
+        normal: -Vec3::Y,
+        area: 0.5,
+        radiance: Vec3::ONE,
+    };
+    // Lights in file order, primitives in storage order (not sorted).
+    let lights = vec![
+        tri(9),
+        Light::Point { position: Vec3::ZERO, intensity: Vec3::ONE },
+        tri(2),
+        Light::Sphere { prim: 12, center: Vec3::ZERO, radius: 1.0, radiance: Vec3::ONE },
+        tri(5),
+        Light::Environment { radiance: Vec3::ONE },
+    ];
+    let set = LightSet::new(lights, 13, 1.0);
+    let found: Vec<Option<usize>> = (0..14).map(|p| set.light_of_prim(p)).collect();
+    let mut expect = vec![None; 14];
+    (expect[9], expect[2], expect[12], expect[5]) = (Some(0), Some(2), Some(3), Some(4));
+    assert_eq!(found, expect);
+    assert_eq!(set.environment(), Some(5));
+    assert_eq!(LightSet::new(vec![], 0, 1.0).light_of_prim(0), None);
+}
+
+fn mixed_lights() -> Vec<Light> {
+    vec![
+        Light::Point { position: Vec3::new(0.0, 3.0, 0.0), intensity: Vec3::ONE },
+        Light::Triangle {
+            prim: 0,
+            p0: Vec3::new(-1.0, 2.0, -1.0),
+            e1: Vec3::new(2.0, 0.0, 0.0),
+            e2: Vec3::new(0.0, 0.0, 2.0),
+            normal: -Vec3::Y,
+            area: 2.0,
+            radiance: Vec3::splat(5.0),
+        },
+        Light::Sphere { prim: 1, center: Vec3::new(4.0, 1.0, 0.0), radius: 0.5, radiance: Vec3::splat(20.0) },
+        Light::Directional { direction: -Vec3::Y, irradiance: Vec3::splat(0.5) },
+        Light::Environment { radiance: Vec3::splat(0.1) },
+    ]
+}
+
+#[test]
+fn selection_at_a_point_matches_its_pmf() {
+    let set = LightSet::new(mixed_lights(), 2, 10.0);
+    const N: usize = 1 << 16;
+    for p in [Vec3::ZERO, Vec3::new(3.5, 1.0, 0.2), Vec3::new(0.0, 2.5, 0.0), Vec3::new(4.0, 1.1, 0.0)] {
+        let pmfs: Vec<f32> = (0..set.lights.len()).map(|i| set.pmf_at(p, i)).collect();
+        assert!((pmfs.iter().sum::<f32>() - 1.0).abs() < 1e-5, "{pmfs:?}");
+        let mut counts = vec![0usize; set.lights.len()];
+        let mut remapped_sum = vec![0.0f64; set.lights.len()];
+        for k in 0..N {
+            let u = (k as f32 + 0.5) / N as f32;
+            let (i, pmf, ur) = set.select_at(p, u).unwrap();
+            assert_eq!(pmf, pmfs[i], "the pmf returned is pmf_at's, bit for bit");
+            assert!((0.0..1.0).contains(&ur));
+            counts[i] += 1;
+            remapped_sum[i] += f64::from(ur);
+        }
+        for i in 0..set.lights.len() {
+            let freq = counts[i] as f32 / N as f32;
+            assert!((freq - pmfs[i]).abs() < 1e-3, "light {i} at {p}: {freq} vs {}", pmfs[i]);
+            if counts[i] > 100 {
+                // The rescaled coordinate is uniform within the light's interval.
+                assert!((remapped_sum[i] / counts[i] as f64 - 0.5).abs() < 0.01);
+            }
+        }
+    }
+    // Above the downward-facing triangle and inside the sphere nothing is selected.
+    let above = Vec3::new(0.0, 2.5, 0.0);
+    assert_eq!(set.pmf_at(above, 1), 0.0);
+    assert_eq!(set.pmf_at(Vec3::new(4.0, 1.1, 0.0), 2), 0.0);
+    // The closer light is preferred.
+    assert!(set.pmf_at(Vec3::new(3.2, 1.0, 0.0), 2) > set.pmf_at(Vec3::new(-3.0, 1.0, 0.0), 2));
+}
+
+#[test]
+fn many_lights_fall_back_to_power_selection() {
+    let lights: Vec<Light> = (0..LOCAL_SELECTION_MAX + 1)
+        .map(|i| Light::Point { position: Vec3::new(i as f32, 0.0, 0.0), intensity: Vec3::splat(1.0 + i as f32) })
+        .collect();
+    let set = LightSet::new(lights, 0, 20.0);
+    for i in 0..set.lights.len() {
+        assert_eq!(set.pmf_at(Vec3::new(100.0, 3.0, 1.0), i), set.pmf(i));
+    }
+    let (i, pmf, ur) = set.select_at(Vec3::ZERO, 0.5).unwrap();
+    assert_eq!((i, pmf), set.select(0.5).unwrap());
+    assert!((0.0..1.0).contains(&ur));
+}
+
+#[test]
+fn sphere_cone_samples_lie_on_sphere_with_matching_pdf() {
+    let (c, r) = (Vec3::new(0.3, 4.0, -1.0), 0.7);
+    let l = Light::Sphere { prim: 0, center: c, radius: r, radiance: Vec3::ONE };
+    let p = Vec3::new(0.0, 0.0, 0.5);
+    for i in 0..64 {
+        let u = Vec2::new((i % 8) as f32 / 8.0 + 0.03, (i / 8) as f32 / 8.0 + 0.05);
+        let s = l.sample_li(p, u).unwrap();
+        let (_, q, pdf) = sample_sphere_cone(p, c, r, u).unwrap();
+        assert!(((q - c).length() - r).abs() < 1e-4);
+        // The sampled point is visible from p (on the near side).
+        assert!((q - c).dot(p - q) >= -1e-4);
+        assert!((l.pdf_li(p, s.wi, q) - pdf).abs() / pdf < 1e-4);
+    }
+    assert!(l.sample_li(c, Vec2::splat(0.5)).is_none());
+}
+
+#[test]
+fn triangle_light_is_one_sided() {
+    let l = Light::Triangle {
+        prim: 0,
+        p0: Vec3::ZERO,
+        e1: Vec3::X,
+        e2: Vec3::Y,
+        normal: Vec3::Z,
+        area: 0.5,
+        radiance: Vec3::ONE,
+    };
+    assert!(l.sample_li(Vec3::new(0.2, 0.2, 1.0), Vec2::splat(0.3)).is_some());
+    assert!(l.sample_li(Vec3::new(0.2, 0.2, -1.0), Vec2::splat(0.3)).is_none());
+}
+
+#[test]
+fn spot_falls_off_smoothly_to_zero_at_the_cone() {
+    let cos = |deg: f32| deg.to_radians().cos();
+    let l = Light::Spot {
+        position: Vec3::ZERO,
+        direction: -Vec3::Y,
+        intensity: Vec3::ONE,
+        cos_total: cos(30.0),
+        cos_falloff_start: cos(20.0),
+    };
+    let at = |deg: f32| {
+        let p = Vec3::new(deg.to_radians().sin(), -deg.to_radians().cos(), 0.0);
+        l.sample_li(p, Vec2::ZERO).map_or(0.0, |s| s.li.x)
+    };
+    assert!((at(0.0) - 1.0).abs() < 1e-5 && (at(19.0) - 1.0).abs() < 1e-5);
+    assert!(at(25.0) > 0.0 && at(25.0) < 1.0 && at(31.0) == 0.0);
+}
