@@ -9,25 +9,9 @@ use std::path::{Component, Path, PathBuf};
 use anyhow::{Context, bail};
 use sha2::{Digest, Sha256};
 
-/// A file of a job: where it goes in the job folder, and what it contains.
-#[derive(Clone, Debug, PartialEq, Eq)]
-pub struct AssetRef {
-    pub path: String,
-    pub sha256: String,
-    pub size: u64,
-}
-
-impl From<&AssetRef> for proto::AssetRef {
-    fn from(a: &AssetRef) -> Self {
-        proto::AssetRef { path: a.path.clone(), sha256: a.sha256.clone(), size: a.size }
-    }
-}
-
-impl From<&proto::AssetRef> for AssetRef {
-    fn from(a: &proto::AssetRef) -> Self {
-        AssetRef { path: a.path.clone(), sha256: a.sha256.clone(), size: a.size }
-    }
-}
+/// A file of a job: where it goes in the job folder, and what it contains (the wire's
+/// one definition, shared with the worker).
+pub use proto::wire::AssetRef;
 
 pub fn sha256_hex(bytes: &[u8]) -> String {
     hex::encode(Sha256::digest(bytes))

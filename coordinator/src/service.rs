@@ -10,7 +10,6 @@ use tokio::sync::mpsc;
 use tokio_stream::Stream;
 use tokio_stream::wrappers::ReceiverStream;
 use tonic::{Request, Response, Status, Streaming};
-use tracer::film::{Accumulation, SampleRange, Tile};
 use tracer::integrator::Integrator;
 
 use crate::assets::{AssetRef, AssetStore};
@@ -64,15 +63,6 @@ fn status_of_error(e: FarmError) -> Status {
             Status::failed_precondition(r.to_string())
         }
     }
-}
-
-fn tile_from(t: Option<&proto::Tile>) -> Result<Tile, Status> {
-    let t = t.ok_or_else(|| Status::invalid_argument("missing tile"))?;
-    Ok(Tile::new(t.x0, t.y0, t.width, t.height))
-}
-
-pub fn tile_to(t: Tile) -> proto::Tile {
-    proto::Tile { x0: t.x0, y0: t.y0, width: t.width, height: t.height }
 }
 
 /// Creates a job from files already in the store and loads its scene in the background.
@@ -149,16 +139,9 @@ pub fn submit_job(
     Ok(id)
 }
 
+/// The job's overrides of its scene, from settings that [`submit_job`] checked.
 pub fn overrides_of(s: &proto::RenderSettings) -> tracer::scene::Overrides {
-    let nonzero = |v: u32| (v != 0).then_some(v);
-    tracer::scene::Overrides {
-        spp: nonzero(s.spp),
-        width: nonzero(s.width),
-        height: nonzero(s.height),
-        max_depth: s.max_depth,
-        seed: s.seed,
-        up: if s.up.is_empty() { tracer::scene::UpAxis::Y } else { s.up.parse().unwrap_or_default() },
-    }
+    proto::wire::settings_from_proto(Some(s)).map(|(o, _)| o).unwrap_or_default()
 }
 
 fn load_job(
@@ -253,16 +236,8 @@ impl proto::farm_server::Farm for FarmService {
         }
         let max = r.max_units.clamp(1, 256) as usize;
         let leased = farm.lease(r.worker_id, max, Instant::now()).map_err(status_of_error)?;
-        let units: Vec<proto::Unit> = leased
-            .into_iter()
-            .map(|l| proto::Unit {
-                job: Some(l.spec),
-                unit_id: l.unit,
-                tile: Some(tile_to(l.tile)),
-                sample_start: l.samples.start,
-                sample_end: l.samples.end,
-            })
-            .collect();
+        let units: Vec<proto::Unit> =
+            leased.into_iter().map(|l| proto::wire::unit_to_proto(l.spec, l.unit, l.tile, l.samples)).collect();
         let retry_after_ms = if units.is_empty() { 250 } else { 0 };
         Ok(Response::new(proto::LeaseReply { units, retry_after_ms, shutdown: false }))
     }
@@ -282,23 +257,15 @@ impl proto::farm_server::Farm for FarmService {
     }
 
     async fn submit_result(&self, req: Request<proto::UnitResult>) -> Result<Response<proto::SubmitReply>, Status> {
-        let r = req.into_inner();
-        let result = UnitResult {
-            unit: r.unit_id,
-            tile: tile_from(r.tile.as_ref())?,
-            samples: SampleRange::new(r.sample_start, r.sample_end),
-            sums: Accumulation::sums_from_bytes(&r.sums)
-                .ok_or_else(|| Status::invalid_argument("sums are not a whole number of pixels (48 bytes each)"))?,
-            counts: r.counts,
-            nonfinite: r.nonfinite,
-            rays: r.rays,
-        };
-        let applied = self.0.farm().submit(r.worker_id, &r.job_id, &result, Instant::now());
+        let proto::wire::ReceivedResult { worker_id, key, tile, samples, sums, counts, nonfinite, rays } =
+            proto::wire::result_from_proto(req.into_inner()).map_err(Status::invalid_argument)?;
+        let result = UnitResult { unit: key.unit_id, tile, samples, sums, counts, nonfinite, rays };
+        let applied = self.0.farm().submit(worker_id, &key.job_id, &result, Instant::now());
         self.0.changed.notify_one();
         match applied {
             Ok(a) => Ok(Response::new(proto::SubmitReply { accepted: a == Applied::Merged })),
             Err(e) => {
-                tracing::warn!(worker = r.worker_id, job = %r.job_id, unit = r.unit_id, "result rejected: {e}");
+                tracing::warn!(worker = worker_id, unit = %key, "result rejected: {e}");
                 Err(status_of_error(e))
             }
         }

@@ -1,8 +1,10 @@
-//! The wire types and services of tilefarm, generated from `tilefarm.proto`. Nothing
-//! else lives here: conversions to the coordinator's and worker's own types happen at
-//! their service edges.
+//! The wire types and services of tilefarm, generated from `tilefarm.proto`, and
+//! ([`wire`]) the one checked mapping between them and the domain types that the
+//! coordinator and the worker share.
 
 tonic::include_proto!("tilefarm.v1");
+
+pub mod wire;
 
 /// Protocol version: a worker and a coordinator with different versions refuse each
 /// other at registration rather than exchanging misunderstood messages.

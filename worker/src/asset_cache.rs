@@ -22,8 +22,8 @@ use sha2::{Digest, Sha256};
 use tracer::integrator::Integrator;
 use tracer::scene::Scene;
 
-use crate::convert::{AssetRef, JobSpec};
 use crate::rpc::{self, Client, RpcFailure};
+use proto::wire::{AssetRef, JobSpec};
 
 /// The default cache folder: `tilefarm-worker-cache` in the system's temp folder.
 pub fn default_cache_dir() -> PathBuf {

@@ -29,9 +29,9 @@ use tokio::time::Instant;
 use tracing::{debug, error, info, warn};
 
 use crate::asset_cache::{self, AssetCache, LoadedJob, SceneCache};
-use crate::convert::{self, UnitKey, WorkUnit};
 use crate::render_pool::{RenderOutcome, RenderPool};
 use crate::rpc::{self, Backoff, Client, RpcFailure};
+use proto::wire::{self, UnitKey, WorkUnit};
 
 const REGISTER_TIMEOUT: Duration = Duration::from_secs(5);
 const LEASE_TIMEOUT: Duration = Duration::from_secs(10);
@@ -75,7 +75,7 @@ enum Event {
     Leased { worker_id: u64, result: Result<proto::LeaseReply, RpcFailure> },
     Heartbeat { worker_id: u64, result: Result<proto::HeartbeatReply, RpcFailure> },
     Submitted { serial: u64, worker_id: u64, result: Result<proto::SubmitReply, RpcFailure> },
-    JobReady { job: Arc<convert::JobSpec>, result: Result<Arc<LoadedJob>, String> },
+    JobReady { job: Arc<wire::JobSpec>, result: Result<Arc<LoadedJob>, String> },
     Rendered { serial: u64, outcome: RenderOutcome },
 }
 
@@ -178,7 +178,7 @@ struct Worker {
     loading: HashSet<String>,
     scenes: SceneCache,
     /// Jobs whose scene failed to load, and when.
-    failed_jobs: VecDeque<(Arc<convert::JobSpec>, Instant)>,
+    failed_jobs: VecDeque<(Arc<wire::JobSpec>, Instant)>,
     drain: Option<Drain>,
     submitted: u64,
     /// The last time the coordinator answered at all, and how long to wait for it.
@@ -402,7 +402,7 @@ impl Worker {
         let Some(worker_id) = self.worker_id else { return };
         self.heartbeat.in_flight = true;
         self.heartbeat.next_at = now + self.heartbeat_every;
-        let held = self.slots.values().filter(|s| s.held()).map(|s| convert::unit_key_to_proto(&s.unit.key)).collect();
+        let held = self.slots.values().filter(|s| s.held()).map(|s| wire::unit_key_to_proto(&s.unit.key)).collect();
         let request = proto::HeartbeatRequest { worker_id, held };
         let mut client = self.client.clone();
         let tx = self.events.clone();
@@ -440,7 +440,7 @@ impl Worker {
         });
     }
 
-    fn spawn_prepare(&mut self, job: Arc<convert::JobSpec>) {
+    fn spawn_prepare(&mut self, job: Arc<wire::JobSpec>) {
         self.loading.insert(job.job_id.clone());
         info!("job {}: preparing scene '{}'", job.job_id, job.scene.path);
         let (client, cache, tx, max_backoff) =
@@ -573,7 +573,7 @@ impl Worker {
     /// Takes a leased unit: checks it, and queues it for its scene or the render pool.
     /// False if it was dropped.
     fn accept(&mut self, unit: proto::Unit, now: Instant) -> bool {
-        let unit = match convert::unit_from_proto(unit) {
+        let unit = match wire::unit_from_proto(unit) {
             Ok(u) => u,
             Err(e) => {
                 warn!("dropping a malformed unit: {e}");
@@ -607,7 +607,7 @@ impl Worker {
     }
 
     /// A job's loaded scene: from the cache, or from a unit that is using it.
-    fn loaded_job(&mut self, job: &convert::JobSpec) -> Option<Arc<LoadedJob>> {
+    fn loaded_job(&mut self, job: &wire::JobSpec) -> Option<Arc<LoadedJob>> {
         if let Some(j) = self.scenes.get(job) {
             return Some(j);
         }
@@ -621,7 +621,7 @@ impl Worker {
         let Some(slot) = self.slots.get_mut(&serial) else { return false };
         let (tile, samples) = (slot.unit.tile, slot.unit.samples);
         let (w, h) = (loaded.scene.camera.width, loaded.scene.camera.height);
-        // The tile's end cannot overflow: convert checked it.
+        // The tile's end cannot overflow: proto::wire checked it.
         if tile.x0 + tile.width > w || tile.y0 + tile.height > h {
             warn!(
                 "unit {}: tile {}×{} at ({}, {}) lies outside the {w}×{h} image; dropping it",
@@ -639,7 +639,7 @@ impl Worker {
         true
     }
 
-    fn on_job_ready(&mut self, job: Arc<convert::JobSpec>, result: Result<Arc<LoadedJob>, String>, now: Instant) {
+    fn on_job_ready(&mut self, job: Arc<wire::JobSpec>, result: Result<Arc<LoadedJob>, String>, now: Instant) {
         let job_id = job.job_id.clone();
         self.loading.remove(&job_id);
         let waiting: Vec<u64> = self
@@ -690,13 +690,8 @@ impl Worker {
         }
         match outcome {
             RenderOutcome::Done { acc, rays, elapsed } => {
-                let result = convert::result_to_proto(
-                    self.worker_id.unwrap_or(0),
-                    &slot.unit.key,
-                    slot.unit.samples,
-                    &acc,
-                    rays,
-                );
+                let result =
+                    wire::result_to_proto(self.worker_id.unwrap_or(0), &slot.unit.key, slot.unit.samples, &acc, rays);
                 debug!("unit {} rendered in {elapsed:.2?} ({rays} rays)", slot.unit.key);
                 slot.state = SlotState::Finished { result: Box::new(result), submitting: false };
                 slot.loaded = None;
@@ -769,7 +764,7 @@ impl Worker {
                 }
                 self.heartbeat_failures = 0;
                 for key in reply.abandon {
-                    self.abandon(&convert::unit_key_from_proto(key));
+                    self.abandon(&wire::unit_key_from_proto(key));
                 }
                 if reply.shutdown {
                     self.begin_drain("the coordinator asked this worker to stop", SHUTDOWN_GRACE, now);

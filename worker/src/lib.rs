@@ -8,11 +8,10 @@
 //! - [`lease_loop`]: the register/lease/heartbeat/submit state machine.
 //! - [`asset_cache`]: scene files by digest, job folders, loaded scenes.
 //! - [`render_pool`]: the render threads.
-//! - [`convert`]: checked conversions between wire messages and the worker's types.
+//! - `proto::wire`: checked conversions between wire messages and the worker's types.
 //! - [`rpc`]: the client, call timeouts, failure classes, backoff.
 
 mod asset_cache;
-mod convert;
 mod lease_loop;
 mod render_pool;
 mod rpc;

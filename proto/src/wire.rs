@@ -1,6 +1,7 @@
-//! Conversions at the edge between the wire types (`proto`) and the worker's own plain
-//! types. Everything the network sends is checked here, once: a malformed unit becomes
-//! an error message (logged, the unit dropped), never a panic deeper in.
+//! The one mapping between the wire types and the domain types, used by the coordinator
+//! and the worker alike. Everything the network sends is checked here, once: a malformed
+//! message becomes an error message naming what is wrong (a status for the sender, or a
+//! unit dropped), never a panic deeper in; every domain value is encoded here too.
 
 use std::sync::Arc;
 
@@ -40,6 +41,18 @@ pub struct AssetRef {
     pub size: u64,
 }
 
+impl From<&AssetRef> for crate::AssetRef {
+    fn from(a: &AssetRef) -> Self {
+        crate::AssetRef { path: a.path.clone(), sha256: a.sha256.clone(), size: a.size }
+    }
+}
+
+impl From<&crate::AssetRef> for AssetRef {
+    fn from(a: &crate::AssetRef) -> Self {
+        AssetRef { path: a.path.clone(), sha256: a.sha256.clone(), size: a.size }
+    }
+}
+
 /// What the worker needs to load a job's scene.
 #[derive(Clone, Debug, PartialEq)]
 pub struct JobSpec {
@@ -59,7 +72,7 @@ pub struct WorkUnit {
     pub samples: SampleRange,
 }
 
-fn asset_from_proto(a: Option<proto::AssetRef>, what: &str) -> Result<AssetRef, String> {
+fn asset_from_proto(a: Option<crate::AssetRef>, what: &str) -> Result<AssetRef, String> {
     let a = a.ok_or_else(|| format!("{what} is missing"))?;
     Ok(AssetRef { path: a.path, sha256: a.sha256, size: a.size })
 }
@@ -67,7 +80,7 @@ fn asset_from_proto(a: Option<proto::AssetRef>, what: &str) -> Result<AssetRef, 
 /// The job-level settings the worker applies: the scene overrides and the integrator.
 /// Zero (or absent) means "as in the scene"; tile size and batch size are the
 /// coordinator's business.
-pub fn settings_from_proto(s: Option<&proto::RenderSettings>) -> Result<(Overrides, Integrator), String> {
+pub fn settings_from_proto(s: Option<&crate::RenderSettings>) -> Result<(Overrides, Integrator), String> {
     let Some(s) = s else { return Ok((Overrides::default(), Integrator::Path)) };
     let nonzero = |v: u32| (v != 0).then_some(v);
     let overrides = Overrides {
@@ -82,7 +95,7 @@ pub fn settings_from_proto(s: Option<&proto::RenderSettings>) -> Result<(Overrid
     Ok((overrides, integrator))
 }
 
-pub fn job_from_proto(j: proto::JobSpec) -> Result<JobSpec, String> {
+pub fn job_from_proto(j: crate::JobSpec) -> Result<JobSpec, String> {
     if j.job_id.is_empty() {
         return Err("job id is empty".into());
     }
@@ -95,7 +108,7 @@ pub fn job_from_proto(j: proto::JobSpec) -> Result<JobSpec, String> {
 
 /// Checks a tile from the wire: non-empty, at most [`MAX_TILE_SIDE`] on each side, no
 /// coordinate overflow, and a result small enough for one message.
-pub fn tile_from_proto(t: Option<&proto::Tile>) -> Result<Tile, String> {
+pub fn tile_from_proto(t: Option<&crate::Tile>) -> Result<Tile, String> {
     let t = t.ok_or("tile is missing")?;
     if t.width == 0 || t.height == 0 || t.width > MAX_TILE_SIDE || t.height > MAX_TILE_SIDE {
         return Err(format!("tile size {}×{} must be between 1 and {MAX_TILE_SIDE} on each side", t.width, t.height));
@@ -104,7 +117,7 @@ pub fn tile_from_proto(t: Option<&proto::Tile>) -> Result<Tile, String> {
         return Err(format!("tile at ({}, {}) of {}×{} overflows", t.x0, t.y0, t.width, t.height));
     }
     let tile = Tile::new(t.x0, t.y0, t.width, t.height);
-    if tile.pixel_count() * RESULT_BYTES_PER_PIXEL + RESULT_OVERHEAD_BYTES > proto::MAX_MESSAGE_BYTES {
+    if tile.pixel_count() * RESULT_BYTES_PER_PIXEL + RESULT_OVERHEAD_BYTES > crate::MAX_MESSAGE_BYTES {
         return Err(format!("tile {}×{}: its result would exceed the message size limit", t.width, t.height));
     }
     Ok(tile)
@@ -121,7 +134,7 @@ pub fn samples_from_proto(start: u32, end: u32) -> Result<SampleRange, String> {
 }
 
 /// Converts and checks a leased unit. The error names the unit when it can.
-pub fn unit_from_proto(u: proto::Unit) -> Result<WorkUnit, String> {
+pub fn unit_from_proto(u: crate::Unit) -> Result<WorkUnit, String> {
     let job = u.job.ok_or_else(|| format!("unit {}: job spec is missing", u.unit_id))?;
     let job = job_from_proto(job).map_err(|e| format!("unit {}: {e}", u.unit_id))?;
     let key = UnitKey { job_id: job.job_id.clone(), unit_id: u.unit_id };
@@ -130,16 +143,60 @@ pub fn unit_from_proto(u: proto::Unit) -> Result<WorkUnit, String> {
     Ok(WorkUnit { key, job: Arc::new(job), tile, samples })
 }
 
-pub fn unit_key_to_proto(k: &UnitKey) -> proto::UnitKey {
-    proto::UnitKey { job_id: k.job_id.clone(), unit_id: k.unit_id }
+pub fn unit_key_to_proto(k: &UnitKey) -> crate::UnitKey {
+    crate::UnitKey { job_id: k.job_id.clone(), unit_id: k.unit_id }
 }
 
-pub fn unit_key_from_proto(k: proto::UnitKey) -> UnitKey {
+pub fn unit_key_from_proto(k: crate::UnitKey) -> UnitKey {
     UnitKey { job_id: k.job_id, unit_id: k.unit_id }
 }
 
-pub fn tile_to_proto(t: Tile) -> proto::Tile {
-    proto::Tile { x0: t.x0, y0: t.y0, width: t.width, height: t.height }
+pub fn tile_to_proto(t: Tile) -> crate::Tile {
+    crate::Tile { x0: t.x0, y0: t.y0, width: t.width, height: t.height }
+}
+
+/// A unit result as received: checked for shape (a valid tile and sample range, whole
+/// pixels of sums); whether it fits its unit is the job's to check.
+#[derive(Clone, Debug)]
+pub struct ReceivedResult {
+    pub worker_id: u64,
+    pub key: UnitKey,
+    pub tile: Tile,
+    pub samples: SampleRange,
+    pub sums: Vec<[i128; 3]>,
+    pub counts: Vec<u32>,
+    pub nonfinite: u64,
+    pub rays: u64,
+}
+
+/// Converts and checks a unit result from a worker.
+pub fn result_from_proto(r: crate::UnitResult) -> Result<ReceivedResult, String> {
+    let key = UnitKey { job_id: r.job_id, unit_id: r.unit_id };
+    let tile = tile_from_proto(r.tile.as_ref()).map_err(|e| format!("unit {key}: {e}"))?;
+    let samples = samples_from_proto(r.sample_start, r.sample_end).map_err(|e| format!("unit {key}: {e}"))?;
+    let sums = Accumulation::sums_from_bytes(&r.sums)
+        .ok_or_else(|| format!("unit {key}: sums are not a whole number of pixels (48 bytes each)"))?;
+    Ok(ReceivedResult {
+        worker_id: r.worker_id,
+        key,
+        tile,
+        samples,
+        sums,
+        counts: r.counts,
+        nonfinite: r.nonfinite,
+        rays: r.rays,
+    })
+}
+
+/// A leased unit as the wire message `Unit` carries it.
+pub fn unit_to_proto(job: crate::JobSpec, unit_id: u64, tile: Tile, samples: SampleRange) -> crate::Unit {
+    crate::Unit {
+        job: Some(job),
+        unit_id,
+        tile: Some(tile_to_proto(tile)),
+        sample_start: samples.start,
+        sample_end: samples.end,
+    }
 }
 
 /// A rendered unit as the wire message `SubmitResult` takes.
@@ -149,8 +206,8 @@ pub fn result_to_proto(
     samples: SampleRange,
     acc: &Accumulation,
     rays: u64,
-) -> proto::UnitResult {
-    proto::UnitResult {
+) -> crate::UnitResult {
+    crate::UnitResult {
         worker_id,
         job_id: key.job_id.clone(),
         unit_id: key.unit_id,
@@ -168,13 +225,13 @@ pub fn result_to_proto(
 mod tests {
     use super::*;
 
-    fn unit(tile: Option<proto::Tile>, start: u32, end: u32) -> proto::Unit {
-        proto::Unit {
-            job: Some(proto::JobSpec {
+    fn unit(tile: Option<crate::Tile>, start: u32, end: u32) -> crate::Unit {
+        crate::Unit {
+            job: Some(crate::JobSpec {
                 job_id: "j1".into(),
-                scene: Some(proto::AssetRef { path: "scene.toml".into(), sha256: "ab".repeat(32), size: 10 }),
+                scene: Some(crate::AssetRef { path: "scene.toml".into(), sha256: "ab".repeat(32), size: 10 }),
                 assets: vec![],
-                settings: Some(proto::RenderSettings {
+                settings: Some(crate::RenderSettings {
                     spp: 16,
                     width: 0,
                     height: 120,
@@ -195,7 +252,7 @@ mod tests {
 
     #[test]
     fn a_good_unit_converts() {
-        let u = unit_from_proto(unit(Some(proto::Tile { x0: 32, y0: 64, width: 32, height: 16 }), 4, 8)).unwrap();
+        let u = unit_from_proto(unit(Some(crate::Tile { x0: 32, y0: 64, width: 32, height: 16 }), 4, 8)).unwrap();
         assert_eq!(u.key, UnitKey { job_id: "j1".into(), unit_id: 7 });
         assert_eq!(u.tile, Tile::new(32, 64, 32, 16));
         assert_eq!(u.samples, SampleRange::new(4, 8));
@@ -215,7 +272,7 @@ mod tests {
 
     #[test]
     fn malformed_units_are_errors_not_panics() {
-        let t = |x0, y0, width, height| Some(proto::Tile { x0, y0, width, height });
+        let t = |x0, y0, width, height| Some(crate::Tile { x0, y0, width, height });
         for (tile, s, e) in [
             (None, 0, 1),
             (t(0, 0, 0, 8), 0, 1),
@@ -243,7 +300,7 @@ mod tests {
 
     #[test]
     fn empty_settings_mean_the_scene_as_is() {
-        let (o, i) = settings_from_proto(Some(&proto::RenderSettings::default())).unwrap();
+        let (o, i) = settings_from_proto(Some(&crate::RenderSettings::default())).unwrap();
         assert_eq!(o, Overrides::default());
         assert_eq!(i, Integrator::Path);
         assert_eq!(settings_from_proto(None).unwrap(), (Overrides::default(), Integrator::Path));
@@ -261,7 +318,7 @@ mod tests {
         assert_eq!(m.worker_id, 3);
         assert_eq!(m.job_id, "job-9");
         assert_eq!(m.unit_id, 42);
-        assert_eq!(m.tile, Some(proto::Tile { x0: 8, y0: 16, width: 2, height: 1 }));
+        assert_eq!(m.tile, Some(crate::Tile { x0: 8, y0: 16, width: 2, height: 1 }));
         assert_eq!((m.sample_start, m.sample_end), (10, 12));
         assert_eq!(m.sums.len(), 2 * 48);
         assert_eq!(Accumulation::sums_from_bytes(&m.sums).unwrap(), acc.sums);
@@ -270,5 +327,28 @@ mod tests {
         assert_eq!(m.rays, 1234);
         // Radiance 1.0 is 2^32 in fixed point, little-endian.
         assert_eq!(i128::from_le_bytes(m.sums[0..16].try_into().unwrap()), 1i128 << 32);
+    }
+
+    /// What a worker sends is checked once, here, for the coordinator too: a bad tile, an
+    /// empty sample range or sums that are not whole pixels name the unit.
+    #[test]
+    fn results_from_the_wire_are_checked_for_shape() {
+        let acc = Accumulation::new(Tile::new(0, 0, 2, 1));
+        let good = result_to_proto(9, &UnitKey { job_id: "job-1".into(), unit_id: 3 }, SampleRange::new(0, 4), &acc, 5);
+        let r = result_from_proto(good.clone()).unwrap();
+        assert_eq!(
+            (r.worker_id, r.key.unit_id, r.tile, r.samples, r.sums.len()),
+            (9, 3, acc.tile, SampleRange::new(0, 4), 2)
+        );
+        let bad = [
+            crate::UnitResult { tile: None, ..good.clone() },
+            crate::UnitResult { tile: Some(crate::Tile { x0: u32::MAX, y0: 0, width: 2, height: 1 }), ..good.clone() },
+            crate::UnitResult { sample_start: 4, sample_end: 4, ..good.clone() },
+            crate::UnitResult { sums: vec![0; 47], ..good.clone() },
+        ];
+        for b in bad {
+            let e = result_from_proto(b).unwrap_err();
+            assert!(e.starts_with("unit job-1/3: "), "{e}");
+        }
     }
 }
