@@ -152,7 +152,7 @@ pub struct Job {
     /// [`UNIT_TIMES_KEPT`]): what tells a straggler from an ordinary unit.
     unit_times: VecDeque<Duration>,
     /// The leases' deadlines and ages, in order.
-    clock: LeaseClock,
+    clock: LeaseClock<UnitId>,
 }
 
 /// Unit times a job keeps for its median.

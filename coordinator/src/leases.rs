@@ -10,8 +10,6 @@ use std::cmp::Reverse;
 use std::collections::{BTreeSet, BinaryHeap};
 use std::time::Instant;
 
-use crate::job::UnitId;
-
 /// Which lease of a unit a deadline is for.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, PartialOrd, Ord)]
 pub enum Slot {
@@ -19,33 +17,39 @@ pub enum Slot {
     Spare,
 }
 
-#[derive(Default)]
-pub struct LeaseClock {
-    deadlines: BinaryHeap<Reverse<(Instant, UnitId, Slot)>>,
+/// Leases of units named by `Id` (a job's unit index).
+pub struct LeaseClock<Id> {
+    deadlines: BinaryHeap<Reverse<(Instant, Id, Slot)>>,
     /// Primary leases by the time they were made (or handed over).
-    out_since: BTreeSet<(Instant, UnitId)>,
+    out_since: BTreeSet<(Instant, Id)>,
 }
 
-impl LeaseClock {
+impl<Id> Default for LeaseClock<Id> {
+    fn default() -> Self {
+        Self { deadlines: BinaryHeap::new(), out_since: BTreeSet::new() }
+    }
+}
+
+impl<Id: Ord + Copy> LeaseClock<Id> {
     /// A primary lease of `unit` made at `since`, lapsing at `deadline`.
-    pub fn leased(&mut self, unit: UnitId, since: Instant, deadline: Instant) {
+    pub fn leased(&mut self, unit: Id, since: Instant, deadline: Instant) {
         self.deadlines.push(Reverse((deadline, unit, Slot::Primary)));
         self.out_since.insert((since, unit));
     }
 
     /// A lease's deadline moved (a renewal, or a spare made).
-    pub fn deadline(&mut self, unit: UnitId, slot: Slot, deadline: Instant) {
+    pub fn deadline(&mut self, unit: Id, slot: Slot, deadline: Instant) {
         self.deadlines.push(Reverse((deadline, unit, slot)));
     }
 
     /// The primary lease made at `since` ended (done, lapsed, released).
-    pub fn ended(&mut self, unit: UnitId, since: Instant) {
+    pub fn ended(&mut self, unit: Id, since: Instant) {
         self.out_since.remove(&(since, unit));
     }
 
     /// The next deadline at or before `now`, removed; stale ones come up too, and the
     /// caller checks each against its unit.
-    pub fn pop_due(&mut self, now: Instant) -> Option<(Instant, UnitId, Slot)> {
+    pub fn pop_due(&mut self, now: Instant) -> Option<(Instant, Id, Slot)> {
         match self.deadlines.peek() {
             Some(Reverse((d, _, _))) if *d <= now => self.deadlines.pop().map(|Reverse(e)| e),
             _ => None,
@@ -53,7 +57,7 @@ impl LeaseClock {
     }
 
     /// Primary leases, oldest first: `(since, unit)`.
-    pub fn oldest_out(&self) -> impl Iterator<Item = (Instant, UnitId)> + '_ {
+    pub fn oldest_out(&self) -> impl Iterator<Item = (Instant, Id)> + '_ {
         self.out_since.iter().copied()
     }
 
@@ -73,7 +77,7 @@ mod tests {
     fn deadlines_come_due_in_order_and_leases_oldest_first() {
         let t = Instant::now();
         let s = |ms| t + Duration::from_millis(ms);
-        let mut c = LeaseClock::default();
+        let mut c = LeaseClock::<u64>::default();
         c.leased(1, s(0), s(30));
         c.leased(2, s(5), s(10));
         c.deadline(1, Slot::Spare, s(20));
