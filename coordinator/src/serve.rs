@@ -123,6 +123,7 @@ pub fn run(args: ServeArgs) -> anyhow::Result<()> {
         tokio::pin!(stop);
         let mut pacer = checkpoint::Pacer::new(Duration::from_millis(args.checkpoint_interval_ms));
         let mut saved: HashMap<String, Saved> = HashMap::new();
+        let mut store_retry: HashMap<String, std::time::Instant> = HashMap::new();
         loop {
             tokio::select! {
                 _ = &mut stop => break,
@@ -135,7 +136,7 @@ pub fn run(args: ServeArgs) -> anyhow::Result<()> {
                 save_jobs(&shared, root, &mut saved).await;
                 pacer.wrote(t.elapsed());
             }
-            store_finished(&shared, &images, ckpt_root.as_deref(), &mut saved).await;
+            store_finished(&shared, &images, ckpt_root.as_deref(), &mut saved, &mut store_retry).await;
             forget_finished(&shared, retain);
         }
         tracing::info!("stopping");
@@ -215,20 +216,23 @@ fn stored_job_numbers(images: &Path) -> impl Iterator<Item = u64> {
 }
 
 /// Stores the image of every newly finished job (atomically: temp file, fsync, rename)
-/// and then drops its sums from memory and its checkpoint from disk: a farm's memory
-/// follows its running jobs, not its history. A failed write is a warning, and is tried
-/// again on the next pass.
+/// and then drops its sums from memory, and its checkpoint and scene copy from disk: a
+/// farm's memory follows its running jobs, not its history. A failed write is a warning,
+/// and is tried again after a few seconds (`retry`).
 async fn store_finished(
     shared: &Arc<Shared>,
     images: &Path,
     ckpt_root: Option<&Path>,
     saved: &mut HashMap<String, Saved>,
+    retry: &mut HashMap<String, std::time::Instant>,
 ) {
+    let now = std::time::Instant::now();
     let done: Vec<(String, tracer::film::Image, Option<tracer::output::RenderInfo>)> = {
         let farm = shared.farm();
         farm.jobs
             .iter()
             .filter(|e| e.job.phase == crate::job::JobPhase::Done && !e.job.is_evicted())
+            .filter(|e| retry.get(&e.job.id).is_none_or(|&at| now >= at))
             .map(|e| (e.job.id.clone(), e.job.image(), e.render_info()))
             .collect()
     };
@@ -246,13 +250,18 @@ async fn store_finished(
         .map_err(anyhow::Error::from)
         .and_then(|r| r);
         if let Err(e) = written {
-            tracing::warn!(job = %id, "the finished image was not stored, retrying: {e:#}");
+            tracing::warn!(job = %id, "the finished image was not stored; trying again in 5 s: {e:#}");
+            retry.insert(id, now + Duration::from_secs(5));
             continue;
         }
+        retry.remove(&id);
         if let Ok(e) = shared.farm().entry_mut(&id) {
             e.job.evict();
             e.stored = Some(path);
         }
+        // The job's copy of its scene files (the blobs themselves stay in the store).
+        let copy = shared.store().dir().join("jobs").join(&id);
+        let _ = std::fs::remove_dir_all(copy);
         if let Some(root) = ckpt_root {
             // The image is all that is left to keep: a restart must not load it again.
             let _ = std::fs::remove_dir_all(root.join(&id));
