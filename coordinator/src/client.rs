@@ -320,3 +320,17 @@ pub fn cancel(args: CancelArgs) -> anyhow::Result<()> {
         Ok(())
     })
 }
+
+#[cfg(test)]
+mod tests {
+    use std::path::Path;
+
+    use super::job_name;
+
+    #[test]
+    fn jobs_are_named_by_their_scene_or_its_folder() {
+        assert_eq!(job_name(Path::new("scenes/cornell-box/scene.toml")), "cornell-box");
+        assert_eq!(job_name(Path::new("shots/hero.toml")), "hero");
+        assert_eq!(job_name(Path::new("model.obj")), "model");
+    }
+}

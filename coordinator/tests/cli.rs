@@ -259,3 +259,19 @@ fn the_exr_header_records_how_the_image_was_made() {
     let m = glam::Mat4::from_cols_array(&w2c);
     assert!(m.transform_point3(cam.position).length() < 1e-3);
 }
+
+/// A render that was killed never ran its cleanup: the next render removes its folder.
+#[test]
+fn a_killed_renders_temporary_folder_is_removed_by_the_next_render() {
+    // Above any Linux pid_max, so no process has this id.
+    let stale = std::env::temp_dir().join("tilefarm-render-4294967294");
+    std::fs::create_dir_all(stale.join("cache")).unwrap();
+    let dir = TempDir::new("stale");
+    let out = coordinator()
+        .args(["render", "-q", "--spp", "1", "--width", "8", "--local-workers", "0", "-o"])
+        .arg(dir.0.join("x.exr"))
+        .output()
+        .unwrap();
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    assert!(!stale.exists(), "the dead render's folder is gone");
+}
