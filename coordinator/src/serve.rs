@@ -236,6 +236,7 @@ async fn store_finished(
             .map(|e| (e.job.id.clone(), e.job.image(), e.render_info()))
             .collect()
     };
+    let evicting = !done.is_empty();
     for (id, image, info) in done {
         let path = images.join(format!("{id}.exr"));
         let target = path.clone();
@@ -268,6 +269,9 @@ async fn store_finished(
             saved.remove(&id);
         }
         tracing::info!(job = %id, "finished image stored; its sums left memory");
+    }
+    if evicting {
+        tracer::memory::return_free_memory();
     }
 }
 

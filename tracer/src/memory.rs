@@ -24,3 +24,15 @@ pub fn advise_huge_pages<T>(v: &[T]) {
     #[cfg(not(target_os = "linux"))]
     let _ = v;
 }
+
+/// Gives the C allocator's free memory back to the kernel (glibc's `malloc_trim`; on
+/// other platforms nothing). A long-running process that frees large buffers — a farm
+/// dropping a finished job's sums — otherwise keeps them in its resident size, spread
+/// over the allocator's per-thread arenas.
+pub fn return_free_memory() {
+    #[cfg(all(target_os = "linux", target_env = "gnu"))]
+    // SAFETY: malloc_trim has no preconditions: it only releases memory that is free.
+    unsafe {
+        libc::malloc_trim(0);
+    }
+}
