@@ -2,7 +2,7 @@
 //! image), `status` and `cancel`.
 
 use std::path::PathBuf;
-use std::time::{Duration, Instant};
+use std::time::Duration;
 
 use anyhow::Context;
 use clap::Args;
@@ -10,6 +10,7 @@ use proto::jobs_client::JobsClient;
 use tonic::transport::Channel;
 
 use crate::assets::{LocalScene, sha256_hex};
+use crate::follow::{Followed, JobFeed, follow};
 use crate::progress::{JobBar, summary};
 use crate::render_cmd::JobArgs;
 
@@ -225,6 +226,23 @@ pub fn fetch(args: FetchArgs) -> anyhow::Result<()> {
     })
 }
 
+/// A farm's job, followed over gRPC.
+struct RemoteJob<'a> {
+    client: &'a mut JobsClient<Channel>,
+    job: &'a str,
+    stream: tonic::Streaming<proto::JobStatus>,
+}
+
+impl JobFeed for RemoteJob<'_> {
+    async fn next_status(&mut self) -> anyhow::Result<Option<proto::JobStatus>> {
+        Ok(self.stream.message().await?)
+    }
+
+    async fn image(&mut self) -> anyhow::Result<tracer::film::Image> {
+        fetch_image(self.client, self.job).await
+    }
+}
+
 async fn wait(
     client: &mut JobsClient<Channel>,
     job: &str,
@@ -233,36 +251,19 @@ async fn wait(
     preview: Option<&std::path::Path>,
 ) -> anyhow::Result<()> {
     let mut bar = JobBar::new(quiet);
-    let mut stream = client
+    let stream = client
         .watch_job(proto::JobRequest { job_id: job.to_string() })
         .await
         .map_err(|s| anyhow::anyhow!("{}", s.message()))?
         .into_inner();
-    let mut last_preview = Instant::now();
-    let mut last = None;
-    let stop = crate::stop_signal();
-    tokio::pin!(stop);
-    loop {
-        let msg = tokio::select! {
-            _ = &mut stop => {
-                bar.finish();
-                anyhow::bail!("interrupted; the job goes on (cancel it with `coordinator cancel {job}`)");
-            }
-            m = stream.message() => m?,
-        };
-        let Some(status) = msg else { break };
-        bar.update(&status);
-        if let Some(p) = preview
-            && status.state() == proto::JobState::Running
-            && last_preview.elapsed() > Duration::from_secs(3)
-        {
-            tracer::output::write_png(&fetch_image(client, job).await?, p)?;
-            last_preview = Instant::now();
-        }
-        last = Some(status);
-    }
+    let followed = follow(&mut RemoteJob { client: &mut *client, job, stream }, &mut bar, preview).await;
     bar.finish();
-    let status = last.context("the coordinator closed the progress stream without a status")?;
+    let status = match followed? {
+        Followed::Ended(status) => status,
+        Followed::Interrupted => {
+            anyhow::bail!("interrupted; the job goes on (cancel it with `coordinator cancel {job}`)")
+        }
+    };
     match status.state() {
         proto::JobState::Done => {
             let image = fetch_and_write(client, job, output).await?;

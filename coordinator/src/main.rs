@@ -7,6 +7,7 @@ mod builtin;
 mod checkpoint;
 mod client;
 mod farm;
+mod follow;
 mod job;
 mod leases;
 mod loadtest;

@@ -16,6 +16,7 @@ use tracer::integrator::Integrator;
 use crate::assets::{AssetRef, AssetStore, LocalScene};
 use crate::checkpoint;
 use crate::farm::Farm;
+use crate::follow::{Followed, JobFeed, follow};
 use crate::job::UnitResult;
 use crate::local::LocalWorkers;
 use crate::progress::{JobBar, summary};
@@ -303,6 +304,60 @@ async fn save_checkpoint(shared: &Arc<Shared>, job: &str, dir: &Path) -> anyhow:
     Ok(())
 }
 
+/// A render's own job, followed in this process: its status straight from the farm
+/// state (woken by each merged result), its checkpoints written as the pacer allows,
+/// and its local workers watched.
+struct LocalJob<'a> {
+    shared: &'a Arc<Shared>,
+    job: &'a str,
+    children: Option<&'a mut LocalWorkers>,
+    checkpoint: Option<&'a Path>,
+    pacer: checkpoint::Pacer,
+    /// Finished units in the last checkpoint written.
+    saved_units: u64,
+    /// The first status is read at once, later ones on a change or every 100 ms.
+    polled: bool,
+}
+
+impl JobFeed for LocalJob<'_> {
+    async fn next_status(&mut self) -> anyhow::Result<Option<proto::JobStatus>> {
+        if self.polled {
+            tokio::select! {
+                _ = tokio::time::sleep(Duration::from_millis(100)) => {}
+                _ = self.shared.changed.notified() => {}
+            }
+        }
+        self.polled = true;
+        Ok(Some(self.shared.farm().status(self.job, Instant::now())?))
+    }
+
+    async fn image(&mut self) -> anyhow::Result<tracer::film::Image> {
+        Ok(self.shared.farm().entry(self.job)?.job.image())
+    }
+
+    async fn tick(&mut self, status: &proto::JobStatus, bar: &JobBar) -> anyhow::Result<()> {
+        if let Some(c) = self.children.as_mut()
+            && c.running() == 0
+        {
+            anyhow::bail!("all local workers exited before the render finished (see their log above)");
+        }
+        if let Some(dir) = self.checkpoint
+            && status.units_done > self.saved_units
+            && self.pacer.due()
+        {
+            let t = Instant::now();
+            // A failed write (disk full, folder gone) must not throw the render away: say
+            // so, and write again at the next interval.
+            match save_checkpoint(self.shared, self.job, dir).await {
+                Ok(()) => self.saved_units = status.units_done,
+                Err(e) => bar.warn(&format!("checkpoint not written, retrying at the next interval: {e:#}")),
+            }
+            self.pacer.wrote(t.elapsed());
+        }
+        Ok(())
+    }
+}
+
 async fn execute(plan: Plan, args: &RunArgs) -> anyhow::Result<()> {
     let Plan { store, scene, assets, settings, restore, checkpoint_dir, _tmp } = plan;
     let cache = store.dir().join("cache");
@@ -337,57 +392,25 @@ async fn execute(plan: Plan, args: &RunArgs) -> anyhow::Result<()> {
     };
 
     let mut bar = JobBar::new(args.quiet);
-    let mut last_preview = Instant::now();
-    let mut pacer = checkpoint::Pacer::new(Duration::from_millis(args.checkpoint_interval_ms));
-    let mut saved_units = resumed;
-    let stop = crate::stop_signal();
-    tokio::pin!(stop);
-    let mut interrupted = false;
-    let outcome = loop {
-        tokio::select! {
-            _ = &mut stop => {
-                interrupted = true;
-                break Err(anyhow::anyhow!("interrupted"));
-            }
-            _ = tokio::time::sleep(Duration::from_millis(100)) => {}
-            _ = shared.changed.notified() => {}
-        }
-        let status = shared.farm().status(&job, Instant::now())?;
-        bar.update(&status);
-        match status.state() {
-            proto::JobState::Done => break Ok(status),
-            proto::JobState::Failed => break Err(anyhow::anyhow!("{}", status.error)),
-            proto::JobState::Cancelled => break Err(anyhow::anyhow!("the job was cancelled")),
-            _ => {}
-        }
-        if let Some(c) = children.as_mut()
-            && c.running() == 0
-        {
-            break Err(anyhow::anyhow!("all local workers exited before the render finished (see their log above)"));
-        }
-        if let Some(dir) = &checkpoint_dir
-            && status.units_done > saved_units
-            && pacer.due()
-        {
-            let t = Instant::now();
-            // A failed write (disk full, folder gone) must not throw the render away: say
-            // so, and write again at the next interval.
-            match save_checkpoint(&shared, &job, dir).await {
-                Ok(()) => saved_units = status.units_done,
-                Err(e) => bar.warn(&format!("checkpoint not written, retrying at the next interval: {e:#}")),
-            }
-            pacer.wrote(t.elapsed());
-        }
-        if let Some(p) = &args.preview
-            && last_preview.elapsed() > Duration::from_secs(3)
-            && status.state() == proto::JobState::Running
-        {
-            let image = shared.farm().entry(&job)?.job.image();
-            if let Err(e) = tracer::output::write_png(&image, p) {
-                bar.warn(&format!("preview not written: {e}"));
-            }
-            last_preview = Instant::now();
-        }
+    let mut feed = LocalJob {
+        shared: &shared,
+        job: &job,
+        children: children.as_mut(),
+        checkpoint: checkpoint_dir.as_deref(),
+        pacer: checkpoint::Pacer::new(Duration::from_millis(args.checkpoint_interval_ms)),
+        saved_units: resumed,
+        polled: false,
+    };
+    let followed = follow(&mut feed, &mut bar, args.preview.as_deref()).await;
+    let interrupted = matches!(followed, Ok(Followed::Interrupted));
+    let outcome = match followed {
+        Ok(Followed::Ended(status)) => match status.state() {
+            proto::JobState::Done => Ok(status),
+            proto::JobState::Cancelled => Err(anyhow::anyhow!("the job was cancelled")),
+            _ => Err(anyhow::anyhow!("{}", status.error)),
+        },
+        Ok(Followed::Interrupted) => Err(anyhow::anyhow!("interrupted")),
+        Err(e) => Err(e),
     };
     bar.finish();
 
