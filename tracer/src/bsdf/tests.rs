@@ -479,3 +479,96 @@ fn degenerate_inputs_never_give_nan() {
         }
     }
 }
+
+fn bits3(v: Vec3) -> [u32; 3] {
+    v.to_array().map(f32::to_bits)
+}
+
+/// Eight lanes of random unit directions; every seventh a grazing one (z = 0), where the
+/// BSDFs refuse to sample.
+fn directions(rng: &mut Rng, k: usize) -> [Vec3; 8] {
+    std::array::from_fn(|l| {
+        if (k + l).is_multiple_of(7) {
+            Vec3::new(0.6, 0.8, 0.0)
+        } else {
+            crate::sampling::sample_uniform_sphere(rng.vec2())
+        }
+    })
+}
+
+/// The eight-lane Lambertian and Blinn-Phong BSDFs give, lane by lane, their scalar
+/// twins' bits: values, pdfs, sampled directions and weights, and which lanes sample.
+#[test]
+fn wide_bsdfs_are_their_scalar_twins() {
+    use crate::bsdf::blinn_phong::BlinnPhongW;
+    use crate::bsdf::lambert::LambertW;
+    use crate::wide::{F8, M8, V2w, V3w};
+    crate::wide::tests::require_avx2();
+    let mut rng = Rng::new(23);
+    let mut sampled = 0;
+    for k in 0..4000 {
+        let (wo, wi) = (directions(&mut rng, k), directions(&mut rng, k + 3));
+        let u: [Vec2; 8] = std::array::from_fn(|_| rng.vec2());
+        let u_lobe: [f32; 8] = std::array::from_fn(|_| rng.f32());
+        let colour = |rng: &mut Rng| Vec3::new(rng.f32(), rng.f32(), rng.f32()) * 0.9;
+        let kd: [Vec3; 8] = std::array::from_fn(|_| colour(&mut rng));
+        let ks: [Vec3; 8] = std::array::from_fn(|_| colour(&mut rng));
+        let exponent: [f32; 8] = std::array::from_fn(|_| 1.0 + 999.0 * rng.f32() * rng.f32());
+        let (wov, wiv) = (V3w::from_fn(|l| wo[l]), V3w::from_fn(|l| wi[l]));
+        let uv = V2w { x: F8(std::array::from_fn(|l| u[l].x)), y: F8(std::array::from_fn(|l| u[l].y)) };
+
+        let lambert = LambertW { kd: V3w::from_fn(|l| kd[l]) };
+        let (f, pdf) = (lambert.eval(wov, wiv), lambert.pdf(wov, wiv));
+        let (swi, spdf, ok) = lambert.sample(wov, uv, M8::ALL);
+        let phong = BlinnPhongW::from_fn(|l| BlinnPhong::new(kd[l], ks[l], exponent[l]));
+        let (pf, ppdf) = phong.eval_pdf(wov, wiv, M8::ALL);
+        let (pwi, pweight, pspdf, pok) = phong.sample(wov, F8(u_lobe), uv, M8::ALL);
+        for l in 0..8 {
+            let s = Lambert { kd: kd[l] };
+            assert_eq!(bits3(f.get(l)), bits3(s.eval(wo[l], wi[l])), "lambert eval, lane {l}");
+            assert_eq!(pdf.0[l].to_bits(), s.pdf(wo[l], wi[l]).to_bits(), "lambert pdf, lane {l}");
+            match s.sample(wo[l], u[l]) {
+                Some(x) => {
+                    assert!(ok.0[l] != 0, "lambert sample: lane {l} should sample");
+                    assert_eq!((bits3(swi.get(l)), spdf.0[l].to_bits()), (bits3(x.wi), x.pdf.to_bits()));
+                    sampled += 1;
+                }
+                None => assert_eq!(ok.0[l], 0, "lambert sample: lane {l} should not sample"),
+            }
+            let p = BlinnPhong::new(kd[l], ks[l], exponent[l]);
+            let (ef, epdf) = p.eval_pdf(wo[l], wi[l]);
+            assert_eq!((bits3(pf.get(l)), ppdf.0[l].to_bits()), (bits3(ef), epdf.to_bits()), "phong, lane {l}");
+            match p.sample(wo[l], u_lobe[l], u[l]) {
+                Some(x) => {
+                    assert!(pok.0[l] != 0, "phong sample: lane {l} should sample");
+                    assert_eq!(
+                        (bits3(pwi.get(l)), bits3(pweight.get(l)), pspdf.0[l].to_bits()),
+                        (bits3(x.wi), bits3(x.weight), x.pdf.to_bits()),
+                        "phong sample, lane {l}"
+                    );
+                }
+                None => assert_eq!(pok.0[l], 0, "phong sample: lane {l} should not sample"),
+            }
+        }
+    }
+    assert!(sampled > 10_000, "{sampled}: the test must sample");
+}
+
+/// The eight-lane shading frame gives its scalar twin's bits.
+#[test]
+fn wide_frames_are_their_scalar_twin() {
+    use crate::geometry::{Frame, FrameW};
+    use crate::wide::V3w;
+    crate::wide::tests::require_avx2();
+    let mut rng = Rng::new(29);
+    for k in 0..4000 {
+        let (n, v) = (directions(&mut rng, k), directions(&mut rng, k + 1));
+        let fw = FrameW::from_normal(V3w::from_fn(|l| n[l]));
+        let (local, world) = (fw.to_local(V3w::from_fn(|l| v[l])), fw.to_world(V3w::from_fn(|l| v[l])));
+        for l in 0..8 {
+            let f = Frame::from_normal(n[l]);
+            assert_eq!(bits3(local.get(l)), bits3(f.to_local(v[l])), "to_local, lane {l}");
+            assert_eq!(bits3(world.get(l)), bits3(f.to_world(v[l])), "to_world, lane {l}");
+        }
+    }
+}
