@@ -97,15 +97,8 @@ pub fn submit_job(
             }
         }
     }
-    if !settings.integrator.is_empty() {
-        settings.integrator.parse::<Integrator>().map_err(Status::invalid_argument)?;
-    }
-    if !settings.up.is_empty() {
-        settings
-            .up
-            .parse::<tracer::scene::UpAxis>()
-            .map_err(|e| Status::invalid_argument(format!("settings.up: {e}")))?;
-    }
+    proto::wire::settings_from_proto(Some(&settings))
+        .map_err(|e| Status::invalid_argument(format!("settings: {e}")))?;
     let (wanted_id, restore) = match restore {
         Some((id, r)) => (id, Some(r)),
         None => (String::new(), None),
@@ -139,11 +132,6 @@ pub fn submit_job(
     Ok(id)
 }
 
-/// The job's overrides of its scene, from settings that [`submit_job`] checked.
-pub fn overrides_of(s: &proto::RenderSettings) -> tracer::scene::Overrides {
-    proto::wire::settings_from_proto(Some(s)).map(|(o, _)| o).unwrap_or_default()
-}
-
 fn load_job(
     shared: &Arc<Shared>,
     job: &str,
@@ -157,7 +145,7 @@ fn load_job(
         let dir = store.dir().join("jobs").join(job);
         store.materialize(&dir, scene, assets)?
     };
-    let overrides = overrides_of(settings);
+    let (overrides, integrator) = proto::wire::settings_from_proto(Some(settings)).map_err(anyhow::Error::msg)?;
     // Named as the user named them (`quad.mtl`), not as the job folder's copies.
     let mut loaded = tracer::scene::load_scene_as(&scene_path, &scene.path, overrides.up)?;
     // The one report of the scene's problems: in the job's status, which whoever follows
@@ -167,11 +155,6 @@ fn load_job(
     }
     let warnings = crate::job::bounded_warnings(&loaded.warnings);
     overrides.apply(&mut loaded).map_err(anyhow::Error::msg)?;
-    let integrator: Integrator = if settings.integrator.is_empty() {
-        Integrator::Path
-    } else {
-        settings.integrator.parse().map_err(anyhow::Error::msg)?
-    };
     let non_negative = matches!(integrator, Integrator::Path | Integrator::PathLightOnly | Integrator::PathBsdfOnly);
     let tile = if settings.tile_size > 0 { settings.tile_size } else { shared.defaults.tile };
     let batch = if settings.batch_spp > 0 { settings.batch_spp } else { shared.defaults.batch_spp };
