@@ -157,7 +157,8 @@ pub fn submit(args: SubmitArgs) -> anyhow::Result<()> {
         let job = reply.into_inner().job_id;
         println!("{job}");
         if args.wait {
-            wait(&mut client, &job, args.quiet, &args.output, args.preview.as_deref()).await?;
+            let watched = client.watch_job(proto::JobRequest { job_id: job.clone() }).await;
+            wait(&mut client, watched, &job, args.quiet, &args.output, args.preview.as_deref()).await?;
         }
         Ok(())
     })
@@ -209,8 +210,8 @@ pub fn fetch(args: FetchArgs) -> anyhow::Result<()> {
     runtime()?.block_on(async move {
         let mut client = connect(&args.coordinator.address).await?;
         // A job that finished long ago is no longer listed, but its image is stored.
-        let listed = client.watch_job(proto::JobRequest { job_id: args.job.clone() }).await;
-        if let Err(s) = &listed
+        let watched = client.watch_job(proto::JobRequest { job_id: args.job.clone() }).await;
+        if let Err(s) = &watched
             && s.code() == tonic::Code::NotFound
         {
             let Ok(image) = fetch_and_write(&mut client, &args.job, &args.output).await else {
@@ -222,7 +223,7 @@ pub fn fetch(args: FetchArgs) -> anyhow::Result<()> {
             println!("{} finished earlier; wrote {}", args.job, args.output.display());
             return Ok(());
         }
-        wait(&mut client, &args.job, args.quiet, &args.output, args.preview.as_deref()).await
+        wait(&mut client, watched, &args.job, args.quiet, &args.output, args.preview.as_deref()).await
     })
 }
 
@@ -243,19 +244,17 @@ impl JobFeed for RemoteJob<'_> {
     }
 }
 
+/// Follows `job` on its `watched` progress stream to its end and writes its image.
 async fn wait(
     client: &mut JobsClient<Channel>,
+    watched: Result<tonic::Response<tonic::Streaming<proto::JobStatus>>, tonic::Status>,
     job: &str,
     quiet: bool,
     output: &std::path::Path,
     preview: Option<&std::path::Path>,
 ) -> anyhow::Result<()> {
+    let stream = watched.map_err(|s| anyhow::anyhow!("{}", s.message()))?.into_inner();
     let mut bar = JobBar::new(quiet);
-    let stream = client
-        .watch_job(proto::JobRequest { job_id: job.to_string() })
-        .await
-        .map_err(|s| anyhow::anyhow!("{}", s.message()))?
-        .into_inner();
     let followed = follow(&mut RemoteJob { client: &mut *client, job, stream }, &mut bar, preview).await;
     bar.finish();
     let status = match followed? {
