@@ -1,23 +1,7 @@
 //! `coordinator`: tilefarm's command line — render locally, serve a farm, submit jobs to
 //! it, inspect it, and benchmark the tracer.
 
-mod assets;
-mod bench;
-mod builtin;
-mod checkpoint;
-mod client;
-mod farm;
-mod follow;
-mod job;
-mod leases;
-mod loadtest;
-mod local;
-mod progress;
-mod render_cmd;
-mod schedule;
-mod serve;
-mod server;
-mod service;
+use coordinator::commands::{bench, client, loadtest, render, serve};
 
 use std::io::Write;
 
@@ -34,9 +18,9 @@ struct Cli {
 enum Command {
     /// Render a scene on this machine with local worker processes and write an EXR (or a
     /// PNG preview). Without a scene, renders the built-in Cornell box.
-    Render(render_cmd::RenderArgs),
+    Render(render::RenderArgs),
     /// Continue a render from its checkpoint folder (no scene path needed).
-    Resume(render_cmd::ResumeArgs),
+    Resume(render::ResumeArgs),
     /// Run a long-lived farm that workers join and users submit jobs to.
     Serve(serve::ServeArgs),
     /// Upload a scene to a farm and start a job (--wait to follow it and get the image).
@@ -58,29 +42,6 @@ enum Command {
     Worker(worker::Args),
 }
 
-/// Resolves on Ctrl-C (SIGINT) or SIGTERM.
-pub async fn stop_signal() {
-    #[cfg(unix)]
-    {
-        use tokio::signal::unix::{SignalKind, signal};
-        match signal(SignalKind::terminate()) {
-            Ok(mut term) => {
-                tokio::select! {
-                    _ = tokio::signal::ctrl_c() => {}
-                    _ = term.recv() => {}
-                }
-            }
-            Err(_) => {
-                let _ = tokio::signal::ctrl_c().await;
-            }
-        }
-    }
-    #[cfg(not(unix))]
-    {
-        let _ = tokio::signal::ctrl_c().await;
-    }
-}
-
 fn main() -> std::process::ExitCode {
     let cli = Cli::parse();
     // A farm logs its jobs and workers; one-shot commands only warn (RUST_LOG overrides).
@@ -91,8 +52,8 @@ fn main() -> std::process::ExitCode {
     }
     let result = match cli.command {
         Command::Worker(args) => worker::run(args),
-        Command::Render(args) => render_cmd::run(args),
-        Command::Resume(args) => render_cmd::resume(args),
+        Command::Render(args) => render::run(args),
+        Command::Resume(args) => render::resume(args),
         Command::Serve(args) => serve::run(args),
         Command::Submit(args) => client::submit(args),
         Command::Fetch(args) => client::fetch(args),

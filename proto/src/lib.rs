@@ -4,6 +4,7 @@
 
 tonic::include_proto!("tilefarm.v1");
 
+pub mod domain;
 pub mod wire;
 
 /// Protocol version: a worker and a coordinator with different versions refuse each

@@ -5,9 +5,12 @@
 
 use std::sync::Arc;
 
+use prost::Message;
 use tracer::film::{Accumulation, SampleRange, Tile};
 use tracer::integrator::Integrator;
 use tracer::scene::Overrides;
+
+pub use crate::domain::{AssetRef, JobSpec, ReceivedResult, UnitKey, WorkUnit};
 
 /// Largest tile side the worker accepts.
 pub const MAX_TILE_SIDE: u32 = 4096;
@@ -18,28 +21,6 @@ pub const MAX_SAMPLES_PER_UNIT: u32 = 1 << 20;
 const RESULT_BYTES_PER_PIXEL: usize = 53;
 /// Room for the result's other fields.
 const RESULT_OVERHEAD_BYTES: usize = 4096;
-
-/// A unit's identity: the coordinator's (job id, unit id).
-#[derive(Clone, Debug, PartialEq, Eq, Hash, PartialOrd, Ord)]
-pub struct UnitKey {
-    pub job_id: String,
-    pub unit_id: u64,
-}
-
-impl std::fmt::Display for UnitKey {
-    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        write!(f, "{}/{}", self.job_id, self.unit_id)
-    }
-}
-
-/// A file of a job: its path relative to the job folder (not yet sanitised: the asset
-/// cache does that, with the error naming the path) and its content digest.
-#[derive(Clone, Debug, PartialEq, Eq)]
-pub struct AssetRef {
-    pub path: String,
-    pub sha256: String,
-    pub size: u64,
-}
 
 impl From<&AssetRef> for crate::AssetRef {
     fn from(a: &AssetRef) -> Self {
@@ -53,23 +34,60 @@ impl From<&crate::AssetRef> for AssetRef {
     }
 }
 
-/// What the worker needs to load a job's scene.
-#[derive(Clone, Debug, PartialEq)]
-pub struct JobSpec {
-    pub job_id: String,
-    pub scene: AssetRef,
-    pub assets: Vec<AssetRef>,
-    pub overrides: Overrides,
-    pub integrator: Integrator,
+/// The settings message of a job's overrides, integrator and unit shape.
+pub fn settings_to_proto(j: &JobSpec) -> crate::RenderSettings {
+    let o = &j.overrides;
+    crate::RenderSettings {
+        spp: o.spp.unwrap_or(0),
+        width: o.width.unwrap_or(0),
+        height: o.height.unwrap_or(0),
+        max_depth: o.max_depth,
+        seed: o.seed,
+        integrator: j.integrator.name().to_string(),
+        tile_size: j.tile_size.unwrap_or(0),
+        batch_spp: j.batch_spp.unwrap_or(0),
+        up: match o.up {
+            tracer::scene::UpAxis::Y => String::new(),
+            tracer::scene::UpAxis::Z => "z".into(),
+        },
+    }
 }
 
-/// One leased unit of work.
-#[derive(Clone, Debug)]
-pub struct WorkUnit {
-    pub key: UnitKey,
-    pub job: Arc<JobSpec>,
-    pub tile: Tile,
-    pub samples: SampleRange,
+pub fn job_to_proto(j: &JobSpec) -> crate::JobSpec {
+    crate::JobSpec {
+        job_id: j.job_id.clone(),
+        scene: Some((&j.scene).into()),
+        assets: j.assets.iter().map(Into::into).collect(),
+        settings: Some(settings_to_proto(j)),
+    }
+}
+
+/// A job as a user submits it (it has no id yet): the scene, its files and settings,
+/// checked. Paths are the store's to check against its folder.
+pub fn submission_from_proto(
+    scene: Option<crate::AssetRef>,
+    assets: Vec<crate::AssetRef>,
+    settings: Option<&crate::RenderSettings>,
+) -> Result<JobSpec, String> {
+    let (overrides, integrator) = settings_from_proto(settings).map_err(|e| format!("settings: {e}"))?;
+    let scene = asset_from_proto(scene, "scene file")?;
+    let assets = assets.into_iter().map(|a| asset_from_proto(Some(a), "asset")).collect::<Result<Vec<_>, _>>()?;
+    let nonzero = |v: u32| (v != 0).then_some(v);
+    let (tile_size, batch_spp) = settings.map_or((None, None), |s| (nonzero(s.tile_size), nonzero(s.batch_spp)));
+    Ok(JobSpec { job_id: String::new(), scene, assets, overrides, integrator, tile_size, batch_spp })
+}
+
+/// A job spec as bytes (its wire encoding), for files that keep it, such as checkpoints.
+pub fn job_to_bytes(j: &JobSpec) -> Vec<u8> {
+    job_to_proto(j).encode_to_vec()
+}
+
+/// The inverse of [`job_to_bytes`], checked as a submission is.
+pub fn job_from_bytes(bytes: &[u8]) -> Result<JobSpec, String> {
+    let j = crate::JobSpec::decode(bytes).map_err(|e| e.to_string())?;
+    let mut spec = submission_from_proto(j.scene, j.assets, j.settings.as_ref())?;
+    spec.job_id = j.job_id;
+    Ok(spec)
 }
 
 fn asset_from_proto(a: Option<crate::AssetRef>, what: &str) -> Result<AssetRef, String> {
@@ -95,15 +113,15 @@ pub fn settings_from_proto(s: Option<&crate::RenderSettings>) -> Result<(Overrid
     Ok((overrides, integrator))
 }
 
+/// A job as a leased unit carries it: it must have its id.
 pub fn job_from_proto(j: crate::JobSpec) -> Result<JobSpec, String> {
     if j.job_id.is_empty() {
         return Err("job id is empty".into());
     }
-    let (overrides, integrator) =
-        settings_from_proto(j.settings.as_ref()).map_err(|e| format!("job {}: {e}", j.job_id))?;
-    let scene = asset_from_proto(j.scene, "scene file").map_err(|e| format!("job {}: {e}", j.job_id))?;
-    let assets = j.assets.into_iter().map(|a| asset_from_proto(Some(a), "asset")).collect::<Result<Vec<_>, _>>()?;
-    Ok(JobSpec { job_id: j.job_id, scene, assets, overrides, integrator })
+    let mut spec =
+        submission_from_proto(j.scene, j.assets, j.settings.as_ref()).map_err(|e| format!("job {}: {e}", j.job_id))?;
+    spec.job_id = j.job_id;
+    Ok(spec)
 }
 
 /// Checks a tile from the wire: non-empty, at most [`MAX_TILE_SIDE`] on each side, no
@@ -155,20 +173,6 @@ pub fn tile_to_proto(t: Tile) -> crate::Tile {
     crate::Tile { x0: t.x0, y0: t.y0, width: t.width, height: t.height }
 }
 
-/// A unit result as received: checked for shape (a valid tile and sample range, whole
-/// pixels of sums); whether it fits its unit is the job's to check.
-#[derive(Clone, Debug)]
-pub struct ReceivedResult {
-    pub worker_id: u64,
-    pub key: UnitKey,
-    pub tile: Tile,
-    pub samples: SampleRange,
-    pub sums: Vec<[i128; 3]>,
-    pub counts: Vec<u32>,
-    pub nonfinite: u64,
-    pub rays: u64,
-}
-
 /// Converts and checks a unit result from a worker.
 pub fn result_from_proto(r: crate::UnitResult) -> Result<ReceivedResult, String> {
     let key = UnitKey { job_id: r.job_id, unit_id: r.unit_id };
@@ -189,9 +193,9 @@ pub fn result_from_proto(r: crate::UnitResult) -> Result<ReceivedResult, String>
 }
 
 /// A leased unit as the wire message `Unit` carries it.
-pub fn unit_to_proto(job: crate::JobSpec, unit_id: u64, tile: Tile, samples: SampleRange) -> crate::Unit {
+pub fn unit_to_proto(job: &JobSpec, unit_id: u64, tile: Tile, samples: SampleRange) -> crate::Unit {
     crate::Unit {
-        job: Some(job),
+        job: Some(job_to_proto(job)),
         unit_id,
         tile: Some(tile_to_proto(tile)),
         sample_start: samples.start,
@@ -296,6 +300,18 @@ mod tests {
         let mut u = unit(t(0, 0, 8, 8), 0, 1);
         u.job.as_mut().unwrap().scene = None;
         assert!(unit_from_proto(u).is_err());
+    }
+
+    /// A job survives its trip through bytes (a checkpoint) and the wire unchanged.
+    #[test]
+    fn a_job_spec_round_trips() {
+        let job = job_from_proto(unit(None, 0, 1).job.unwrap()).unwrap();
+        assert_eq!((job.tile_size, job.batch_spp), (Some(32), Some(4)));
+        assert_eq!(job_from_bytes(&job_to_bytes(&job)).unwrap(), job);
+        assert_eq!(job_from_proto(job_to_proto(&job)).unwrap(), job);
+        let plain = JobSpec { tile_size: None, batch_spp: None, overrides: Overrides::default(), ..job };
+        assert_eq!(job_from_bytes(&job_to_bytes(&plain)).unwrap(), plain);
+        assert!(job_from_bytes(b"\xff\xff").is_err());
     }
 
     #[test]

@@ -495,6 +495,8 @@ mod tests {
             assets: vec![mesh.clone()],
             overrides: Default::default(),
             integrator: Integrator::Path,
+            tile_size: None,
+            batch_spp: None,
         };
         let scene_path = cache.lay_out_job(&job).unwrap();
         assert_eq!(scene_path, root.join("jobs/job1/scene.toml"));
@@ -539,6 +541,8 @@ mod tests {
             assets: vec![],
             overrides: tracer::scene::Overrides { width: Some(32), spp: Some(3), ..Default::default() },
             integrator: Integrator::Normals,
+            tile_size: None,
+            batch_spp: None,
         };
         let loaded = load_job(&cache, &job).unwrap();
         assert_eq!((loaded.scene.camera.width, loaded.scene.camera.height), (32, 16));
@@ -564,6 +568,8 @@ mod tests {
             assets: vec![],
             overrides: Default::default(),
             integrator: Integrator::Path,
+            tile_size: None,
+            batch_spp: None,
         };
         let mk = |id: &str| {
             Arc::new(LoadedJob {

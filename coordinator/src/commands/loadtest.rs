@@ -19,11 +19,12 @@ use std::time::{Duration, Instant};
 use anyhow::Context;
 use clap::Args;
 use prost::Message;
-use proto::farm_client::FarmClient;
+use proto::farm_client::FarmClient as WorkerRpc;
 use tonic::transport::{Channel, Endpoint};
 
-use crate::builtin::BuiltinScene;
-use crate::client::{connect, upload};
+use crate::commands::builtin::BuiltinScene;
+use crate::edge::client::{FarmClient, Watch};
+use crate::farm::status::JobState;
 
 #[derive(Args)]
 pub struct LoadtestArgs {
@@ -123,32 +124,27 @@ pub fn run(args: LoadtestArgs) -> anyhow::Result<()> {
 
 async fn drive(server: &Server, args: &LoadtestArgs) -> anyhow::Result<()> {
     let scene = BuiltinScene::write()?;
-    let mut jobs = connect(&server.url).await?;
-    let scene_ref = upload(&mut jobs, &scene.path(), "scene.toml".into()).await?;
+    let mut jobs = FarmClient::connect(&server.url).await?;
+    let scene_ref = jobs.upload(&scene.path(), "scene.toml".into()).await?;
     let mut assets = Vec::new();
     for name in ["cbox.obj", "cbox.mtl"] {
-        assets.push(upload(&mut jobs, &scene.path().with_file_name(name), name.into()).await?);
+        assets.push(jobs.upload(&scene.path().with_file_name(name), name.into()).await?);
     }
-    let settings = proto::RenderSettings {
-        spp: args.spp,
-        width: args.size,
-        height: args.size,
-        tile_size: args.tile,
-        batch_spp: 1,
-        integrator: "path".into(),
-        ..Default::default()
+    let spec = proto::domain::JobSpec {
+        job_id: String::new(),
+        scene: scene_ref,
+        assets,
+        overrides: tracer::scene::Overrides {
+            spp: Some(args.spp),
+            width: Some(args.size),
+            height: Some(args.size),
+            ..Default::default()
+        },
+        integrator: tracer::integrator::Integrator::Path,
+        tile_size: Some(args.tile),
+        batch_spp: Some(1),
     };
-    let job = jobs
-        .submit_job(proto::SubmitJobRequest {
-            scene: Some(scene_ref),
-            assets,
-            settings: Some(settings),
-            name: "loadtest".into(),
-        })
-        .await
-        .map_err(|s| anyhow::anyhow!("submitting the job: {}", s.message()))?
-        .into_inner()
-        .job_id;
+    let job = jobs.submit("loadtest".into(), &spec).await.context("submitting the job")?;
     let tiles = args.size.div_ceil(args.tile) as u64;
     let units = tiles * tiles * args.spp as u64;
     println!(
@@ -160,13 +156,13 @@ async fn drive(server: &Server, args: &LoadtestArgs) -> anyhow::Result<()> {
     );
 
     // The coordinator loads the scene before it leases units: start the clock once it has.
-    let mut watch = jobs.watch_job(proto::JobRequest { job_id: job.clone() }).await?.into_inner();
+    let Watch::Stream(mut watch) = jobs.watch(&job).await? else { anyhow::bail!("the farm lost job {job}") };
     loop {
-        let s = watch.message().await?.context("the job's status stream ended before it ran")?;
-        match s.state() {
-            proto::JobState::Running | proto::JobState::Done => break,
-            proto::JobState::Failed | proto::JobState::Cancelled => anyhow::bail!("the job failed: {}", s.error),
-            _ => {}
+        let s = watch.next().await?.context("the job's status stream ended before it ran")?;
+        match s.state {
+            JobState::Running | JobState::Done => break,
+            JobState::Failed | JobState::Cancelled => anyhow::bail!("the job failed: {}", s.error),
+            JobState::Loading => {}
         }
     }
     drop(watch);
@@ -186,13 +182,11 @@ async fn drive(server: &Server, args: &LoadtestArgs) -> anyhow::Result<()> {
     let secs = start.elapsed().as_secs_f64();
     let (cpu1, peak) = server.usage()?;
 
-    let status = jobs.watch_job(proto::JobRequest { job_id: job.clone() }).await?.into_inner().message().await?;
-    let done = status.map_or(0, |s| s.units_done);
-    let mut image = jobs.fetch_image(proto::JobRequest { job_id: job }).await?.into_inner();
-    let mut image_bytes = 0usize;
-    while let Some(chunk) = image.message().await? {
-        image_bytes += chunk.encoded_len();
-    }
+    let done = match jobs.watch(&job).await? {
+        Watch::Stream(mut s) => s.next().await?.map_or(0, |s| s.units_done),
+        Watch::NotFound(_) => 0,
+    };
+    let image_bytes = jobs.fetch_exr(&job).await?.len();
 
     let accepted = tally.accepted.load(Ordering::Relaxed);
     anyhow::ensure!(done == units, "the job reports {done} of {units} units done");
@@ -218,7 +212,7 @@ async fn drive(server: &Server, args: &LoadtestArgs) -> anyhow::Result<()> {
 /// Registers, then leases one unit at a time and returns it at once until all `units`
 /// have been accepted.
 async fn simulated_worker(channel: Channel, tally: Arc<Tally>, units: u64) -> anyhow::Result<()> {
-    let mut farm = FarmClient::new(channel)
+    let mut farm = WorkerRpc::new(channel)
         .max_decoding_message_size(proto::MAX_MESSAGE_BYTES)
         .max_encoding_message_size(proto::MAX_MESSAGE_BYTES);
     let worker_id = farm

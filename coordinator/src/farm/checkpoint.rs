@@ -15,11 +15,11 @@ use std::path::{Path, PathBuf};
 use std::time::{Duration, Instant};
 
 use anyhow::{Context, bail};
-use prost::Message;
+use proto::domain::{AssetRef, JobSpec};
 use sha2::{Digest, Sha256};
 use tracer::film::{Accumulation, SampleRange, Tile};
 
-use crate::job::{Job, Restored, UnitRecord};
+use super::job::{Job, Restored, UnitRecord};
 
 const MAGIC: &[u8; 16] = b"tilefarm-ckpt-1\n";
 const FILE: &str = "checkpoint.tfck";
@@ -29,13 +29,13 @@ const CANCELLED: &str = "cancelled";
 /// A job as persisted.
 #[derive(Clone, Debug, PartialEq)]
 pub struct Snapshot {
-    pub spec: proto::JobSpec,
+    pub spec: JobSpec,
     pub name: String,
     pub job: Restored,
 }
 
 impl Snapshot {
-    pub fn of(spec: &proto::JobSpec, job: &Job) -> Self {
+    pub fn of(spec: &JobSpec, job: &Job) -> Self {
         Self {
             spec: spec.clone(),
             name: job.name.clone(),
@@ -50,7 +50,7 @@ impl Snapshot {
                 tiles: job.tile_accumulations().to_vec(),
                 rays: job.rays,
                 nonfinite: job.nonfinite,
-                cancelled: job.phase == crate::job::JobPhase::Cancelled,
+                cancelled: job.phase == crate::farm::job::JobPhase::Cancelled,
             },
         }
     }
@@ -72,24 +72,23 @@ pub fn path(dir: &Path) -> PathBuf {
 
 /// What identifies a scene and the settings that change its pixels (all but spp and the
 /// unit size): a checkpoint only resumes a job with the same key.
-pub fn scene_key(spec: &proto::JobSpec) -> String {
+pub fn scene_key(spec: &JobSpec) -> String {
     let mut h = Sha256::new();
-    let mut file = |a: &proto::AssetRef| {
+    let mut file = |a: &AssetRef| {
         h.update(a.path.as_bytes());
         h.update([0]);
         h.update(a.sha256.as_bytes());
         h.update([0]);
     };
-    if let Some(s) = &spec.scene {
-        file(s);
-    }
+    file(&spec.scene);
     let mut assets: Vec<_> = spec.assets.iter().collect();
     assets.sort_by(|a, b| a.path.cmp(&b.path));
     for a in assets {
         file(a);
     }
-    let s = spec.settings.clone().unwrap_or_default();
-    h.update(format!("{}|{}|{:?}|{:?}|{}", s.width, s.height, s.max_depth, s.seed, s.integrator).as_bytes());
+    let o = &spec.overrides;
+    let size = (o.width.unwrap_or(0), o.height.unwrap_or(0));
+    h.update(format!("{}|{}|{:?}|{:?}|{}", size.0, size.1, o.max_depth, o.seed, spec.integrator.name()).as_bytes());
     hex::encode(h.finalize())
 }
 
@@ -122,7 +121,7 @@ pub fn encode(s: &Snapshot) -> Vec<u8> {
     let j = &s.job;
     let mut out = Vec::with_capacity(64 + j.tiles.iter().map(|t| t.counts.len() * 20).sum::<usize>());
     out.extend_from_slice(MAGIC);
-    put_bytes(&mut out, &s.spec.encode_to_vec());
+    put_bytes(&mut out, &proto::wire::job_to_bytes(&s.spec));
     put_bytes(&mut out, s.name.as_bytes());
     for v in [j.width, j.height, j.spp, j.tile_size, j.batch_spp, j.non_negative as u32] {
         put_varint(&mut out, v as u128);
@@ -203,7 +202,7 @@ pub fn decode(bytes: &[u8]) -> anyhow::Result<Snapshot> {
         bail!("checksum mismatch: the file is truncated or corrupt");
     }
     let mut r = Reader { b: body, pos: MAGIC.len() };
-    let spec = proto::JobSpec::decode(r.bytes()?).context("job spec")?;
+    let spec = proto::wire::job_from_bytes(r.bytes()?).map_err(anyhow::Error::msg).context("job spec")?;
     let name = String::from_utf8(r.bytes()?.to_vec()).context("job name")?;
     let (width, height, spp, tile_size, batch_spp) = (r.u32()?, r.u32()?, r.u32()?, r.u32()?, r.u32()?);
     let non_negative = r.u32()? != 0;
@@ -334,7 +333,7 @@ mod tests {
             let id = job.lease_next(1, Instant::now(), far, Duration::MAX).unwrap();
             let u = &job.units[id as usize];
             let n = u.tile.pixel_count();
-            let r = crate::job::UnitResult {
+            let r = crate::farm::job::UnitResult {
                 unit: id,
                 tile: u.tile,
                 samples: u.samples,
@@ -345,11 +344,14 @@ mod tests {
             };
             job.apply(1, &r).unwrap();
         }
-        let spec = proto::JobSpec {
+        let spec = JobSpec {
             job_id: "job-1".into(),
-            scene: Some(proto::AssetRef { path: "scene.toml".into(), sha256: "ab".repeat(32), size: 10 }),
+            scene: AssetRef { path: "scene.toml".into(), sha256: "ab".repeat(32), size: 10 },
             assets: vec![],
-            settings: Some(proto::RenderSettings { spp: 4, ..Default::default() }),
+            overrides: tracer::scene::Overrides { spp: Some(4), ..Default::default() },
+            integrator: Default::default(),
+            tile_size: None,
+            batch_spp: None,
         };
         Snapshot::of(&spec, &job)
     }
@@ -390,13 +392,13 @@ mod tests {
     fn scene_key_ignores_spp_but_not_the_scene_or_pixels() {
         let s = snapshot().spec;
         let mut more = s.clone();
-        more.settings.as_mut().unwrap().spp = 64;
+        more.overrides.spp = Some(64);
         assert_eq!(scene_key(&s), scene_key(&more));
         let mut other = s.clone();
-        other.scene.as_mut().unwrap().sha256 = "cd".repeat(32);
+        other.scene.sha256 = "cd".repeat(32);
         assert_ne!(scene_key(&s), scene_key(&other));
         let mut wider = s.clone();
-        wider.settings.as_mut().unwrap().width = 99;
+        wider.overrides.width = Some(99);
         assert_ne!(scene_key(&s), scene_key(&wider));
     }
 }

@@ -10,7 +10,8 @@ use tokio::sync::oneshot;
 use tokio_stream::StreamExt;
 use tokio_stream::wrappers::TcpListenerStream;
 
-use crate::service::{FarmService, JobsService, Shared};
+use crate::edge::service::{FarmService, JobsService};
+use crate::farm::Shared;
 
 pub struct Server {
     pub addr: SocketAddr,

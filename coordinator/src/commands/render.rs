@@ -4,8 +4,8 @@
 //! image is the same bits.
 
 use std::path::{Path, PathBuf};
+use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, Ordering};
-use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
 
 use anyhow::Context;
@@ -13,15 +13,19 @@ use clap::Args;
 use tracer::film::SampleRange;
 use tracer::integrator::Integrator;
 
-use crate::assets::{AssetRef, AssetStore, LocalScene};
-use crate::checkpoint;
-use crate::farm::Farm;
-use crate::follow::{Followed, JobFeed, follow};
-use crate::job::UnitResult;
-use crate::local::LocalWorkers;
-use crate::progress::{JobBar, summary};
-use crate::server::Server;
-use crate::service::{JobDefaults, Shared, submit_job};
+use proto::domain::JobSpec;
+
+use crate::commands::follow::{Followed, JobFeed, follow};
+use crate::commands::local::LocalWorkers;
+use crate::commands::progress::{JobBar, summary};
+use crate::edge::server::Server;
+use crate::farm::Shared;
+use crate::farm::assets::{AssetRef, AssetStore, LocalScene};
+use crate::farm::checkpoint;
+use crate::farm::job::UnitResult;
+use crate::farm::lifecycle::submit_job;
+use crate::farm::state::Farm;
+use crate::farm::status::{JobState, JobStatus};
 
 /// Options shared by `render` and `submit`: what to render.
 #[derive(Args, Clone, Debug)]
@@ -60,20 +64,23 @@ pub struct JobArgs {
 }
 
 impl JobArgs {
-    pub fn settings(&self) -> proto::RenderSettings {
-        proto::RenderSettings {
-            spp: self.spp.unwrap_or(0),
-            width: self.width.unwrap_or(0),
-            height: self.height.unwrap_or(0),
-            max_depth: self.max_depth,
-            seed: self.seed,
-            integrator: self.integrator.name().to_string(),
-            tile_size: self.tile,
-            batch_spp: self.batch_spp,
-            up: match self.up {
-                tracer::scene::UpAxis::Y => String::new(),
-                tracer::scene::UpAxis::Z => "z".into(),
+    /// The job these options ask for, of a scene and its files.
+    pub fn spec(&self, scene: AssetRef, assets: Vec<AssetRef>) -> JobSpec {
+        JobSpec {
+            job_id: String::new(),
+            scene,
+            assets,
+            overrides: tracer::scene::Overrides {
+                spp: self.spp,
+                width: self.width,
+                height: self.height,
+                max_depth: self.max_depth,
+                seed: self.seed,
+                up: self.up,
             },
+            integrator: self.integrator,
+            tile_size: Some(self.tile),
+            batch_spp: Some(self.batch_spp),
         }
     }
 }
@@ -138,7 +145,7 @@ pub struct RunArgs {
     #[arg(long, default_value_t = 5_000)]
     pub checkpoint_interval_ms: u64,
     #[command(flatten)]
-    pub farm: crate::serve::FarmArgs,
+    pub farm: crate::commands::serve::FarmArgs,
 }
 
 /// A temporary folder removed when dropped (on every exit path).
@@ -167,9 +174,7 @@ pub fn store_local_scene(store: &mut AssetStore, local: &LocalScene) -> anyhow::
 /// What to render, resolved from the command line and any checkpoint.
 struct Plan {
     store: AssetStore,
-    scene: AssetRef,
-    assets: Vec<AssetRef>,
-    settings: proto::RenderSettings,
+    spec: JobSpec,
     restore: Option<checkpoint::Snapshot>,
     checkpoint_dir: Option<PathBuf>,
     _tmp: Option<TempDir>,
@@ -216,7 +221,7 @@ pub fn run(args: RenderArgs) -> anyhow::Result<()> {
     args.run.check_outputs()?;
     let builtin = match &args.scene {
         Some(_) => None,
-        None => Some(crate::builtin::BuiltinScene::write()?),
+        None => Some(crate::commands::builtin::BuiltinScene::write()?),
     };
     let scene_path = args.scene.clone().or_else(|| builtin.as_ref().map(|b| b.path())).expect("a scene path");
     let local = LocalScene::collect(&scene_path)?;
@@ -229,18 +234,12 @@ pub fn run(args: RenderArgs) -> anyhow::Result<()> {
     };
     let mut store = AssetStore::open(&store_dir)?;
     let (scene, assets) = store_local_scene(&mut store, &local)?;
-    let settings = args.job.settings();
+    let spec = args.job.spec(scene, assets);
     let restore = match &args.checkpoint {
         None => None,
         Some(dir) => {
             let found = checkpoint::read(dir)?;
             if let Some(snap) = &found {
-                let spec = proto::JobSpec {
-                    job_id: String::new(),
-                    scene: Some((&scene).into()),
-                    assets: assets.iter().map(Into::into).collect(),
-                    settings: Some(settings.clone()),
-                };
                 anyhow::ensure!(
                     checkpoint::scene_key(&snap.spec) == checkpoint::scene_key(&spec),
                     "{} holds a checkpoint of a different scene or different settings (size, max_depth, seed, \
@@ -252,7 +251,7 @@ pub fn run(args: RenderArgs) -> anyhow::Result<()> {
             found
         }
     };
-    let plan = Plan { store, scene, assets, settings, restore, checkpoint_dir: args.checkpoint.clone(), _tmp: tmp };
+    let plan = Plan { store, spec, restore, checkpoint_dir: args.checkpoint.clone(), _tmp: tmp };
     runtime()?.block_on(execute(plan, &args.run))
 }
 
@@ -261,29 +260,20 @@ pub fn resume(args: ResumeArgs) -> anyhow::Result<()> {
     let snap = checkpoint::read(&args.dir)?
         .with_context(|| format!("{} holds no checkpoint", checkpoint::path(&args.dir).display()))?;
     let store = AssetStore::open(&args.dir)?;
-    let scene = snap.spec.scene.as_ref().map(AssetRef::from).context("the checkpoint names no scene")?;
-    let assets = snap.spec.assets.iter().map(AssetRef::from).collect();
-    let mut settings = snap.spec.settings.clone().unwrap_or_default();
-    settings.spp = match args.spp {
+    let mut spec = snap.spec.clone();
+    spec.job_id = String::new();
+    spec.overrides.spp = match args.spp {
         Some(spp) => {
             anyhow::ensure!(
                 spp >= snap.job.spp,
                 "the checkpoint already has {} spp; --spp cannot lower it",
                 snap.job.spp
             );
-            spp
+            Some(spp)
         }
-        None => 0,
+        None => None,
     };
-    let plan = Plan {
-        store,
-        scene,
-        assets,
-        settings,
-        restore: Some(snap),
-        checkpoint_dir: Some(args.dir.clone()),
-        _tmp: None,
-    };
+    let plan = Plan { store, spec, restore: Some(snap), checkpoint_dir: Some(args.dir.clone()), _tmp: None };
     runtime()?.block_on(execute(plan, &args.run))
 }
 
@@ -320,7 +310,7 @@ struct LocalJob<'a> {
 }
 
 impl JobFeed for LocalJob<'_> {
-    async fn next_status(&mut self) -> anyhow::Result<Option<proto::JobStatus>> {
+    async fn next_status(&mut self) -> anyhow::Result<Option<JobStatus>> {
         if self.polled {
             tokio::select! {
                 _ = tokio::time::sleep(Duration::from_millis(100)) => {}
@@ -335,7 +325,7 @@ impl JobFeed for LocalJob<'_> {
         Ok(self.shared.farm().entry(self.job)?.job.image())
     }
 
-    async fn tick(&mut self, status: &proto::JobStatus, bar: &JobBar) -> anyhow::Result<()> {
+    async fn tick(&mut self, status: &JobStatus, bar: &JobBar) -> anyhow::Result<()> {
         if let Some(c) = self.children.as_mut()
             && c.running() == 0
         {
@@ -359,25 +349,19 @@ impl JobFeed for LocalJob<'_> {
 }
 
 async fn execute(plan: Plan, args: &RunArgs) -> anyhow::Result<()> {
-    let Plan { store, scene, assets, settings, restore, checkpoint_dir, _tmp } = plan;
+    let Plan { store, spec, restore, checkpoint_dir, _tmp } = plan;
     let cache = store.dir().join("cache");
     let cores = std::thread::available_parallelism().map_or(2, |n| n.get());
     let workers = args.local_workers.unwrap_or((cores / 2).max(1));
     let threads = args.threads.map_or_else(|| (cores / workers.max(1)).max(1), |t| t as usize);
-    let shared = Arc::new(Shared {
-        farm: Mutex::new(Farm::new(args.farm.config()?)),
-        store: Mutex::new(store),
-        defaults: JobDefaults::default(),
-        changed: tokio::sync::Notify::new(),
-    });
+    let shared = Arc::new(Shared::new(Farm::new(args.farm.config()?), store));
     let resumed = restore.as_ref().map_or(0, |s| s.units_done() as u64);
     let (earlier_samples, earlier_rays) = restore.as_ref().map_or((0, 0), |s| (s.samples_done(), s.job.rays));
     if let (Some(s), Some(dir)) = (&restore, &checkpoint_dir) {
         eprintln!("resuming from {}: {} of {} units done", dir.display(), s.units_done(), s.job.units.len());
     }
-    let name = scene.path.clone();
-    let job = submit_job(&shared, name, scene, assets, settings, restore.map(|s| (String::new(), s.job)))
-        .map_err(|s| anyhow::anyhow!("{}", s.message()))?;
+    let name = spec.scene.path.clone();
+    let job = submit_job(&shared, name, spec, restore.map(|s| s.job))?;
 
     let (server, mut children) = if workers > 0 {
         let server = Server::start(Arc::clone(&shared), "127.0.0.1:0").await?;
@@ -404,9 +388,9 @@ async fn execute(plan: Plan, args: &RunArgs) -> anyhow::Result<()> {
     let followed = follow(&mut feed, &mut bar, args.preview.as_deref()).await;
     let interrupted = matches!(followed, Ok(Followed::Interrupted));
     let outcome = match followed {
-        Ok(Followed::Ended(status)) => match status.state() {
-            proto::JobState::Done => Ok(status),
-            proto::JobState::Cancelled => Err(anyhow::anyhow!("the job was cancelled")),
+        Ok(Followed::Ended(status)) => match status.state {
+            JobState::Done => Ok(status),
+            JobState::Cancelled => Err(anyhow::anyhow!("the job was cancelled")),
             _ => Err(anyhow::anyhow!("{}", status.error)),
         },
         Ok(Followed::Interrupted) => Err(anyhow::anyhow!("interrupted")),
@@ -503,24 +487,20 @@ fn execute_in_process(shared: &Shared, job: &str, threads: usize) {
                 .spawn_scoped(s, || in_process_thread(shared, job, me, &stop));
             if let Err(e) = spawned {
                 stop.store(true, Ordering::Relaxed);
-                if let Ok(en) = shared.farm().entry_mut(job) {
-                    en.job.fail(format!("starting render threads: {e}"));
-                }
+                shared.fail(job, format!("starting render threads: {e}"));
                 return;
             }
         }
     });
 }
 
-fn in_process_thread(shared: &Shared, job: &str, me: crate::job::WorkerId, stop: &AtomicBool) {
+fn in_process_thread(shared: &Shared, job: &str, me: crate::farm::job::WorkerId, stop: &AtomicBool) {
     while !stop.load(Ordering::Relaxed) {
         let (unit, scene, integrator, finished) = {
             let mut farm = shared.farm();
             let unit = farm.lease(me, 1, Instant::now()).unwrap_or_default().pop();
             let Ok(e) = farm.entry(job) else { return };
-            let integrator: Integrator =
-                e.spec.settings.as_ref().and_then(|s| s.integrator.parse().ok()).unwrap_or_default();
-            (unit, e.scene.clone(), integrator, e.job.phase.is_final())
+            (unit, e.scene.clone(), e.spec.integrator, e.job.phase.is_final())
         };
         if finished {
             return;
@@ -543,9 +523,7 @@ fn in_process_thread(shared: &Shared, job: &str, me: crate::job::WorkerId, stop:
         });
         match rendered {
             Ok(r) => {
-                let applied = shared.farm().submit(me, job, &r, Instant::now());
-                shared.changed.notify_one();
-                if let Err(e) = applied {
+                if let Err(e) = shared.submit_result(me, job, &r) {
                     tracing::error!("in-process result rejected: {e}");
                 }
             }
@@ -554,10 +532,7 @@ fn in_process_thread(shared: &Shared, job: &str, me: crate::job::WorkerId, stop:
                 // it waiting for a unit no thread renders (completed units are
                 // checkpointed as usual).
                 stop.store(true, Ordering::Relaxed);
-                if let Ok(en) = shared.farm().entry_mut(job) {
-                    en.job.fail(format!("a render thread panicked (a tilefarm bug; please report it): {msg}"));
-                }
-                shared.changed.notify_one();
+                shared.fail(job, format!("a render thread panicked (a tilefarm bug; please report it): {msg}"));
                 return;
             }
         }

@@ -71,7 +71,7 @@ pub fn run(args: BenchArgs) -> anyhow::Result<()> {
     }
     let mut scenes: Vec<(String, Scene)> = Vec::new();
     if args.scenes.is_empty() {
-        scenes.push(("cornell-box (built-in)".into(), crate::builtin::load(None)?));
+        scenes.push(("cornell-box (built-in)".into(), crate::commands::builtin::load(None)?));
         if let Ok(dir) = std::fs::read_dir("scenes") {
             let mut paths: Vec<PathBuf> =
                 dir.flatten().map(|e| e.path().join("scene.toml")).filter(|p| p.exists()).collect();

@@ -6,9 +6,9 @@ use std::path::{Path, PathBuf};
 use anyhow::Context;
 
 const FILES: [(&str, &str); 3] = [
-    ("scene.toml", include_str!("../../scenes/cornell-box/scene.toml")),
-    ("cbox.obj", include_str!("../../scenes/cornell-box/cbox.obj")),
-    ("cbox.mtl", include_str!("../../scenes/cornell-box/cbox.mtl")),
+    ("scene.toml", include_str!("../../../scenes/cornell-box/scene.toml")),
+    ("cbox.obj", include_str!("../../../scenes/cornell-box/cbox.obj")),
+    ("cbox.mtl", include_str!("../../../scenes/cornell-box/cbox.mtl")),
 ];
 
 /// A temporary copy of the built-in scene on disk (the loader reads files, as it does

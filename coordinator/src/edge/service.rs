@@ -1,190 +1,22 @@
-//! The tonic services: the thin edge between the wire and the farm's state. Every
-//! message is checked here or in [`crate::job`]; a bad one gets a clear status and
-//! leaves the state untouched.
+//! The tonic services: the thin edge between the wire and the farm's state — decode
+//! and check each message (`proto::wire`, [`super::wire`]), call the farm, encode the
+//! answer. A bad message gets a clear status and leaves the state untouched.
 
 use std::pin::Pin;
-use std::sync::{Arc, Mutex, MutexGuard};
+use std::sync::Arc;
 use std::time::Instant;
 
 use tokio::sync::mpsc;
 use tokio_stream::Stream;
 use tokio_stream::wrappers::ReceiverStream;
 use tonic::{Request, Response, Status, Streaming};
-use tracer::integrator::Integrator;
 
-use crate::assets::{AssetRef, AssetStore};
-use crate::farm::{Farm, FarmError, status_of};
-use crate::job::{Applied, Rejection, Restored, UnitResult};
-
-/// Defaults for jobs that do not set their own tile size and batch.
-#[derive(Clone, Copy, Debug)]
-pub struct JobDefaults {
-    pub tile: u32,
-    pub batch_spp: u32,
-}
-
-impl Default for JobDefaults {
-    fn default() -> Self {
-        Self { tile: 64, batch_spp: 16 }
-    }
-}
-
-/// State shared by both services and the commands that run them in-process.
-pub struct Shared {
-    pub farm: Mutex<Farm>,
-    pub store: Mutex<AssetStore>,
-    pub defaults: JobDefaults,
-    /// Signalled when a unit's result has been applied or a job has failed, so that
-    /// `render`, which follows its job, sees the end at once instead of at its next
-    /// poll (it still polls every 100 ms for everything else, such as lapsed leases).
-    pub changed: tokio::sync::Notify,
-}
-
-impl Shared {
-    pub fn farm(&self) -> MutexGuard<'_, Farm> {
-        self.farm.lock().unwrap_or_else(|p| p.into_inner())
-    }
-
-    pub fn store(&self) -> MutexGuard<'_, AssetStore> {
-        self.store.lock().unwrap_or_else(|p| p.into_inner())
-    }
-}
+use super::wire::{error_to_status, status_to_proto};
+use crate::farm::Shared;
+use crate::farm::job::{Applied, UnitResult};
 
 /// Upper bound on one uploaded file.
 const MAX_ASSET_BYTES: usize = 4 << 30;
-
-fn status_of_error(e: FarmError) -> Status {
-    match e {
-        FarmError::UnknownWorker(_) | FarmError::UnknownJob(_) => Status::not_found(e.to_string()),
-        FarmError::Rejected(r @ (Rejection::UnknownUnit(_) | Rejection::Malformed { .. })) => {
-            Status::invalid_argument(r.to_string())
-        }
-        FarmError::Rejected(r @ (Rejection::NotHolder(..) | Rejection::NotRunning(_))) => {
-            Status::failed_precondition(r.to_string())
-        }
-    }
-}
-
-/// Creates a job from files already in the store and loads its scene in the background.
-pub fn submit_job(
-    shared: &Arc<Shared>,
-    name: String,
-    scene: AssetRef,
-    assets: Vec<AssetRef>,
-    settings: proto::RenderSettings,
-    restore: Option<(String, Restored)>,
-) -> Result<String, Status> {
-    {
-        let store = shared.store();
-        for a in std::iter::once(&scene).chain(&assets) {
-            crate::assets::safe_relative_path(&a.path).map_err(|e| Status::invalid_argument(e.to_string()))?;
-            // A declared size that is not the stored blob's would make every worker's
-            // download fail its check, and the job would never end: refuse it now.
-            match store.size_of(&a.sha256) {
-                None => {
-                    return Err(Status::failed_precondition(format!(
-                        "asset {} ({}) was not uploaded",
-                        a.path, a.sha256
-                    )));
-                }
-                Some(size) if size != a.size => {
-                    return Err(Status::invalid_argument(format!(
-                        "asset {} is declared as {} bytes, but its upload ({}) has {size}",
-                        a.path, a.size, a.sha256
-                    )));
-                }
-                Some(_) => {}
-            }
-        }
-    }
-    proto::wire::settings_from_proto(Some(&settings))
-        .map_err(|e| Status::invalid_argument(format!("settings: {e}")))?;
-    let (wanted_id, restore) = match restore {
-        Some((id, r)) => (id, Some(r)),
-        None => (String::new(), None),
-    };
-    let spec = proto::JobSpec {
-        job_id: wanted_id,
-        scene: Some((&scene).into()),
-        assets: assets.iter().map(Into::into).collect(),
-        settings: Some(settings.clone()),
-    };
-    let name = if name.trim().is_empty() { scene.path.clone() } else { name.chars().take(200).collect() };
-    let id = shared.farm().add_job(name.clone(), spec);
-    tracing::info!(job = %id, name = %name, scene = %scene.path, files = assets.len() + 1, "job submitted");
-    let shared = Arc::clone(shared);
-    let job = id.clone();
-    std::thread::spawn(move || {
-        let result = load_job(&shared, &job, &scene, &assets, &settings, restore);
-        let mut farm = shared.farm();
-        if let Ok(e) = farm.entry_mut(&job) {
-            match result {
-                Ok(()) => {}
-                Err(err) => {
-                    // A job event like "job started": the farm's log keeps it at info, and
-                    // the job's owner gets the error itself, once, from the job's status.
-                    tracing::info!(job = %job, "job failed: {err:#}");
-                    e.job.fail(format!("{err:#}"));
-                }
-            }
-        }
-    });
-    Ok(id)
-}
-
-fn load_job(
-    shared: &Arc<Shared>,
-    job: &str,
-    scene: &AssetRef,
-    assets: &[AssetRef],
-    settings: &proto::RenderSettings,
-    restore: Option<Restored>,
-) -> anyhow::Result<()> {
-    let scene_path = {
-        let store = shared.store();
-        let dir = store.dir().join("jobs").join(job);
-        store.materialize(&dir, scene, assets)?
-    };
-    let (overrides, integrator) = proto::wire::settings_from_proto(Some(settings)).map_err(anyhow::Error::msg)?;
-    // Named as the user named them (`quad.mtl`), not as the job folder's copies.
-    let mut loaded = tracer::scene::load_scene_as(&scene_path, &scene.path, overrides.up)?;
-    // The one report of the scene's problems: in the job's status, which whoever follows
-    // the job prints (workers keep theirs quiet), and the farm's log.
-    for w in &loaded.warnings {
-        tracing::info!(job = %job, "scene warning: {w}");
-    }
-    let warnings = crate::job::bounded_warnings(&loaded.warnings);
-    overrides.apply(&mut loaded).map_err(anyhow::Error::msg)?;
-    let non_negative = matches!(integrator, Integrator::Path | Integrator::PathLightOnly | Integrator::PathBsdfOnly);
-    let tile = if settings.tile_size > 0 { settings.tile_size } else { shared.defaults.tile };
-    let batch = if settings.batch_spp > 0 { settings.batch_spp } else { shared.defaults.batch_spp };
-    let (w, h, spp) = (loaded.camera.width, loaded.camera.height, loaded.settings.spp);
-    let mut farm = shared.farm();
-    let e = farm.entry_mut(job)?;
-    if e.job.phase.is_final() {
-        return Ok(()); // cancelled while loading
-    }
-    match restore {
-        None => e.job.start(w, h, spp, tile, batch, non_negative),
-        Some(r) => {
-            anyhow::ensure!(
-                (r.width, r.height) == (w, h),
-                "the checkpoint is of a {}×{} image, the scene renders {w}×{h}",
-                r.width,
-                r.height
-            );
-            e.job.restore(r).map_err(|m| anyhow::anyhow!("the checkpoint is inconsistent: {m}"))?;
-            if settings.spp > e.job.spp {
-                e.job.extend_spp(settings.spp);
-            }
-        }
-    }
-    e.info = Some(tracer::output::RenderInfo::of(&loaded, &scene.path, integrator.name()));
-    e.job.warnings = warnings;
-    e.scene = Some(Arc::new(loaded));
-    tracing::info!(job = %job, width = w, height = h, spp, tile, batch, units = e.job.units.len(), "job started");
-    Ok(())
-}
 
 pub struct FarmService(pub Arc<Shared>);
 
@@ -218,9 +50,9 @@ impl proto::farm_server::Farm for FarmService {
             return Ok(Response::new(proto::LeaseReply { shutdown: true, ..Default::default() }));
         }
         let max = r.max_units.clamp(1, 256) as usize;
-        let leased = farm.lease(r.worker_id, max, Instant::now()).map_err(status_of_error)?;
+        let leased = farm.lease(r.worker_id, max, Instant::now()).map_err(error_to_status)?;
         let units: Vec<proto::Unit> =
-            leased.into_iter().map(|l| proto::wire::unit_to_proto(l.spec, l.unit, l.tile, l.samples)).collect();
+            leased.iter().map(|l| proto::wire::unit_to_proto(&l.spec, l.unit, l.tile, l.samples)).collect();
         let retry_after_ms = if units.is_empty() { 250 } else { 0 };
         Ok(Response::new(proto::LeaseReply { units, retry_after_ms, shutdown: false }))
     }
@@ -232,7 +64,7 @@ impl proto::farm_server::Farm for FarmService {
         let r = req.into_inner();
         let held: Vec<(String, u64)> = r.held.into_iter().map(|k| (k.job_id, k.unit_id)).collect();
         let mut farm = self.0.farm();
-        let abandon = farm.heartbeat(r.worker_id, &held, Instant::now()).map_err(status_of_error)?;
+        let abandon = farm.heartbeat(r.worker_id, &held, Instant::now()).map_err(error_to_status)?;
         Ok(Response::new(proto::HeartbeatReply {
             abandon: abandon.into_iter().map(|(job_id, unit_id)| proto::UnitKey { job_id, unit_id }).collect(),
             shutdown: farm.shutting_down,
@@ -243,13 +75,11 @@ impl proto::farm_server::Farm for FarmService {
         let proto::wire::ReceivedResult { worker_id, key, tile, samples, sums, counts, nonfinite, rays } =
             proto::wire::result_from_proto(req.into_inner()).map_err(Status::invalid_argument)?;
         let result = UnitResult { unit: key.unit_id, tile, samples, sums, counts, nonfinite, rays };
-        let applied = self.0.farm().submit(worker_id, &key.job_id, &result, Instant::now());
-        self.0.changed.notify_one();
-        match applied {
+        match self.0.submit_result(worker_id, &key.job_id, &result) {
             Ok(a) => Ok(Response::new(proto::SubmitReply { accepted: a == Applied::Merged })),
             Err(e) => {
                 tracing::warn!(worker = worker_id, unit = %key, "result rejected: {e}");
-                Err(status_of_error(e))
+                Err(error_to_status(e))
             }
         }
     }
@@ -324,9 +154,9 @@ impl proto::jobs_server::Jobs for JobsService {
         req: Request<proto::SubmitJobRequest>,
     ) -> Result<Response<proto::SubmitJobReply>, Status> {
         let r = req.into_inner();
-        let scene = r.scene.as_ref().map(AssetRef::from).ok_or_else(|| Status::invalid_argument("missing scene"))?;
-        let assets = r.assets.iter().map(AssetRef::from).collect();
-        let job_id = submit_job(&self.0, r.name, scene, assets, r.settings.unwrap_or_default(), None)?;
+        let spec = proto::wire::submission_from_proto(r.scene, r.assets, r.settings.as_ref())
+            .map_err(Status::invalid_argument)?;
+        let job_id = crate::farm::lifecycle::submit_job(&self.0, r.name, spec, None).map_err(error_to_status)?;
         Ok(Response::new(proto::SubmitJobReply { job_id }))
     }
 
@@ -334,7 +164,7 @@ impl proto::jobs_server::Jobs for JobsService {
 
     async fn watch_job(&self, req: Request<proto::JobRequest>) -> Result<Response<Self::WatchJobStream>, Status> {
         let job = req.into_inner().job_id;
-        self.0.farm().status(&job, Instant::now()).map_err(status_of_error)?;
+        self.0.farm().status(&job, Instant::now()).map_err(error_to_status)?;
         let (tx, rx) = mpsc::channel(4);
         let shared = Arc::clone(&self.0);
         tokio::spawn(async move {
@@ -342,13 +172,10 @@ impl proto::jobs_server::Jobs for JobsService {
             loop {
                 let status = shared.farm().status(&job, Instant::now());
                 let Ok(status) = status else { break };
-                let done = matches!(
-                    status.state(),
-                    proto::JobState::Done | proto::JobState::Failed | proto::JobState::Cancelled
-                );
+                let done = status.state.is_final();
                 let key = (status.state, status.units_done, status.workers);
                 if last != Some(key) || done {
-                    if tx.send(Ok(status)).await.is_err() {
+                    if tx.send(Ok(status_to_proto(status))).await.is_err() {
                         break;
                     }
                     last = Some(key);
@@ -381,7 +208,7 @@ impl proto::jobs_server::Jobs for JobsService {
         }
         let image = {
             let farm = self.0.farm();
-            let e = farm.entry(&job).map_err(status_of_error)?;
+            let e = farm.entry(&job).map_err(error_to_status)?;
             if e.job.width == 0 {
                 return Err(Status::failed_precondition(format!("job {job} has no image (its scene did not load)")));
             }
@@ -398,15 +225,12 @@ impl proto::jobs_server::Jobs for JobsService {
 
     async fn cancel_job(&self, req: Request<proto::JobRequest>) -> Result<Response<proto::JobStatus>, Status> {
         let job = req.into_inner().job_id;
-        let mut farm = self.0.farm();
-        farm.cancel(&job).map_err(status_of_error)?;
-        Ok(Response::new(farm.status(&job, Instant::now()).map_err(status_of_error)?))
+        Ok(Response::new(status_to_proto(self.0.cancel(&job).map_err(error_to_status)?)))
     }
 
     async fn list_jobs(&self, _: Request<proto::ListRequest>) -> Result<Response<proto::ListJobsReply>, Status> {
-        let farm = self.0.farm();
-        let workers = farm.live_workers(Instant::now());
-        let jobs = farm.jobs.iter().map(|e| status_of(&e.job, workers)).collect();
+        let statuses = self.0.farm().statuses(Instant::now());
+        let jobs = statuses.into_iter().map(status_to_proto).collect();
         Ok(Response::new(proto::ListJobsReply { jobs }))
     }
 

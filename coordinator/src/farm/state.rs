@@ -1,14 +1,17 @@
-//! The coordinator's state: registered workers, jobs in submission order, and the
-//! operations the services perform on them. Guarded by one mutex; every operation is
-//! short (bookkeeping and exact integer merges, never rendering).
+//! The farm's bookkeeping: registered workers, jobs in submission order, and the unit
+//! operations workers ask for (lease, heartbeat, submit). Guarded by one mutex; every
+//! operation is short (bookkeeping and exact integer merges, never rendering). What
+//! happens to a job as a whole is [`super::lifecycle`]'s.
 
 use std::collections::{BTreeMap, HashMap};
 use std::sync::Arc;
 use std::time::{Duration, Instant};
 
+use proto::domain::JobSpec;
 use tracer::scene::Scene;
 
-use crate::job::{Applied, Job, JobPhase, Rejection, UnitId, UnitResult, WorkerId};
+use super::job::{Applied, Job, JobPhase, Rejection, UnitId, UnitResult, WorkerId};
+use super::status::{JobStatus, status_of};
 
 #[derive(Clone, Debug)]
 pub struct FarmConfig {
@@ -48,7 +51,7 @@ pub struct Worker {
 /// executor).
 pub struct JobEntry {
     pub job: Job,
-    pub spec: proto::JobSpec,
+    pub spec: Arc<JobSpec>,
     pub scene: Option<Arc<Scene>>,
     /// What the image's EXR header records, once the scene has loaded.
     pub info: Option<tracer::output::RenderInfo>,
@@ -72,6 +75,12 @@ pub enum FarmError {
     UnknownWorker(WorkerId),
     #[error("unknown job {0}")]
     UnknownJob(String),
+    /// A request that can never succeed as it is.
+    #[error("{0}")]
+    Invalid(String),
+    /// A job's file that is not in the store.
+    #[error("{0}")]
+    NotUploaded(String),
     #[error(transparent)]
     Rejected(#[from] Rejection),
 }
@@ -93,7 +102,7 @@ pub struct Farm {
 
 /// A unit handed out by [`Farm::lease`].
 pub struct Leased {
-    pub spec: proto::JobSpec,
+    pub spec: Arc<JobSpec>,
     pub unit: UnitId,
     pub tile: tracer::film::Tile,
     pub samples: tracer::film::SampleRange,
@@ -124,7 +133,7 @@ impl Farm {
 
     /// Creates a job in the loading phase; returns its id. A job restored from a
     /// checkpoint keeps its id (`spec.job_id`) when it is free.
-    pub fn add_job(&mut self, name: String, mut spec: proto::JobSpec) -> String {
+    pub fn add_job(&mut self, name: String, mut spec: JobSpec) -> String {
         let wanted = spec.job_id.strip_prefix("job-").and_then(|n| n.parse::<u64>().ok());
         let id = match wanted {
             Some(n) if !self.index.contains_key(&spec.job_id) => {
@@ -139,7 +148,14 @@ impl Farm {
         };
         spec.job_id = id.clone();
         self.index.insert(id.clone(), self.jobs.len());
-        self.jobs.push(JobEntry { job: Job::loading(id.clone(), name), spec, scene: None, info: None, stored: None });
+        let entry = JobEntry {
+            job: Job::loading(id.clone(), name),
+            spec: Arc::new(spec),
+            scene: None,
+            info: None,
+            stored: None,
+        };
+        self.jobs.push(entry);
         id
     }
 
@@ -179,7 +195,7 @@ impl Farm {
             while out.len() < max {
                 let Some(unit) = e.job.lease_next(worker, now, deadline, self.config.speculate_after) else { break };
                 let u = &e.job.units[unit as usize];
-                out.push(Leased { spec: e.spec.clone(), unit, tile: u.tile, samples: u.samples });
+                out.push(Leased { spec: Arc::clone(&e.spec), unit, tile: u.tile, samples: u.samples });
             }
         }
         Ok(out)
@@ -207,40 +223,26 @@ impl Farm {
         Ok(abandon)
     }
 
+    /// Merges `worker`'s result into its job. Also says whether this result finished
+    /// the job (the lifecycle's to act on).
     pub fn submit(
         &mut self,
         worker: WorkerId,
         job: &str,
         result: &UnitResult,
         now: Instant,
-    ) -> Result<Applied, FarmError> {
+    ) -> Result<(Applied, bool), FarmError> {
         self.touch(worker, now)?;
         let entry = self.entry_mut(job)?;
         let was_running = entry.job.phase == JobPhase::Running;
         let applied = entry.job.apply_at(worker, result, now)?;
-        if was_running && entry.job.phase == JobPhase::Done {
-            let j = &entry.job;
-            tracing::info!(
-                job = %j.id,
-                scene = %j.name,
-                width = j.width,
-                height = j.height,
-                spp = j.spp,
-                units = j.units_total(),
-                samples = j.samples_done,
-                rays = j.rays,
-                nonfinite = j.nonfinite,
-                seconds = j.elapsed().as_secs_f64(),
-                "job finished"
-            );
-            entry.scene = None;
-        }
+        let finished = was_running && entry.job.phase == JobPhase::Done;
         if applied == Applied::Merged
             && let Some(w) = self.workers.get_mut(&worker)
         {
             w.units_done += 1;
         }
-        Ok(applied)
+        Ok((applied, finished))
     }
 
     /// Returns lapsed leases of every job to its queue, and (at most once a second)
@@ -263,43 +265,14 @@ impl Farm {
         }
     }
 
-    pub fn cancel(&mut self, job: &str) -> Result<(), FarmError> {
-        let e = self.entry_mut(job)?;
-        e.job.cancel();
-        e.scene = None;
-        tracing::info!(job = %job, "job cancelled");
-        Ok(())
-    }
-
-    pub fn status(&self, job: &str, now: Instant) -> Result<proto::JobStatus, FarmError> {
+    pub fn status(&self, job: &str, now: Instant) -> Result<JobStatus, FarmError> {
         Ok(status_of(&self.entry(job)?.job, self.live_workers(now)))
     }
-}
 
-pub fn status_of(j: &Job, workers: usize) -> proto::JobStatus {
-    let (state, error) = match &j.phase {
-        JobPhase::Loading => (proto::JobState::Loading, String::new()),
-        JobPhase::Running => (proto::JobState::Running, String::new()),
-        JobPhase::Done => (proto::JobState::Done, String::new()),
-        JobPhase::Failed(e) => (proto::JobState::Failed, e.clone()),
-        JobPhase::Cancelled => (proto::JobState::Cancelled, String::new()),
-    };
-    proto::JobStatus {
-        job_id: j.id.clone(),
-        state: state as i32,
-        error,
-        units_done: j.units_done,
-        units_total: j.units_total(),
-        samples_done: j.samples_done,
-        samples_total: j.samples_total(),
-        workers: workers as u32,
-        width: j.width,
-        height: j.height,
-        scene: j.name.clone(),
-        elapsed_s: j.elapsed().as_secs_f64(),
-        rays: j.rays,
-        samples_per_s: if j.phase == JobPhase::Running { j.samples_per_second() } else { 0.0 },
-        warnings: j.warnings.clone(),
+    /// Every listed job's status, in submission order.
+    pub fn statuses(&self, now: Instant) -> Vec<JobStatus> {
+        let workers = self.live_workers(now);
+        self.jobs.iter().map(|e| status_of(&e.job, workers)).collect()
     }
 }
 
@@ -314,6 +287,19 @@ fn first_worker_id() -> WorkerId {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    fn spec() -> JobSpec {
+        let scene = proto::domain::AssetRef { path: "scene.toml".into(), sha256: "ab".repeat(32), size: 10 };
+        JobSpec {
+            job_id: String::new(),
+            scene,
+            assets: vec![],
+            overrides: Default::default(),
+            integrator: Default::default(),
+            tile_size: None,
+            batch_spp: None,
+        }
+    }
 
     #[test]
     fn unknown_workers_and_jobs_are_errors() {
@@ -359,8 +345,8 @@ mod tests {
         let mut f = Farm::new(FarmConfig::default());
         let now = Instant::now();
         let w = f.register("h".into(), 2, now);
-        let a = f.add_job("a".into(), proto::JobSpec::default());
-        let b = f.add_job("b".into(), proto::JobSpec::default());
+        let a = f.add_job("a".into(), spec());
+        let b = f.add_job("b".into(), spec());
         f.entry_mut(&b).unwrap().job.start(4, 4, 2, 4, 2, true);
         f.entry_mut(&a).unwrap().job.start(8, 4, 2, 4, 2, true);
         let got = f.lease(w, 3, now).unwrap();

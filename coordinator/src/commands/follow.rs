@@ -8,20 +8,21 @@ use std::time::{Duration, Instant};
 
 use tracer::film::Image;
 
-use crate::progress::JobBar;
+use crate::commands::progress::JobBar;
+use crate::farm::status::{JobState, JobStatus};
 
 /// Where a followed job's news comes from.
 pub trait JobFeed {
     /// The job's next status (when it changes, or after a short wait); `None` when the
     /// feed has closed.
-    async fn next_status(&mut self) -> anyhow::Result<Option<proto::JobStatus>>;
+    async fn next_status(&mut self) -> anyhow::Result<Option<JobStatus>>;
 
     /// The job's image so far.
     async fn image(&mut self) -> anyhow::Result<Image>;
 
     /// After each status that is not final: the feed's own upkeep (a render's
     /// checkpoints, its workers' health). An error stops following.
-    async fn tick(&mut self, _status: &proto::JobStatus, _bar: &JobBar) -> anyhow::Result<()> {
+    async fn tick(&mut self, _status: &JobStatus, _bar: &JobBar) -> anyhow::Result<()> {
         Ok(())
     }
 }
@@ -29,7 +30,7 @@ pub trait JobFeed {
 /// How following ended.
 pub enum Followed {
     /// The job reached a final state (done, failed or cancelled).
-    Ended(proto::JobStatus),
+    Ended(JobStatus),
     /// Ctrl-C or SIGTERM.
     Interrupted,
 }
@@ -50,12 +51,12 @@ pub async fn follow(feed: &mut impl JobFeed, bar: &mut JobBar, preview: Option<&
             return last.map(Followed::Ended).ok_or_else(|| anyhow::anyhow!("the job's progress stream closed early"));
         };
         bar.update(&status);
-        if matches!(status.state(), proto::JobState::Done | proto::JobState::Failed | proto::JobState::Cancelled) {
+        if status.state.is_final() {
             return Ok(Followed::Ended(status));
         }
         feed.tick(&status, bar).await?;
         if let Some(p) = preview
-            && status.state() == proto::JobState::Running
+            && status.state == JobState::Running
             && last_preview.elapsed() > Duration::from_secs(3)
         {
             let written = feed.image().await.and_then(|image| Ok(tracer::output::write_png(&image, p)?));

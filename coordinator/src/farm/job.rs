@@ -7,8 +7,8 @@ use std::time::{Duration, Instant};
 
 use tracer::film::{Accumulation, Image, SampleRange, Tile};
 
-use crate::leases::{LeaseClock, Slot};
-use crate::schedule;
+use crate::farm::leases::{LeaseClock, Slot};
+use crate::farm::schedule;
 
 pub type WorkerId = u64;
 pub type UnitId = u64;

@@ -6,6 +6,8 @@ use std::time::{Duration, Instant};
 
 use indicatif::{ProgressBar, ProgressStyle};
 
+use crate::farm::status::{JobState, JobStatus};
+
 pub struct JobBar {
     bar: ProgressBar,
     rate: Rate,
@@ -24,7 +26,7 @@ impl JobBar {
         Self { bar, rate: Rate::default(), warned: false }
     }
 
-    pub fn update(&mut self, s: &proto::JobStatus) {
+    pub fn update(&mut self, s: &JobStatus) {
         // The scene's problems, once, as soon as the job knows them (even with -q).
         if !self.warned && !s.warnings.is_empty() {
             for w in &s.warnings {
@@ -128,8 +130,8 @@ fn format_duration(d: Duration) -> String {
 }
 
 /// A job as `status` lists it: id, state, name, size, samples, rate and ETA.
-pub fn status_line(j: &proto::JobStatus) -> String {
-    let state = format!("{:?}", j.state()).to_lowercase();
+pub fn status_line(j: &JobStatus) -> String {
+    let state = j.state.name();
     let percent = 100.0 * j.samples_done as f64 / j.samples_total.max(1) as f64;
     let mut line = format!(
         "{:<8} {:<9} {:<20} {}×{}  {} / {} samples ({percent:.0}%)",
@@ -141,7 +143,7 @@ pub fn status_line(j: &proto::JobStatus) -> String {
         si(j.samples_done as f64),
         si(j.samples_total as f64)
     );
-    if j.state() == proto::JobState::Running && j.samples_per_s > 0.0 {
+    if j.state == JobState::Running && j.samples_per_s > 0.0 {
         let left = j.samples_total.saturating_sub(j.samples_done) as f64 / j.samples_per_s;
         line += &format!(
             "  {}samples/s  ETA {}",
@@ -157,7 +159,7 @@ pub fn status_line(j: &proto::JobStatus) -> String {
 
 /// The closing line of a finished job; `earlier` are the samples (and rays) that a
 /// checkpoint already held, which this run's speed must not count.
-pub fn summary(s: &proto::JobStatus, earlier_samples: u64, earlier_rays: u64) -> String {
+pub fn summary(s: &JobStatus, earlier_samples: u64, earlier_rays: u64) -> String {
     let secs = s.elapsed_s.max(1e-9);
     let (samples, rays) = (s.samples_done.saturating_sub(earlier_samples), s.rays.saturating_sub(earlier_rays));
     format!(

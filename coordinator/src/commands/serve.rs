@@ -2,17 +2,18 @@
 
 use std::collections::HashMap;
 use std::path::{Path, PathBuf};
-use std::sync::{Arc, Mutex};
+use std::sync::Arc;
 use std::time::Duration;
 
 use anyhow::Context;
 use clap::Args;
 
-use crate::assets::{AssetRef, AssetStore};
-use crate::checkpoint;
-use crate::farm::{Farm, FarmConfig};
-use crate::server::Server;
-use crate::service::{JobDefaults, Shared};
+use crate::edge::server::Server;
+use crate::farm::Shared;
+use crate::farm::assets::AssetStore;
+use crate::farm::checkpoint;
+use crate::farm::lifecycle::submit_job;
+use crate::farm::state::{Farm, FarmConfig};
 
 #[derive(Args)]
 pub struct ServeArgs {
@@ -89,14 +90,9 @@ pub fn run(args: ServeArgs) -> anyhow::Result<()> {
         .or_else(|| args.store.clone())
         .unwrap_or_else(|| std::env::temp_dir().join("tilefarm-coordinator-store"));
     let store = AssetStore::open(&store_dir)?;
-    let shared = Arc::new(Shared {
-        farm: Mutex::new(Farm::new(config)),
-        store: Mutex::new(store),
-        defaults: JobDefaults::default(),
-        changed: tokio::sync::Notify::new(),
-    });
+    let shared = Arc::new(Shared::new(Farm::new(config), store));
     let ckpt_root = args.checkpoint.as_ref().map(|d| d.join("job-checkpoints"));
-    let images = store_dir.join(crate::assets::IMAGES);
+    let images = store_dir.join(crate::farm::assets::IMAGES);
     std::fs::create_dir_all(&images).with_context(|| format!("creating {}", images.display()))?;
     // Ids of finished jobs whose images are stored stay taken.
     if let Some(n) = stored_job_numbers(&images).max() {
@@ -137,7 +133,7 @@ pub fn run(args: ServeArgs) -> anyhow::Result<()> {
                 pacer.wrote(t.elapsed());
             }
             store_finished(&shared, &images, ckpt_root.as_deref(), &mut saved, &mut store_retry).await;
-            forget_finished(&shared, retain);
+            shared.forget_finished(retain);
         }
         tracing::info!("stopping");
         server.stop().await;
@@ -183,7 +179,7 @@ async fn save_jobs(shared: &Arc<Shared>, root: &Path, saved: &mut HashMap<String
         farm.jobs
             .iter()
             .filter(|e| e.job.width > 0 && !e.job.is_evicted())
-            .map(|e| (e, (e.job.units_done, e.job.phase == crate::job::JobPhase::Cancelled)))
+            .map(|e| (e, (e.job.units_done, e.job.phase == crate::farm::job::JobPhase::Cancelled)))
             .filter(|(e, now)| saved.get(&e.job.id) != Some(now))
             .map(|(e, now)| (e.job.id.clone(), now, checkpoint::Snapshot::of(&e.spec, &e.job)))
             .collect()
@@ -215,10 +211,8 @@ fn stored_job_numbers(images: &Path) -> impl Iterator<Item = u64> {
     names.filter_map(|n| n.to_str()?.strip_prefix("job-")?.strip_suffix(".exr")?.parse().ok())
 }
 
-/// Stores the image of every newly finished job (atomically: temp file, fsync, rename)
-/// and then drops its sums from memory, and its checkpoint and scene copy from disk: a
-/// farm's memory follows its running jobs, not its history. A failed write is a warning,
-/// and is tried again after a few seconds (`retry`).
+/// Stores finished jobs' images and evicts their sums (see the lifecycle); their
+/// checkpoints go, since a restart must not load them again.
 async fn store_finished(
     shared: &Arc<Shared>,
     images: &Path,
@@ -226,68 +220,22 @@ async fn store_finished(
     saved: &mut HashMap<String, Saved>,
     retry: &mut HashMap<String, std::time::Instant>,
 ) {
-    let now = std::time::Instant::now();
-    let done: Vec<(String, tracer::film::Image, Option<tracer::output::RenderInfo>)> = {
-        let farm = shared.farm();
-        farm.jobs
-            .iter()
-            .filter(|e| e.job.phase == crate::job::JobPhase::Done && !e.job.is_evicted())
-            .filter(|e| retry.get(&e.job.id).is_none_or(|&at| now >= at))
-            .map(|e| (e.job.id.clone(), e.job.image(), e.render_info()))
-            .collect()
-    };
-    let evicting = !done.is_empty();
-    for (id, image, info) in done {
-        let path = images.join(format!("{id}.exr"));
-        let target = path.clone();
-        let written = tokio::task::spawn_blocking(move || -> anyhow::Result<()> {
-            let tmp = target.with_extension("exr.tmp");
-            tracer::output::write_exr_with(&image, info.as_ref(), &tmp)?;
-            std::fs::File::open(&tmp).and_then(|f| f.sync_all()).with_context(|| format!("{}", tmp.display()))?;
-            std::fs::rename(&tmp, &target).with_context(|| format!("replacing {}", target.display()))?;
-            Ok(())
-        })
-        .await
-        .map_err(anyhow::Error::from)
-        .and_then(|r| r);
-        if let Err(e) = written {
-            tracing::warn!(job = %id, "the finished image was not stored; trying again in 5 s: {e:#}");
-            retry.insert(id, now + Duration::from_secs(5));
-            continue;
-        }
-        retry.remove(&id);
-        if let Ok(e) = shared.farm().entry_mut(&id) {
-            e.job.evict();
-            e.stored = Some(path);
-        }
-        // The job's copy of its scene files (the blobs themselves stay in the store).
-        let copy = shared.store().dir().join("jobs").join(&id);
-        let _ = std::fs::remove_dir_all(copy);
+    let (shared, images, mut pending) = (Arc::clone(shared), images.to_path_buf(), std::mem::take(retry));
+    let stored = tokio::task::spawn_blocking(move || {
+        let stored = shared.store_finished(&images, &mut pending);
+        (stored, pending)
+    })
+    .await;
+    let Ok((stored, pending)) = stored else { return };
+    *retry = pending;
+    for id in stored {
         if let Some(root) = ckpt_root {
-            // The image is all that is left to keep: a restart must not load it again.
             let _ = std::fs::remove_dir_all(root.join(&id));
             saved.remove(&id);
         }
-        tracing::info!(job = %id, "finished image stored; its sums left memory");
-    }
-    if evicting {
-        tracer::memory::return_free_memory();
     }
 }
 
-/// Stops listing stored jobs that finished longer than `retain` ago.
-fn forget_finished(shared: &Arc<Shared>, retain: Duration) {
-    let now = std::time::Instant::now();
-    let gone = shared.farm().remove_jobs(|e| {
-        e.stored.is_some() && e.job.finished.is_some_and(|t| now.saturating_duration_since(t) >= retain)
-    });
-    for id in gone {
-        tracing::info!(job = %id, "finished job no longer listed; its image stays in the store");
-    }
-}
-
-/// Restores the jobs checkpointed under `root`. A damaged checkpoint is reported and
-/// left alone (never used); the farm serves the others.
 fn restore_jobs(shared: &Arc<Shared>, root: &Path) -> anyhow::Result<()> {
     let Ok(entries) = std::fs::read_dir(root) else { return Ok(()) };
     let mut dirs: Vec<PathBuf> = entries.flatten().map(|e| e.path()).filter(|p| p.is_dir()).collect();
@@ -302,20 +250,12 @@ fn restore_jobs(shared: &Arc<Shared>, root: &Path) -> anyhow::Result<()> {
                 continue;
             }
         };
-        let scene = snap.spec.scene.as_ref().map(AssetRef::from).context("a checkpoint names no scene")?;
-        let assets = snap.spec.assets.iter().map(AssetRef::from).collect();
-        let mut settings = snap.spec.settings.clone().unwrap_or_default();
-        settings.spp = 0;
-        let (done, total) = (snap.units_done(), snap.job.units.len());
-        let id = crate::service::submit_job(
-            shared,
-            snap.name.clone(),
-            scene,
-            assets,
-            settings,
-            Some((snap.spec.job_id.clone(), snap.job)),
-        )
-        .map_err(|s| anyhow::anyhow!("restoring {}: {}", dir.display(), s.message()))?;
+        // The checkpoint's samples per pixel, not the first submission's.
+        let mut spec = snap.spec;
+        spec.overrides.spp = None;
+        let (done, total) = (snap.job.units.iter().filter(|u| u.done).count(), snap.job.units.len());
+        let id = submit_job(shared, snap.name, spec, Some(snap.job))
+            .with_context(|| format!("restoring {}", dir.display()))?;
         tracing::info!(job = %id, done, total, "job restored from its checkpoint");
     }
     Ok(())

@@ -2,17 +2,16 @@
 //! image), `status` and `cancel`.
 
 use std::path::PathBuf;
-use std::time::Duration;
 
 use anyhow::Context;
 use clap::Args;
-use proto::jobs_client::JobsClient;
-use tonic::transport::Channel;
 
-use crate::assets::{LocalScene, sha256_hex};
-use crate::follow::{Followed, JobFeed, follow};
-use crate::progress::{JobBar, summary};
-use crate::render_cmd::JobArgs;
+use crate::commands::follow::{Followed, JobFeed, follow};
+use crate::commands::progress::{JobBar, summary};
+use crate::commands::render::JobArgs;
+use crate::edge::client::{FarmClient, StatusStream, Watch};
+use crate::farm::assets::LocalScene;
+use crate::farm::status::{JobState, JobStatus};
 
 /// Where the farm is: shared by every command that talks to one.
 #[derive(Args, Clone, Debug)]
@@ -80,20 +79,6 @@ pub struct CancelArgs {
     pub coordinator: FarmAddress,
 }
 
-/// Connects to a coordinator given as `host:port` or a URL.
-pub async fn connect(address: &str) -> anyhow::Result<JobsClient<Channel>> {
-    let url = proto::coordinator_url(address);
-    let channel = tonic::transport::Endpoint::from_shared(url.clone())
-        .map_err(|e| anyhow::anyhow!("--coordinator {address}: not an address ({e})"))?
-        .connect_timeout(Duration::from_secs(10))
-        .connect()
-        .await
-        .with_context(|| format!("connecting to {url}"))?;
-    Ok(JobsClient::new(channel)
-        .max_decoding_message_size(proto::MAX_MESSAGE_BYTES)
-        .max_encoding_message_size(proto::MAX_MESSAGE_BYTES))
-}
-
 /// A job's default name: the scene file's stem (`cup.toml` → `cup`), or for the many
 /// scenes called `scene.toml` the folder that holds them.
 fn job_name(scene: &std::path::Path) -> String {
@@ -107,21 +92,6 @@ fn job_name(scene: &std::path::Path) -> String {
 
 fn runtime() -> anyhow::Result<tokio::runtime::Runtime> {
     tokio::runtime::Builder::new_multi_thread().worker_threads(2).enable_all().build().context("async runtime")
-}
-
-pub(crate) async fn upload(
-    client: &mut JobsClient<Channel>,
-    path: &std::path::Path,
-    rel: String,
-) -> anyhow::Result<proto::AssetRef> {
-    let bytes = std::fs::read(path).with_context(|| format!("reading {}", path.display()))?;
-    let sha = sha256_hex(&bytes);
-    let chunks: Vec<proto::AssetChunk> =
-        bytes.chunks(proto::ASSET_CHUNK_BYTES).map(|c| proto::AssetChunk { data: c.to_vec() }).collect();
-    let reply = client.upload_asset(tokio_stream::iter(chunks)).await.with_context(|| format!("uploading {rel}"))?;
-    let r = reply.into_inner();
-    anyhow::ensure!(r.sha256 == sha, "upload of {rel} was corrupted (digest {} ≠ {sha})", r.sha256);
-    Ok(proto::AssetRef { path: rel, sha256: sha, size: bytes.len() as u64 })
 }
 
 pub fn submit(args: SubmitArgs) -> anyhow::Result<()> {
@@ -139,43 +109,28 @@ pub fn submit(args: SubmitArgs) -> anyhow::Result<()> {
                 list.join("\n")
             );
         }
-        let mut client = connect(&args.coordinator.address).await?;
-        let scene = upload(&mut client, &local.scene, local.relative(&local.scene)).await?;
+        let mut client = FarmClient::connect(&args.coordinator.address).await?;
+        let scene = client.upload(&local.scene, local.relative(&local.scene)).await?;
         let mut assets = Vec::new();
         for f in &local.files {
-            assets.push(upload(&mut client, f, local.relative(f)).await?);
+            assets.push(client.upload(f, local.relative(f)).await?);
         }
-        let reply = client
-            .submit_job(proto::SubmitJobRequest {
-                scene: Some(scene),
-                assets,
-                settings: Some(args.job.settings()),
-                name: args.name.clone().unwrap_or_else(|| job_name(&args.scene)),
-            })
-            .await
-            .map_err(|s| anyhow::anyhow!("{}", s.message()))?;
-        let job = reply.into_inner().job_id;
+        let name = args.name.clone().unwrap_or_else(|| job_name(&args.scene));
+        let job = client.submit(name, &args.job.spec(scene, assets)).await?;
         println!("{job}");
         if args.wait {
-            let watched = client.watch_job(proto::JobRequest { job_id: job.clone() }).await;
-            wait(&mut client, watched, &job, args.quiet, &args.output, args.preview.as_deref()).await?;
+            let stream = match client.watch(&job).await? {
+                Watch::Stream(s) => s,
+                Watch::NotFound(m) => anyhow::bail!("{m}"),
+            };
+            wait(&mut client, stream, &job, args.quiet, &args.output, args.preview.as_deref()).await?;
         }
         Ok(())
     })
 }
 
-/// The job's image as the coordinator encodes it: an EXR file with its header.
-async fn fetch_exr(client: &mut JobsClient<Channel>, job: &str) -> anyhow::Result<Vec<u8>> {
-    let mut stream = client.fetch_image(proto::JobRequest { job_id: job.to_string() }).await?.into_inner();
-    let mut exr = Vec::new();
-    while let Some(chunk) = stream.message().await? {
-        exr.extend_from_slice(&chunk.exr);
-    }
-    Ok(exr)
-}
-
-async fn fetch_image(client: &mut JobsClient<Channel>, job: &str) -> anyhow::Result<tracer::film::Image> {
-    decode_exr(&fetch_exr(client, job).await?, job)
+async fn fetch_image(client: &mut FarmClient, job: &str) -> anyhow::Result<tracer::film::Image> {
+    decode_exr(&client.fetch_exr(job).await?, job)
 }
 
 fn decode_exr(exr: &[u8], job: &str) -> anyhow::Result<tracer::film::Image> {
@@ -189,11 +144,11 @@ fn decode_exr(exr: &[u8], job: &str) -> anyhow::Result<tracer::film::Image> {
 /// Writes a fetched image: an EXR as the coordinator made it (header and all), a PNG
 /// tone-mapped from it. Returns the image.
 async fn fetch_and_write(
-    client: &mut JobsClient<Channel>,
+    client: &mut FarmClient,
     job: &str,
     output: &std::path::Path,
 ) -> anyhow::Result<tracer::film::Image> {
-    let exr = fetch_exr(client, job).await?;
+    let exr = client.fetch_exr(job).await?;
     let image = decode_exr(&exr, job)?;
     match tracer::output::Format::of(output)? {
         tracer::output::Format::Exr => {
@@ -208,35 +163,35 @@ async fn fetch_and_write(
 pub fn fetch(args: FetchArgs) -> anyhow::Result<()> {
     tracer::output::check_output_paths(&args.output, args.preview.as_deref())?;
     runtime()?.block_on(async move {
-        let mut client = connect(&args.coordinator.address).await?;
+        let mut client = FarmClient::connect(&args.coordinator.address).await?;
         // A job that finished long ago is no longer listed, but its image is stored.
-        let watched = client.watch_job(proto::JobRequest { job_id: args.job.clone() }).await;
-        if let Err(s) = &watched
-            && s.code() == tonic::Code::NotFound
-        {
-            let Ok(image) = fetch_and_write(&mut client, &args.job, &args.output).await else {
-                anyhow::bail!("{}", s.message());
-            };
-            if let Some(p) = &args.preview {
-                tracer::output::write_png(&image, p)?;
+        let stream = match client.watch(&args.job).await? {
+            Watch::Stream(s) => s,
+            Watch::NotFound(m) => {
+                let Ok(image) = fetch_and_write(&mut client, &args.job, &args.output).await else {
+                    anyhow::bail!("{m}");
+                };
+                if let Some(p) = &args.preview {
+                    tracer::output::write_png(&image, p)?;
+                }
+                println!("{} finished earlier; wrote {}", args.job, args.output.display());
+                return Ok(());
             }
-            println!("{} finished earlier; wrote {}", args.job, args.output.display());
-            return Ok(());
-        }
-        wait(&mut client, watched, &args.job, args.quiet, &args.output, args.preview.as_deref()).await
+        };
+        wait(&mut client, stream, &args.job, args.quiet, &args.output, args.preview.as_deref()).await
     })
 }
 
 /// A farm's job, followed over gRPC.
 struct RemoteJob<'a> {
-    client: &'a mut JobsClient<Channel>,
+    client: &'a mut FarmClient,
     job: &'a str,
-    stream: tonic::Streaming<proto::JobStatus>,
+    stream: StatusStream,
 }
 
 impl JobFeed for RemoteJob<'_> {
-    async fn next_status(&mut self) -> anyhow::Result<Option<proto::JobStatus>> {
-        Ok(self.stream.message().await?)
+    async fn next_status(&mut self) -> anyhow::Result<Option<JobStatus>> {
+        self.stream.next().await
     }
 
     async fn image(&mut self) -> anyhow::Result<tracer::film::Image> {
@@ -246,14 +201,13 @@ impl JobFeed for RemoteJob<'_> {
 
 /// Follows `job` on its `watched` progress stream to its end and writes its image.
 async fn wait(
-    client: &mut JobsClient<Channel>,
-    watched: Result<tonic::Response<tonic::Streaming<proto::JobStatus>>, tonic::Status>,
+    client: &mut FarmClient,
+    stream: StatusStream,
     job: &str,
     quiet: bool,
     output: &std::path::Path,
     preview: Option<&std::path::Path>,
 ) -> anyhow::Result<()> {
-    let stream = watched.map_err(|s| anyhow::anyhow!("{}", s.message()))?.into_inner();
     let mut bar = JobBar::new(quiet);
     let followed = follow(&mut RemoteJob { client: &mut *client, job, stream }, &mut bar, preview).await;
     bar.finish();
@@ -263,8 +217,8 @@ async fn wait(
             anyhow::bail!("interrupted; the job goes on (cancel it with `coordinator cancel {job}`)")
         }
     };
-    match status.state() {
-        proto::JobState::Done => {
+    match status.state {
+        JobState::Done => {
             let image = fetch_and_write(client, job, output).await?;
             if let Some(p) = preview {
                 tracer::output::write_png(&image, p)?;
@@ -272,8 +226,8 @@ async fn wait(
             println!("{}; wrote {}", summary(&status, 0, 0), output.display());
             Ok(())
         }
-        proto::JobState::Failed => anyhow::bail!("job {job} failed: {}", status.error),
-        proto::JobState::Cancelled if status.width > 0 => {
+        JobState::Failed => anyhow::bail!("job {job} failed: {}", status.error),
+        JobState::Cancelled if status.width > 0 => {
             // What was rendered before the cancel is still worth having.
             fetch_and_write(client, job, output).await?;
             anyhow::bail!(
@@ -283,25 +237,25 @@ async fn wait(
                 output.display()
             )
         }
-        proto::JobState::Cancelled => anyhow::bail!("job {job} was cancelled before its scene loaded"),
+        JobState::Cancelled => anyhow::bail!("job {job} was cancelled before its scene loaded"),
         s => anyhow::bail!("job {job} stopped in state {s:?}"),
     }
 }
 
 pub fn status(args: StatusArgs) -> anyhow::Result<()> {
     runtime()?.block_on(async move {
-        let mut client = connect(&args.coordinator.address).await?;
-        let jobs = client.list_jobs(proto::ListRequest {}).await?.into_inner().jobs;
-        let workers = client.list_workers(proto::ListRequest {}).await?.into_inner().workers;
+        let mut client = FarmClient::connect(&args.coordinator.address).await?;
+        let jobs = client.jobs().await?;
+        let workers = client.workers().await?;
         println!("jobs:");
         for j in jobs {
-            println!("  {}", crate::progress::status_line(&j));
+            println!("  {}", crate::commands::progress::status_line(&j));
         }
         println!("workers:");
         for w in workers {
             println!(
                 "  {:<4} {:<20} {:>3} threads  {:>3} held  {:>6} done  seen {:.1}s ago",
-                w.worker_id, w.hostname, w.threads, w.units_held, w.units_done, w.last_seen_s
+                w.id, w.hostname, w.threads, w.units_held, w.units_done, w.last_seen_s
             );
         }
         Ok(())
@@ -310,13 +264,9 @@ pub fn status(args: StatusArgs) -> anyhow::Result<()> {
 
 pub fn cancel(args: CancelArgs) -> anyhow::Result<()> {
     runtime()?.block_on(async move {
-        let mut client = connect(&args.coordinator.address).await?;
-        let s = client
-            .cancel_job(proto::JobRequest { job_id: args.job.clone() })
-            .await
-            .map_err(|s| anyhow::anyhow!("{}", s.message()))?
-            .into_inner();
-        println!("{} {:?}", s.job_id, s.state());
+        let mut client = FarmClient::connect(&args.coordinator.address).await?;
+        let s = client.cancel(&args.job).await?;
+        println!("{} {}", s.job_id, s.state.name());
         Ok(())
     })
 }

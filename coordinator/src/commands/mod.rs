@@ -1,0 +1,12 @@
+//! The commands of the `coordinator` executable, each in its own module; `follow`,
+//! `progress`, `local` and `builtin` are what several of them share.
+
+pub mod bench;
+pub(crate) mod builtin;
+pub mod client;
+pub(crate) mod follow;
+pub mod loadtest;
+pub(crate) mod local;
+pub(crate) mod progress;
+pub mod render;
+pub mod serve;

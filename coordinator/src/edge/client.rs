@@ -1,0 +1,138 @@
+//! A user's connection to a farm's `Jobs` service: each call encodes its request,
+//! decodes and checks the answer, and returns the farm's own types, so the commands
+//! never see a wire message.
+
+use std::time::Duration;
+
+use anyhow::Context;
+use proto::domain::{AssetRef, JobSpec};
+use proto::jobs_client::JobsClient;
+use tonic::transport::Channel;
+
+use super::wire::status_from_proto;
+use crate::farm::assets::sha256_hex;
+use crate::farm::status::JobStatus;
+
+pub struct FarmClient {
+    jobs: JobsClient<Channel>,
+}
+
+/// A job's progress stream, or why there is none.
+pub enum Watch {
+    Stream(StatusStream),
+    /// The farm does not list the job (it may have finished long ago: its image can
+    /// still be stored).
+    NotFound(String),
+}
+
+pub struct StatusStream(Box<tonic::Streaming<proto::JobStatus>>);
+
+impl StatusStream {
+    /// The job's next status; `None` when the stream ends.
+    pub async fn next(&mut self) -> anyhow::Result<Option<JobStatus>> {
+        match self.0.message().await? {
+            Some(s) => Ok(Some(status_from_proto(s).map_err(anyhow::Error::msg)?)),
+            None => Ok(None),
+        }
+    }
+}
+
+/// A worker as `status` lists it.
+pub struct WorkerRow {
+    pub id: u64,
+    pub hostname: String,
+    pub threads: u32,
+    pub units_held: u32,
+    pub units_done: u64,
+    pub last_seen_s: f64,
+}
+
+fn message(s: tonic::Status) -> anyhow::Error {
+    anyhow::anyhow!("{}", s.message())
+}
+
+impl FarmClient {
+    /// Connects to a coordinator given as `host:port` or a URL.
+    pub async fn connect(address: &str) -> anyhow::Result<Self> {
+        let url = proto::coordinator_url(address);
+        let channel = tonic::transport::Endpoint::from_shared(url.clone())
+            .map_err(|e| anyhow::anyhow!("--coordinator {address}: not an address ({e})"))?
+            .connect_timeout(Duration::from_secs(10))
+            .connect()
+            .await
+            .with_context(|| format!("connecting to {url}"))?;
+        let jobs = JobsClient::new(channel)
+            .max_decoding_message_size(proto::MAX_MESSAGE_BYTES)
+            .max_encoding_message_size(proto::MAX_MESSAGE_BYTES);
+        Ok(Self { jobs })
+    }
+
+    /// Uploads a file, checking the farm stored what was sent; `rel` is its path in
+    /// the job.
+    pub async fn upload(&mut self, path: &std::path::Path, rel: String) -> anyhow::Result<AssetRef> {
+        let bytes = std::fs::read(path).with_context(|| format!("reading {}", path.display()))?;
+        let sha = sha256_hex(&bytes);
+        let chunks: Vec<proto::AssetChunk> =
+            bytes.chunks(proto::ASSET_CHUNK_BYTES).map(|c| proto::AssetChunk { data: c.to_vec() }).collect();
+        let reply =
+            self.jobs.upload_asset(tokio_stream::iter(chunks)).await.with_context(|| format!("uploading {rel}"))?;
+        let r = reply.into_inner();
+        anyhow::ensure!(r.sha256 == sha, "upload of {rel} was corrupted (digest {} ≠ {sha})", r.sha256);
+        Ok(AssetRef { path: rel, sha256: sha, size: bytes.len() as u64 })
+    }
+
+    /// Submits a job of uploaded files; returns its id.
+    pub async fn submit(&mut self, name: String, spec: &JobSpec) -> anyhow::Result<String> {
+        let request = proto::SubmitJobRequest {
+            scene: Some((&spec.scene).into()),
+            assets: spec.assets.iter().map(Into::into).collect(),
+            settings: Some(proto::wire::settings_to_proto(spec)),
+            name,
+        };
+        Ok(self.jobs.submit_job(request).await.map_err(message)?.into_inner().job_id)
+    }
+
+    pub async fn watch(&mut self, job: &str) -> anyhow::Result<Watch> {
+        match self.jobs.watch_job(proto::JobRequest { job_id: job.to_string() }).await {
+            Ok(r) => Ok(Watch::Stream(StatusStream(Box::new(r.into_inner())))),
+            Err(s) if s.code() == tonic::Code::NotFound => Ok(Watch::NotFound(s.message().to_string())),
+            Err(s) => Err(message(s)),
+        }
+    }
+
+    /// The job's image as the coordinator encodes it: an EXR file with its header.
+    pub async fn fetch_exr(&mut self, job: &str) -> anyhow::Result<Vec<u8>> {
+        let request = proto::JobRequest { job_id: job.to_string() };
+        let mut stream = self.jobs.fetch_image(request).await.map_err(message)?.into_inner();
+        let mut exr = Vec::new();
+        while let Some(chunk) = stream.message().await? {
+            exr.extend_from_slice(&chunk.exr);
+        }
+        Ok(exr)
+    }
+
+    pub async fn jobs(&mut self) -> anyhow::Result<Vec<JobStatus>> {
+        let jobs = self.jobs.list_jobs(proto::ListRequest {}).await.map_err(message)?.into_inner().jobs;
+        jobs.into_iter().map(|s| status_from_proto(s).map_err(anyhow::Error::msg)).collect()
+    }
+
+    pub async fn workers(&mut self) -> anyhow::Result<Vec<WorkerRow>> {
+        let workers = self.jobs.list_workers(proto::ListRequest {}).await.map_err(message)?.into_inner().workers;
+        Ok(workers
+            .into_iter()
+            .map(|w| WorkerRow {
+                id: w.worker_id,
+                hostname: w.hostname.chars().take(255).collect(),
+                threads: w.threads,
+                units_held: w.units_held,
+                units_done: w.units_done,
+                last_seen_s: w.last_seen_s,
+            })
+            .collect())
+    }
+
+    pub async fn cancel(&mut self, job: &str) -> anyhow::Result<JobStatus> {
+        let s = self.jobs.cancel_job(proto::JobRequest { job_id: job.to_string() }).await.map_err(message)?;
+        status_from_proto(s.into_inner()).map_err(anyhow::Error::msg)
+    }
+}

@@ -1,0 +1,133 @@
+//! The mapping of the coordinator's own messages — a job's status, the farm's errors —
+//! between the wire and the farm's types. Jobs' specs, units and results, which
+//! workers share, are mapped in `proto::wire`.
+
+use tonic::Status;
+
+use crate::farm::FarmError;
+use crate::farm::job::Rejection;
+use crate::farm::status::{JobState, JobStatus};
+
+/// Largest number of warnings a status from the wire may carry, and their length.
+const MAX_WARNINGS: usize = 100;
+const MAX_WARNING_CHARS: usize = 2000;
+
+fn state_to_proto(s: JobState) -> proto::JobState {
+    match s {
+        JobState::Loading => proto::JobState::Loading,
+        JobState::Running => proto::JobState::Running,
+        JobState::Done => proto::JobState::Done,
+        JobState::Failed => proto::JobState::Failed,
+        JobState::Cancelled => proto::JobState::Cancelled,
+    }
+}
+
+pub fn status_to_proto(s: JobStatus) -> proto::JobStatus {
+    proto::JobStatus {
+        job_id: s.job_id,
+        state: state_to_proto(s.state) as i32,
+        error: s.error,
+        units_done: s.units_done,
+        units_total: s.units_total,
+        samples_done: s.samples_done,
+        samples_total: s.samples_total,
+        workers: s.workers,
+        width: s.width,
+        height: s.height,
+        scene: s.scene,
+        elapsed_s: s.elapsed_s,
+        rays: s.rays,
+        samples_per_s: s.samples_per_s,
+        warnings: s.warnings,
+    }
+}
+
+/// A status from a farm, checked: a known state, and warnings bounded in number and
+/// length (they are printed).
+pub fn status_from_proto(s: proto::JobStatus) -> Result<JobStatus, String> {
+    let state = match proto::JobState::try_from(s.state) {
+        Ok(proto::JobState::Loading) => JobState::Loading,
+        Ok(proto::JobState::Running) => JobState::Running,
+        Ok(proto::JobState::Done) => JobState::Done,
+        Ok(proto::JobState::Failed) => JobState::Failed,
+        Ok(proto::JobState::Cancelled) => JobState::Cancelled,
+        _ => return Err(format!("job {}: unknown state {}", s.job_id, s.state)),
+    };
+    let warnings = s.warnings.into_iter().take(MAX_WARNINGS).map(|w| w.chars().take(MAX_WARNING_CHARS).collect());
+    Ok(JobStatus {
+        job_id: s.job_id,
+        state,
+        error: s.error,
+        units_done: s.units_done,
+        units_total: s.units_total,
+        samples_done: s.samples_done,
+        samples_total: s.samples_total,
+        workers: s.workers,
+        width: s.width,
+        height: s.height,
+        scene: s.scene,
+        elapsed_s: if s.elapsed_s.is_finite() { s.elapsed_s.max(0.0) } else { 0.0 },
+        rays: s.rays,
+        samples_per_s: if s.samples_per_s.is_finite() { s.samples_per_s.max(0.0) } else { 0.0 },
+        warnings: warnings.collect(),
+    })
+}
+
+/// The status code a farm error travels as.
+pub fn error_to_status(e: FarmError) -> Status {
+    match e {
+        FarmError::UnknownWorker(_) | FarmError::UnknownJob(_) => Status::not_found(e.to_string()),
+        FarmError::Invalid(_) | FarmError::Rejected(Rejection::UnknownUnit(_) | Rejection::Malformed { .. }) => {
+            Status::invalid_argument(e.to_string())
+        }
+        FarmError::NotUploaded(_) | FarmError::Rejected(Rejection::NotHolder(..) | Rejection::NotRunning(_)) => {
+            Status::failed_precondition(e.to_string())
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn status(state: JobState) -> JobStatus {
+        JobStatus {
+            job_id: "job-3".into(),
+            state,
+            error: String::new(),
+            units_done: 4,
+            units_total: 9,
+            samples_done: 400,
+            samples_total: 900,
+            workers: 2,
+            width: 30,
+            height: 30,
+            scene: "cornell".into(),
+            elapsed_s: 1.5,
+            rays: 1234,
+            samples_per_s: 266.0,
+            warnings: vec!["quad.mtl: 1 face skipped".into()],
+        }
+    }
+
+    #[test]
+    fn a_status_round_trips() {
+        for state in [JobState::Loading, JobState::Running, JobState::Done, JobState::Failed, JobState::Cancelled] {
+            let s = status(state);
+            assert_eq!(status_from_proto(status_to_proto(s.clone())).unwrap(), s);
+        }
+    }
+
+    #[test]
+    fn a_hostile_status_is_bounded_or_refused() {
+        let mut m = status_to_proto(status(JobState::Running));
+        m.warnings = vec!["x".repeat(10_000); 1000];
+        m.samples_per_s = f64::NAN;
+        let s = status_from_proto(m.clone()).unwrap();
+        assert_eq!(s.warnings.len(), MAX_WARNINGS);
+        assert!(s.warnings.iter().all(|w| w.len() == MAX_WARNING_CHARS));
+        assert_eq!(s.samples_per_s, 0.0);
+        m.state = 99;
+        assert!(status_from_proto(m).unwrap_err().contains("unknown state 99"));
+    }
+}

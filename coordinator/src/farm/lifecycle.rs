@@ -1,0 +1,269 @@
+//! A job's life, in one place: submitted (its files checked against the store), loaded
+//! in the background, started or restored from a checkpoint (and extended to more
+//! samples), then cancelled, failed or finished; a finished job's image is stored and
+//! its sums evicted, and after a retention period it is forgotten. The edge and the
+//! commands call these; nothing else changes a job's phase.
+
+use std::path::{Path, PathBuf};
+use std::sync::{Arc, Mutex, MutexGuard};
+use std::time::{Duration, Instant};
+
+use anyhow::Context;
+use proto::domain::JobSpec;
+use tracer::integrator::Integrator;
+
+use super::assets::AssetStore;
+use super::job::{Applied, JobPhase, Restored, UnitResult, WorkerId};
+use super::state::{Farm, FarmError};
+use super::status::JobStatus;
+
+/// Defaults for jobs that do not set their own tile size and batch.
+#[derive(Clone, Copy, Debug)]
+pub struct JobDefaults {
+    pub tile: u32,
+    pub batch_spp: u32,
+}
+
+impl Default for JobDefaults {
+    fn default() -> Self {
+        Self { tile: 64, batch_spp: 16 }
+    }
+}
+
+/// The farm's state as the services and the commands share it.
+pub struct Shared {
+    pub farm: Mutex<Farm>,
+    pub store: Mutex<AssetStore>,
+    pub defaults: JobDefaults,
+    /// Signalled when a unit's result has been applied or a job has failed, so that
+    /// `render`, which follows its job, sees the end at once instead of at its next
+    /// poll (it still polls every 100 ms for everything else, such as lapsed leases).
+    pub changed: tokio::sync::Notify,
+}
+
+impl Shared {
+    pub fn new(farm: Farm, store: AssetStore) -> Self {
+        Self {
+            farm: Mutex::new(farm),
+            store: Mutex::new(store),
+            defaults: JobDefaults::default(),
+            changed: tokio::sync::Notify::new(),
+        }
+    }
+
+    pub fn farm(&self) -> MutexGuard<'_, Farm> {
+        self.farm.lock().unwrap_or_else(|p| p.into_inner())
+    }
+
+    pub fn store(&self) -> MutexGuard<'_, AssetStore> {
+        self.store.lock().unwrap_or_else(|p| p.into_inner())
+    }
+
+    /// Merges a unit's result; a result that finishes its job ends the job's render
+    /// (its scene leaves memory, the farm's log records it).
+    pub fn submit_result(&self, worker: WorkerId, job: &str, r: &UnitResult) -> Result<Applied, FarmError> {
+        let applied = {
+            let mut farm = self.farm();
+            let (applied, finished) = farm.submit(worker, job, r, Instant::now())?;
+            if finished && let Ok(e) = farm.entry_mut(job) {
+                let j = &e.job;
+                tracing::info!(
+                    job = %j.id,
+                    scene = %j.name,
+                    width = j.width,
+                    height = j.height,
+                    spp = j.spp,
+                    units = j.units_total(),
+                    samples = j.samples_done,
+                    rays = j.rays,
+                    nonfinite = j.nonfinite,
+                    seconds = j.elapsed().as_secs_f64(),
+                    "job finished"
+                );
+                e.scene = None;
+            }
+            applied
+        };
+        self.changed.notify_one();
+        Ok(applied)
+    }
+
+    pub fn cancel(&self, job: &str) -> Result<JobStatus, FarmError> {
+        let mut farm = self.farm();
+        let e = farm.entry_mut(job)?;
+        e.job.cancel();
+        e.scene = None;
+        tracing::info!(job = %job, "job cancelled");
+        farm.status(job, Instant::now())
+    }
+
+    /// Ends a job with `error` (a job event: the farm's log keeps it at info, and the
+    /// job's owner gets the error itself, once, from the job's status).
+    pub fn fail(&self, job: &str, error: String) {
+        if let Ok(e) = self.farm().entry_mut(job) {
+            tracing::info!(job = %job, "job failed: {error}");
+            e.job.fail(error);
+            e.scene = None;
+        }
+        self.changed.notify_one();
+    }
+
+    /// Stores the image of every finished job not stored yet as `<images>/<job>.exr`
+    /// and evicts its sums and its copy of the scene files; returns the ids stored. A
+    /// job whose image cannot be written keeps its sums and is tried again 5 s later
+    /// (`retry` holds when; the error is logged). Blocking: run it off the async threads.
+    pub fn store_finished(&self, images: &Path, retry: &mut std::collections::HashMap<String, Instant>) -> Vec<String> {
+        let now = Instant::now();
+        let done: Vec<_> = {
+            let farm = self.farm();
+            farm.jobs
+                .iter()
+                .filter(|e| e.job.phase == JobPhase::Done && !e.job.is_evicted())
+                .filter(|e| retry.get(&e.job.id).is_none_or(|&at| now >= at))
+                .map(|e| (e.job.id.clone(), e.job.image(), e.render_info()))
+                .collect()
+        };
+        let mut stored = Vec::new();
+        for (id, image, info) in done {
+            let path = images.join(format!("{id}.exr"));
+            if let Err(e) = write_durably(&image, info.as_ref(), &path) {
+                tracing::warn!(job = %id, "the finished image was not stored; trying again in 5 s: {e:#}");
+                retry.insert(id, now + Duration::from_secs(5));
+                continue;
+            }
+            retry.remove(&id);
+            if let Ok(e) = self.farm().entry_mut(&id) {
+                e.job.evict();
+                e.stored = Some(path);
+            }
+            // The job's copy of its scene files (the blobs themselves stay in the store).
+            let copy = self.store().dir().join("jobs").join(&id);
+            let _ = std::fs::remove_dir_all(copy);
+            tracing::info!(job = %id, "finished image stored; its sums left memory");
+            stored.push(id);
+        }
+        if !stored.is_empty() {
+            tracer::memory::return_free_memory();
+        }
+        stored
+    }
+
+    /// Stops listing stored jobs that finished more than `retain` ago (their images stay
+    /// in the store, where `fetch` still finds them).
+    pub fn forget_finished(&self, retain: Duration) {
+        let now = Instant::now();
+        let gone = self.farm().remove_jobs(|e| {
+            e.stored.is_some() && e.job.finished.is_some_and(|t| now.saturating_duration_since(t) >= retain)
+        });
+        for id in gone {
+            tracing::info!(job = %id, "finished job no longer listed; its image stays in the store");
+        }
+    }
+}
+
+/// Writes an EXR so that a crash leaves the old file or the whole new one.
+fn write_durably(
+    image: &tracer::film::Image,
+    info: Option<&tracer::output::RenderInfo>,
+    target: &PathBuf,
+) -> anyhow::Result<()> {
+    let tmp = target.with_extension("exr.tmp");
+    tracer::output::write_exr_with(image, info, &tmp)?;
+    std::fs::File::open(&tmp).and_then(|f| f.sync_all()).with_context(|| format!("{}", tmp.display()))?;
+    std::fs::rename(&tmp, target).with_context(|| format!("replacing {}", target.display()))?;
+    Ok(())
+}
+
+/// Creates a job from files already in the store and loads its scene in the
+/// background. With `restore`, the job continues a checkpoint, keeping its id
+/// (`spec.job_id`) when that is free.
+pub fn submit_job(
+    shared: &Arc<Shared>,
+    name: String,
+    spec: JobSpec,
+    restore: Option<Restored>,
+) -> Result<String, FarmError> {
+    {
+        let store = shared.store();
+        for a in std::iter::once(&spec.scene).chain(&spec.assets) {
+            super::assets::safe_relative_path(&a.path).map_err(|e| FarmError::Invalid(e.to_string()))?;
+            // A declared size that is not the stored blob's would make every worker's
+            // download fail its check, and the job would never end: refuse it now.
+            match store.size_of(&a.sha256) {
+                None => {
+                    return Err(FarmError::NotUploaded(format!("asset {} ({}) was not uploaded", a.path, a.sha256)));
+                }
+                Some(size) if size != a.size => {
+                    return Err(FarmError::Invalid(format!(
+                        "asset {} is declared as {} bytes, but its upload ({}) has {size}",
+                        a.path, a.size, a.sha256
+                    )));
+                }
+                Some(_) => {}
+            }
+        }
+    }
+    let name = if name.trim().is_empty() { spec.scene.path.clone() } else { name.chars().take(200).collect() };
+    let (scene, files) = (spec.scene.path.clone(), spec.assets.len() + 1);
+    let id = shared.farm().add_job(name.clone(), spec);
+    tracing::info!(job = %id, name = %name, scene = %scene, files, "job submitted");
+    let shared = Arc::clone(shared);
+    let job = id.clone();
+    std::thread::spawn(move || {
+        if let Err(err) = load_job(&shared, &job, restore) {
+            shared.fail(&job, format!("{err:#}"));
+        }
+    });
+    Ok(id)
+}
+
+/// Loads a job's scene from its files and starts the job (or restores its checkpoint).
+fn load_job(shared: &Arc<Shared>, job: &str, restore: Option<Restored>) -> anyhow::Result<()> {
+    let spec = Arc::clone(&shared.farm().entry(job)?.spec);
+    let scene_path = {
+        let store = shared.store();
+        let dir = store.dir().join("jobs").join(job);
+        store.materialize(&dir, &spec.scene, &spec.assets)?
+    };
+    // Named as the user named them (`quad.mtl`), not as the job folder's copies.
+    let mut loaded = tracer::scene::load_scene_as(&scene_path, &spec.scene.path, spec.overrides.up)?;
+    // The one report of the scene's problems: in the job's status, which whoever follows
+    // the job prints (workers keep theirs quiet), and the farm's log.
+    for w in &loaded.warnings {
+        tracing::info!(job = %job, "scene warning: {w}");
+    }
+    let warnings = super::job::bounded_warnings(&loaded.warnings);
+    spec.overrides.apply(&mut loaded).map_err(anyhow::Error::msg)?;
+    let non_negative =
+        matches!(spec.integrator, Integrator::Path | Integrator::PathLightOnly | Integrator::PathBsdfOnly);
+    let tile = spec.tile_size.unwrap_or(shared.defaults.tile);
+    let batch = spec.batch_spp.unwrap_or(shared.defaults.batch_spp);
+    let (w, h, spp) = (loaded.camera.width, loaded.camera.height, loaded.settings.spp);
+    let mut farm = shared.farm();
+    let e = farm.entry_mut(job)?;
+    if e.job.phase.is_final() {
+        return Ok(()); // cancelled while loading
+    }
+    match restore {
+        None => e.job.start(w, h, spp, tile, batch, non_negative),
+        Some(r) => {
+            anyhow::ensure!(
+                (r.width, r.height) == (w, h),
+                "the checkpoint is of a {}×{} image, the scene renders {w}×{h}",
+                r.width,
+                r.height
+            );
+            e.job.restore(r).map_err(|m| anyhow::anyhow!("the checkpoint is inconsistent: {m}"))?;
+            if let Some(more) = spec.overrides.spp
+                && more > e.job.spp
+            {
+                e.job.extend_spp(more);
+            }
+        }
+    }
+    e.info = Some(tracer::output::RenderInfo::of(&loaded, &spec.scene.path, spec.integrator.name()));
+    e.job.warnings = warnings;
+    e.scene = Some(Arc::new(loaded));
+    tracing::info!(job = %job, width = w, height = h, spp, tile, batch, units = e.job.units.len(), "job started");
+    Ok(())
+}

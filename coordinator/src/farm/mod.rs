@@ -1,0 +1,17 @@
+//! The farm's state: jobs and their units ([`job`]), lease deadlines ([`leases`]),
+//! the unit order ([`schedule`]), registered workers and the jobs in submission order
+//! ([`state`]), checkpoints ([`checkpoint`]), the content-addressed asset store
+//! ([`assets`]), what a job's status says ([`status`]), and the job lifecycle
+//! ([`lifecycle`]) that ties them together. No wire types: the edge maps them.
+
+pub mod assets;
+pub mod checkpoint;
+pub mod job;
+pub mod leases;
+pub mod lifecycle;
+pub mod schedule;
+pub mod state;
+pub mod status;
+
+pub use lifecycle::Shared;
+pub use state::{Farm, FarmConfig, FarmError};
