@@ -48,11 +48,25 @@ fn the_binary_alone_in_an_empty_folder_renders_with_local_workers() {
     let dir = TempDir::new("alone");
     let exe = dir.0.join("coordinator");
     std::fs::copy(env!("CARGO_BIN_EXE_coordinator"), &exe).unwrap();
-    let out = Command::new(&exe)
-        .current_dir(&dir.0)
-        .args(["render", "-q", "--spp", "2", "--width", "16", "--local-workers", "2", "-o", "cornell.exr"])
-        .output()
-        .unwrap();
+    // A child forked by another test while the copy was open for writing holds it open
+    // for a moment ("text file busy", ETXTBSY): try again briefly.
+    let run = || {
+        Command::new(&exe)
+            .current_dir(&dir.0)
+            .args(["render", "-q", "--spp", "2", "--width", "16", "--local-workers", "2", "-o", "cornell.exr"])
+            .output()
+    };
+    let mut out = run();
+    for _ in 0..100 {
+        match &out {
+            Err(e) if e.raw_os_error() == Some(26) => {
+                std::thread::sleep(std::time::Duration::from_millis(20));
+                out = run();
+            }
+            _ => break,
+        }
+    }
+    let out = out.unwrap();
     assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
     let img = tracer::output::read_exr(&dir.0.join("cornell.exr")).unwrap();
     assert!(img.counts.iter().all(|&c| c == 2));

@@ -321,7 +321,7 @@ pub async fn prepare_job(
             continue;
         }
         // A few tries on transport trouble; a wrong digest or a refusal is final.
-        let mut backoff = rpc::Backoff::new(max_backoff);
+        let mut backoff = crate::machine::backoff::Backoff::new(max_backoff);
         let mut attempt = 0;
         loop {
             attempt += 1;

@@ -5,16 +5,20 @@
 //!   It is a library so that `coordinator render` can start its local workers from its
 //!   own executable (`coordinator worker …`): a fresh `cargo run -p coordinator` then
 //!   needs no separately built `worker` binary.
-//! - [`lease_loop`]: the register/lease/heartbeat/submit state machine.
+//! - [`machine`]: the register/lease/heartbeat/submit state machine: events in,
+//!   actions out, no I/O (unit-tested without a network or a clock).
+//! - [`shell`]: performs the machine's actions (calls, scene loads, renders) and
+//!   reports their outcomes back to it.
 //! - [`asset_cache`]: scene files by digest, job folders, loaded scenes.
 //! - [`render_pool`]: the render threads.
 //! - `proto::wire`: checked conversions between wire messages and the worker's types.
-//! - [`rpc`]: the client, call timeouts, failure classes, backoff.
+//! - [`rpc`]: the client, call timeouts, failure classes.
 
 mod asset_cache;
-mod lease_loop;
+mod machine;
 mod render_pool;
 mod rpc;
+mod shell;
 
 use std::io::Read;
 use std::path::PathBuf;
@@ -25,7 +29,7 @@ use clap::Parser;
 use tokio::sync::watch;
 use tracing::{error, info, warn};
 
-use crate::lease_loop::Stop;
+use crate::shell::Stop;
 
 /// tilefarm worker: leases units of rendering work from a coordinator, renders them on
 /// all cores, and streams the results back.
@@ -84,7 +88,7 @@ pub fn run(args: Args) -> ! {
             std::process::exit(1);
         }
     };
-    let config = lease_loop::Config {
+    let config = shell::Config {
         coordinator: args.coordinator,
         threads,
         cache_dir: args.cache.unwrap_or_else(asset_cache::default_cache_dir),
@@ -98,7 +102,7 @@ pub fn run(args: Args) -> ! {
         if args.exit_on_stdin_eof {
             watch_stdin(stop_tx);
         }
-        match lease_loop::run(config, stop_rx).await {
+        match shell::run(config, stop_rx).await {
             Ok(()) => 0,
             Err(e) => {
                 error!("{e:#}");

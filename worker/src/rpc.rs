@@ -1,5 +1,5 @@
 //! The client side of the wire: connecting, bounding every call in time, and sorting
-//! failures into the three cases the worker treats differently.
+//! failures into the three cases the worker's machine treats differently.
 
 use std::future::Future;
 use std::time::Duration;
@@ -11,28 +11,8 @@ use tonic::{Code, Status};
 
 pub type Client = FarmClient<Channel>;
 
-/// How a call failed.
-#[derive(Debug)]
-pub enum RpcFailure {
-    /// The coordinator could not be reached (or the call timed out or broke off): the
-    /// same call may succeed later, so keep what was being sent and retry.
-    Transport(String),
-    /// The coordinator does not know this worker id (it restarted, or expired us):
-    /// register again.
-    UnknownWorker(String),
-    /// The coordinator understood and refused the call; retrying will not help.
-    Rejected(Status),
-}
-
-impl std::fmt::Display for RpcFailure {
-    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        match self {
-            RpcFailure::Transport(m) => write!(f, "coordinator unreachable: {m}"),
-            RpcFailure::UnknownWorker(m) => write!(f, "unknown worker: {m}"),
-            RpcFailure::Rejected(s) => write!(f, "{:?}: {}", s.code(), s.message()),
-        }
-    }
-}
+/// How a call failed, in the machine's terms.
+pub type RpcFailure = crate::machine::Failure;
 
 /// Does this message say that the worker id is unknown (rather than a job or unit)?
 fn says_unknown_worker(message: &str) -> bool {
@@ -55,7 +35,9 @@ pub fn classify(status: Status) -> RpcFailure {
         | Code::OutOfRange
         | Code::AlreadyExists
         | Code::PermissionDenied
-        | Code::Unimplemented => RpcFailure::Rejected(status),
+        | Code::Unimplemented => {
+            RpcFailure::Rejected { code: format!("{:?}", status.code()), message: status.message().to_string() }
+        }
         // Unavailable, DeadlineExceeded, Cancelled, Unknown, Internal, Aborted,
         // ResourceExhausted, DataLoss, Ok: connection-level trouble or overload. Keep
         // the data and try again.
@@ -93,47 +75,9 @@ pub fn connect(url: &str) -> anyhow::Result<Client> {
         .max_encoding_message_size(proto::MAX_MESSAGE_BYTES))
 }
 
-/// Exponential backoff: 100 ms, doubling, capped.
-#[derive(Clone, Debug)]
-pub struct Backoff {
-    next: Duration,
-    max: Duration,
-}
-
-impl Backoff {
-    pub const INITIAL: Duration = Duration::from_millis(100);
-
-    pub fn new(max: Duration) -> Self {
-        let max = max.max(Duration::from_millis(1));
-        Self { next: Self::INITIAL.min(max), max }
-    }
-
-    /// The delay before the next attempt; each call doubles the one after.
-    pub fn next_delay(&mut self) -> Duration {
-        let d = self.next;
-        self.next = (self.next * 2).min(self.max);
-        d
-    }
-
-    pub fn reset(&mut self) {
-        self.next = Self::INITIAL.min(self.max);
-    }
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
-
-    #[test]
-    fn backoff_doubles_up_to_the_cap_and_resets() {
-        let mut b = Backoff::new(Duration::from_millis(1000));
-        let ds: Vec<u64> = (0..7).map(|_| b.next_delay().as_millis() as u64).collect();
-        assert_eq!(ds, [100, 200, 400, 800, 1000, 1000, 1000]);
-        b.reset();
-        assert_eq!(b.next_delay(), Duration::from_millis(100));
-        let mut tiny = Backoff::new(Duration::from_millis(30));
-        assert_eq!(tiny.next_delay(), Duration::from_millis(30));
-    }
 
     #[test]
     fn failures_are_classified() {
@@ -143,10 +87,10 @@ mod tests {
         assert!(matches!(classify(Status::unauthenticated("who are you")), RpcFailure::UnknownWorker(_)));
         assert!(matches!(classify(Status::not_found("unknown worker 7")), RpcFailure::UnknownWorker(_)));
         assert!(matches!(classify(Status::not_found("worker 7 is unknown")), RpcFailure::UnknownWorker(_)));
-        assert!(matches!(classify(Status::not_found("unit 5 of job ab12 not found")), RpcFailure::Rejected(_)));
-        assert!(matches!(classify(Status::not_found("unknown job ab12")), RpcFailure::Rejected(_)));
-        assert!(matches!(classify(Status::invalid_argument("bad tile")), RpcFailure::Rejected(_)));
-        assert!(matches!(classify(Status::failed_precondition("lease lapsed")), RpcFailure::Rejected(_)));
+        assert!(matches!(classify(Status::not_found("unit 5 of job ab12 not found")), RpcFailure::Rejected { .. }));
+        assert!(matches!(classify(Status::not_found("unknown job ab12")), RpcFailure::Rejected { .. }));
+        assert!(matches!(classify(Status::invalid_argument("bad tile")), RpcFailure::Rejected { .. }));
+        assert!(matches!(classify(Status::failed_precondition("lease lapsed")), RpcFailure::Rejected { .. }));
     }
 
     #[test]
