@@ -9,7 +9,10 @@ pub mod wire;
 
 /// Protocol version: a worker and a coordinator with different versions refuse each
 /// other at registration rather than exchanging misunderstood messages.
-pub const PROTOCOL_VERSION: u32 = 1;
+pub const PROTOCOL_VERSION: u32 = 2;
+
+/// Most results one `SubmitResults` call may carry.
+pub const MAX_RESULTS_PER_CALL: usize = 256;
 
 /// Largest message either side accepts. A unit's result is 52 bytes per pixel, so this
 /// admits tiles up to ~1000×1000; asset bytes travel in chunks well below it.

@@ -124,6 +124,11 @@ pub fn job_from_proto(j: crate::JobSpec) -> Result<JobSpec, String> {
     Ok(spec)
 }
 
+/// An upper bound of the encoded size of a result of `tile` (what batching counts).
+pub fn result_bytes_bound(tile: Tile) -> usize {
+    tile.pixel_count() * RESULT_BYTES_PER_PIXEL + RESULT_OVERHEAD_BYTES
+}
+
 /// Checks a tile from the wire: non-empty, at most [`MAX_TILE_SIDE`] on each side, no
 /// coordinate overflow, and a result small enough for one message.
 pub fn tile_from_proto(t: Option<&crate::Tile>) -> Result<Tile, String> {
@@ -135,7 +140,7 @@ pub fn tile_from_proto(t: Option<&crate::Tile>) -> Result<Tile, String> {
         return Err(format!("tile at ({}, {}) of {}×{} overflows", t.x0, t.y0, t.width, t.height));
     }
     let tile = Tile::new(t.x0, t.y0, t.width, t.height);
-    if tile.pixel_count() * RESULT_BYTES_PER_PIXEL + RESULT_OVERHEAD_BYTES > crate::MAX_MESSAGE_BYTES {
+    if result_bytes_bound(tile) > crate::MAX_MESSAGE_BYTES {
         return Err(format!("tile {}×{}: its result would exceed the message size limit", t.width, t.height));
     }
     Ok(tile)
@@ -222,6 +227,19 @@ pub fn result_to_proto(
         counts: acc.counts.clone(),
         nonfinite: acc.nonfinite,
         rays,
+    }
+}
+
+/// A batch's outcomes: merged (true), a duplicate (false), or refused with why.
+pub fn outcomes_from_proto(r: crate::SubmitResultsReply) -> Vec<Result<bool, String>> {
+    let outcome = |o: crate::ResultOutcome| if o.refused.is_empty() { Ok(o.accepted) } else { Err(o.refused) };
+    r.outcomes.into_iter().map(outcome).collect()
+}
+
+pub fn outcome_to_proto(o: Result<bool, String>) -> crate::ResultOutcome {
+    match o {
+        Ok(accepted) => crate::ResultOutcome { accepted, refused: String::new() },
+        Err(refused) => crate::ResultOutcome { accepted: false, refused },
     }
 }
 

@@ -297,7 +297,8 @@ pub struct LoadedJob {
     /// The spec it was loaded from. Lookups compare the whole spec, not only the job id:
     /// a restarted coordinator may reuse an id for a different scene.
     pub spec: JobSpec,
-    pub scene: Scene,
+    /// Shared: an in-process executor uses the coordinator's own copy.
+    pub scene: Arc<Scene>,
     pub integrator: Integrator,
 }
 
@@ -365,7 +366,7 @@ pub fn load_job(cache: &AssetCache, job: &JobSpec) -> anyhow::Result<LoadedJob> 
     let mut scene =
         tracer::scene::load_scene_as(&scene_path, &job.scene.path, job.overrides.up).map_err(|e| anyhow!("{e}"))?;
     job.overrides.apply(&mut scene).map_err(|e| anyhow!("{}: settings: {e}", job.scene.path))?;
-    Ok(LoadedJob { spec: job.clone(), scene, integrator: job.integrator })
+    Ok(LoadedJob { spec: job.clone(), scene: Arc::new(scene), integrator: job.integrator })
 }
 
 /// The most recently used loaded scenes, by job spec.
@@ -574,7 +575,7 @@ mod tests {
         let mk = |id: &str| {
             Arc::new(LoadedJob {
                 spec: spec(id),
-                scene: tracer::scene::scene_from_toml(TINY_SCENE, "test", Path::new(".")).unwrap(),
+                scene: Arc::new(tracer::scene::scene_from_toml(TINY_SCENE, "test", Path::new(".")).unwrap()),
                 integrator: Integrator::Path,
             })
         };

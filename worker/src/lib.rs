@@ -8,17 +8,29 @@
 //! - [`machine`]: the register/lease/heartbeat/submit state machine: events in,
 //!   actions out, no I/O (unit-tested without a network or a clock).
 //! - [`shell`]: performs the machine's actions (calls, scene loads, renders) and
-//!   reports their outcomes back to it.
+//!   reports their outcomes back to it ([`drive`]).
+//! - [`link`] and [`executor`]: the seams the shell performs them through — a
+//!   coordinator (over gRPC here; in process for `render --local-workers 0`) and a place
+//!   to render (the render pool; the load test's empty results).
 //! - [`asset_cache`]: scene files by digest, job folders, loaded scenes.
 //! - [`render_pool`]: the render threads.
 //! - `proto::wire`: checked conversions between wire messages and the worker's types.
 //! - [`rpc`]: the client, call timeouts, failure classes.
 
 mod asset_cache;
+mod executor;
+mod link;
 mod machine;
 mod render_pool;
 mod rpc;
 mod shell;
+
+pub use asset_cache::LoadedJob;
+pub use executor::Executor;
+pub use link::{GrpcLink, Link};
+pub use machine::{Failure, Grant, Registration, Rendered, Renewal, Settings};
+pub use render_pool::{RenderOutcome, RenderPool};
+pub use shell::{Stop, drive};
 
 use std::io::Read;
 use std::path::PathBuf;
@@ -28,8 +40,6 @@ use std::time::Duration;
 use clap::Parser;
 use tokio::sync::watch;
 use tracing::{error, info, warn};
-
-use crate::shell::Stop;
 
 /// tilefarm worker: leases units of rendering work from a coordinator, renders them on
 /// all cores, and streams the results back.

@@ -11,16 +11,12 @@ use std::time::{Duration, Instant};
 use tokio::sync::{mpsc, watch};
 use tracing::{info, warn};
 
-use crate::asset_cache::{self, AssetCache};
-use crate::machine::{Action, Event, Grant, Machine, Registration, Renewal, SIGNAL_GRACE, Settings};
+use crate::asset_cache::AssetCache;
+use crate::executor::Executor;
+use crate::link::{GrpcLink, Link};
+use crate::machine::{Action, Event, Machine, SIGNAL_GRACE, Settings};
 use crate::render_pool::RenderPool;
-use crate::rpc::{self, Client};
-use proto::wire;
-
-const REGISTER_TIMEOUT: Duration = Duration::from_secs(5);
-const LEASE_TIMEOUT: Duration = Duration::from_secs(10);
-const HEARTBEAT_TIMEOUT: Duration = Duration::from_secs(5);
-const SUBMIT_TIMEOUT: Duration = Duration::from_secs(30);
+use crate::rpc;
 
 pub struct Config {
     pub coordinator: String,
@@ -48,23 +44,13 @@ impl From<Stop> for &'static str {
     }
 }
 
-/// What performs the machine's actions.
-struct Shell {
-    client: Client,
-    cache: Arc<AssetCache>,
-    pool: RenderPool,
-    max_backoff: Duration,
-    events: mpsc::UnboundedSender<Event>,
-}
-
-/// Runs the worker until it is asked to stop (by the coordinator or `stop`). An error
-/// only for what retrying cannot fix: a bad address, an unusable cache folder, the
-/// coordinator refusing this worker.
-pub async fn run(config: Config, mut stop: watch::Receiver<Option<Stop>>) -> anyhow::Result<()> {
+/// Runs a worker of a remote coordinator until it is asked to stop (by the coordinator
+/// or `stop`). An error only for what retrying cannot fix: a bad address, an unusable
+/// cache folder, the coordinator refusing this worker.
+pub async fn run(config: Config, stop: watch::Receiver<Option<Stop>>) -> anyhow::Result<()> {
     let client = rpc::connect(&config.coordinator)?;
     let cache = Arc::new(AssetCache::open(&config.cache_dir)?);
     let pool = RenderPool::new(config.threads)?;
-    let (events, mut rx) = mpsc::unbounded_channel();
     info!(
         "worker {} starting: {} render threads, cache {}, coordinator {}",
         env!("CARGO_PKG_VERSION"),
@@ -78,7 +64,21 @@ pub async fn run(config: Config, mut stop: watch::Receiver<Option<Stop>>) -> any
         max_backoff: config.max_backoff,
         give_up_after: config.give_up_after,
     };
-    let shell = Shell { client, cache, pool, max_backoff: config.max_backoff, events };
+    let submitted = drive(GrpcLink::new(client, cache, config.max_backoff), Arc::new(pool), settings, stop).await?;
+    info!("worker stopped ({submitted} result(s) submitted)");
+    Ok(())
+}
+
+/// Drives the worker's machine over `link`, rendering on `executor`, until it is asked
+/// to stop; returns the results the coordinator took.
+pub async fn drive<L: Link, E: Executor>(
+    link: L,
+    executor: Arc<E>,
+    settings: Settings,
+    mut stop: watch::Receiver<Option<Stop>>,
+) -> anyhow::Result<u64> {
+    let (events, mut rx) = mpsc::unbounded_channel();
+    let shell = Shell { link, executor, events };
     let mut m = Machine::new(settings, Instant::now());
     if let Some(why) = *stop.borrow_and_update() {
         m.begin_drain(why.into(), SIGNAL_GRACE, Instant::now());
@@ -97,6 +97,11 @@ pub async fn run(config: Config, mut stop: watch::Receiver<Option<Stop>>) -> any
             ev = rx.recv() => {
                 if let Some(ev) = ev {
                     m.handle(ev, Instant::now())?;
+                    // Everything else that is ready too, so that results finished together
+                    // leave in one submission.
+                    while let Ok(ev) = rx.try_recv() {
+                        m.handle(ev, Instant::now())?;
+                    }
                 }
             }
             () = tokio::time::sleep_until(tokio::time::Instant::from_std(wake)) => {}
@@ -114,88 +119,57 @@ pub async fn run(config: Config, mut stop: watch::Receiver<Option<Stop>>) -> any
     if unsent > 0 {
         warn!("exiting with {unsent} result(s) not submitted: the coordinator will lease those units again");
     }
-    info!("worker stopped ({} result(s) submitted)", m.submitted());
-    Ok(())
+    Ok(m.submitted())
 }
 
-impl Shell {
+/// What performs the machine's actions: each in a task of its own (or the executor),
+/// its outcome sent back on `events`.
+struct Shell<L, E> {
+    link: L,
+    executor: Arc<E>,
+    events: mpsc::UnboundedSender<Event>,
+}
+
+impl<L: Link, E: Executor> Shell<L, E> {
     fn perform(&self, action: Action) {
-        let mut client = self.client.clone();
-        let tx = self.events.clone();
+        let (link, tx) = (self.link.clone(), self.events.clone());
         match action {
             Action::Register => {
-                let request = proto::RegisterRequest {
-                    protocol_version: proto::PROTOCOL_VERSION,
-                    threads: u32::try_from(self.pool.threads()).unwrap_or(u32::MAX),
-                    hostname: hostname(),
-                    version: env!("CARGO_PKG_VERSION").to_string(),
-                };
+                let threads = self.executor.threads();
                 tokio::spawn(async move {
-                    let result = rpc::call(REGISTER_TIMEOUT, client.register(request)).await.map(|r| Registration {
-                        worker_id: r.worker_id,
-                        lease_ms: r.lease_ms,
-                        heartbeat_ms: r.heartbeat_ms,
-                    });
-                    let _ = tx.send(Event::Registered(result));
+                    let _ = tx.send(Event::Registered(link.register(threads).await));
                 });
             }
             Action::Heartbeat { worker_id, held } => {
-                let held = held.iter().map(wire::unit_key_to_proto).collect();
-                let request = proto::HeartbeatRequest { worker_id, held };
                 tokio::spawn(async move {
-                    let result = rpc::call(HEARTBEAT_TIMEOUT, client.heartbeat(request)).await.map(|r| Renewal {
-                        abandon: r.abandon.into_iter().map(wire::unit_key_from_proto).collect(),
-                        shutdown: r.shutdown,
-                    });
+                    let result = link.heartbeat(worker_id, held).await;
                     let _ = tx.send(Event::Heartbeat { worker_id, result });
                 });
             }
             Action::Lease { worker_id, max_units } => {
                 tokio::spawn(async move {
-                    let request = proto::LeaseRequest { worker_id, max_units };
-                    let result = rpc::call(LEASE_TIMEOUT, client.lease(request)).await.map(|r| Grant {
-                        units: r.units.into_iter().map(wire::unit_from_proto).collect(),
-                        retry_after_ms: r.retry_after_ms,
-                        shutdown: r.shutdown,
-                    });
+                    let result = link.lease(worker_id, max_units).await;
                     let _ = tx.send(Event::Leased { worker_id, result });
                 });
             }
-            Action::Submit { serial, worker_id, unit } => {
-                let message = wire::result_to_proto(worker_id, &unit.key, unit.samples, &unit.acc, unit.rays);
+            Action::Submit { serials, worker_id, units } => {
                 tokio::spawn(async move {
-                    let result = rpc::call(SUBMIT_TIMEOUT, client.submit_result(message)).await.map(|r| r.accepted);
-                    let _ = tx.send(Event::Submitted { serial, worker_id, result });
+                    let result = link.submit(worker_id, units).await;
+                    let _ = tx.send(Event::Submitted { serials, worker_id, result });
                 });
             }
             Action::Prepare { job } => {
-                let (cache, max_backoff) = (self.cache.clone(), self.max_backoff);
+                info!("job {}: preparing scene '{}'", job.job_id, job.scene.path);
                 tokio::spawn(async move {
-                    // An inner task, so that even a panic is reported and the job not stuck.
-                    let task = tokio::spawn(asset_cache::prepare_job(client, cache, job.clone(), max_backoff));
-                    let result = match task.await {
-                        Ok(Ok(loaded)) => Ok(Arc::new(loaded)),
-                        Ok(Err(e)) => Err(format!("{e:#}")),
-                        Err(e) => Err(format!("scene preparation failed: {e}")),
-                    };
+                    let result = link.prepare(job.clone()).await;
                     let _ = tx.send(Event::JobReady { job, result });
                 });
             }
             Action::Render { serial, job, tile, samples, cancel } => {
-                self.pool.spawn(job, tile, samples, cancel, move |outcome| {
+                self.executor.render(job, tile, samples, cancel, move |outcome| {
                     let _ = tx.send(Event::Rendered { serial, outcome });
                 });
             }
         }
     }
-}
-
-/// This machine's name, for the coordinator's worker list.
-fn hostname() -> String {
-    ["/proc/sys/kernel/hostname", "/etc/hostname"]
-        .iter()
-        .find_map(|p| std::fs::read_to_string(p).ok().map(|s| s.trim().to_string()).filter(|s| !s.is_empty()))
-        .or_else(|| std::env::var("HOSTNAME").ok().filter(|s| !s.is_empty()))
-        .or_else(|| std::env::var("COMPUTERNAME").ok().filter(|s| !s.is_empty()))
-        .unwrap_or_else(|| "unknown".to_string())
 }

@@ -205,6 +205,34 @@ mod fake {
     }
 
     impl Fake {
+        /// A submission: refused while "restarting", then once as if the coordinator had
+        /// restarted (the worker must register again and send the same results under its
+        /// new id); then each result is taken, once.
+        fn take(&self, worker_id: u64, results: Vec<proto::UnitResult>) -> Result<Vec<proto::ResultOutcome>, Status> {
+            {
+                let mut unavailable = self.unavailable_submits.lock().unwrap();
+                if *unavailable > 0 {
+                    *unavailable -= 1;
+                    return Err(Status::unavailable("coordinator busy restarting"));
+                }
+            }
+            self.check_worker(worker_id)?;
+            let mut s = self.state.lock().unwrap();
+            s.submits += 1;
+            if !s.refused_once {
+                s.refused_once = true;
+                s.current_id = 0;
+                return Err(Status::unauthenticated(format!("unknown worker {worker_id}")));
+            }
+            Ok(results
+                .into_iter()
+                .map(|r| proto::ResultOutcome {
+                    accepted: s.results.insert(r.unit_id, r).is_none(),
+                    refused: String::new(),
+                })
+                .collect())
+        }
+
         fn check_worker(&self, id: u64) -> Result<(), Status> {
             if self.state.lock().unwrap().current_id == id {
                 Ok(())
@@ -280,25 +308,16 @@ mod fake {
             request: Request<proto::UnitResult>,
         ) -> Result<Response<proto::SubmitReply>, Status> {
             let r = request.into_inner();
-            {
-                let mut unavailable = self.unavailable_submits.lock().unwrap();
-                if *unavailable > 0 {
-                    *unavailable -= 1;
-                    return Err(Status::unavailable("coordinator busy restarting"));
-                }
-            }
-            self.check_worker(r.worker_id)?;
-            let mut s = self.state.lock().unwrap();
-            s.submits += 1;
-            if !s.refused_once {
-                // As if the coordinator had restarted: the worker must register again
-                // and submit the same result under its new id.
-                s.refused_once = true;
-                s.current_id = 0;
-                return Err(Status::unauthenticated(format!("unknown worker {}", r.worker_id)));
-            }
-            let fresh = s.results.insert(r.unit_id, r).is_none();
-            Ok(Response::new(proto::SubmitReply { accepted: fresh }))
+            let accepted = self.take(r.worker_id, vec![r])?[0].accepted;
+            Ok(Response::new(proto::SubmitReply { accepted }))
+        }
+
+        async fn submit_results(
+            &self,
+            request: Request<proto::SubmitResultsRequest>,
+        ) -> Result<Response<proto::SubmitResultsReply>, Status> {
+            let r = request.into_inner();
+            Ok(Response::new(proto::SubmitResultsReply { outcomes: self.take(r.worker_id, r.results)? }))
         }
 
         type FetchAssetStream = tokio_stream::Iter<std::vec::IntoIter<Result<proto::AssetChunk, Status>>>;

@@ -2,25 +2,27 @@
 //!
 //! Starts `coordinator serve` as a child process on a free loopback port, submits the
 //! built-in Cornell box cut into tiny units (8×8 tiles × 1 spp by default), and lets many
-//! simulated workers — each its own gRPC connection — lease units one at a time and return
-//! them at once, as fast as the coordinator answers. A simulated result has the right
-//! tile, sample range and per-pixel counts and zero radiance, so the coordinator does all
-//! of its real work (lease bookkeeping, validation, the exact merge) and none of ours is
-//! rendering. It prints results merged per second, the coordinator's CPU time and peak
+//! simulated workers — each its own gRPC connection — lease units and return them at
+//! once, as fast as the coordinator answers. A simulated worker is the real worker's
+//! machine and gRPC link ([`worker::drive`]) with an executor that renders nothing: its
+//! result has the right tile, sample range and per-pixel counts and zero radiance, so
+//! the coordinator does all of its real work (lease bookkeeping, validation, the exact
+//! merge) and none of ours is rendering. It prints results merged per second, the coordinator's CPU time and peak
 //! memory (from /proc), and the bytes on the wire per unit and for the final image.
 
 use std::io::{BufRead, BufReader};
 use std::path::PathBuf;
 use std::process::{Child, Command, Stdio};
 use std::sync::Arc;
-use std::sync::atomic::{AtomicU64, Ordering};
+use std::sync::atomic::AtomicBool;
 use std::time::{Duration, Instant};
 
 use anyhow::Context;
 use clap::Args;
 use prost::Message;
-use proto::farm_client::FarmClient as WorkerRpc;
-use tonic::transport::{Channel, Endpoint};
+use proto::domain::{JobSpec, UnitKey};
+use tracer::film::{Accumulation, SampleRange, Tile};
+use worker::{Failure, GrpcLink, LoadedJob, RenderOutcome, Rendered};
 
 use crate::commands::builtin::BuiltinScene;
 use crate::edge::client::{FarmClient, Watch};
@@ -29,7 +31,7 @@ use crate::farm::status::JobState;
 #[derive(Args)]
 pub struct LoadtestArgs {
     /// Simulated workers, each with its own connection.
-    #[arg(long, default_value_t = 256)]
+    #[arg(long, default_value_t = 64)]
     pub connections: usize,
     /// Image width and height in pixels.
     #[arg(long, default_value_t = 256)]
@@ -39,8 +41,16 @@ pub struct LoadtestArgs {
     pub tile: u32,
     /// Samples per pixel of the job; with one sample per unit this is the number of
     /// passes over the tiles (units = tiles × spp).
-    #[arg(long, default_value_t = 16)]
+    #[arg(long, default_value_t = 16, conflicts_with = "units")]
     pub spp: u32,
+    /// Units of the job instead of --spp: the samples per pixel become units ÷ tiles,
+    /// rounded up (so the job has at least this many units).
+    #[arg(long, value_name = "N")]
+    pub units: Option<u64>,
+    /// Render threads each simulated worker claims: it keeps twice as many units leased
+    /// and returns those that are ready together, as a real worker does.
+    #[arg(long, value_name = "N", default_value_t = 4)]
+    pub threads: usize,
 }
 
 /// The `coordinator serve` child with its own asset store; killed when dropped, whatever
@@ -102,16 +112,16 @@ impl Drop for Server {
     }
 }
 
-/// What the simulated workers did.
-#[derive(Default)]
-struct Tally {
-    accepted: AtomicU64,
-    lease_bytes: AtomicU64,
-    result_bytes: AtomicU64,
-}
-
 pub fn run(args: LoadtestArgs) -> anyhow::Result<()> {
-    anyhow::ensure!(args.connections > 0 && args.tile > 0 && args.spp > 0 && args.size > 0, "all sizes must be > 0");
+    anyhow::ensure!(
+        args.connections > 0 && args.tile > 0 && args.spp > 0 && args.size > 0 && args.threads > 0,
+        "all sizes must be > 0"
+    );
+    let mut args = args;
+    if let Some(n) = args.units {
+        let tiles = u64::from(args.size.div_ceil(args.tile)).pow(2);
+        args.spp = u32::try_from(n.div_ceil(tiles).max(1)).context("--units: too many for one job")?;
+    }
     let server = Server::start()?;
     let rt = tokio::runtime::Builder::new_multi_thread().enable_all().build().context("async runtime")?;
     // Bounded: a coordinator that stops answering ends the test with an error.
@@ -130,7 +140,7 @@ async fn drive(server: &Server, args: &LoadtestArgs) -> anyhow::Result<()> {
     for name in ["cbox.obj", "cbox.mtl"] {
         assets.push(jobs.upload(&scene.path().with_file_name(name), name.into()).await?);
     }
-    let spec = proto::domain::JobSpec {
+    let spec = JobSpec {
         job_id: String::new(),
         scene: scene_ref,
         assets,
@@ -148,10 +158,11 @@ async fn drive(server: &Server, args: &LoadtestArgs) -> anyhow::Result<()> {
     let tiles = args.size.div_ceil(args.tile) as u64;
     let units = tiles * tiles * args.spp as u64;
     println!(
-        "coordinator {} (pid {}); job {job}: {units} units of {t}×{t} px × 1 spp; {} simulated workers",
+        "coordinator {} (pid {}); job {job}: {units} units of {t}×{t} px × 1 spp; {} simulated workers × {} threads",
         server.url,
         server.child.id(),
         args.connections,
+        args.threads,
         t = args.tile
     );
 
@@ -168,95 +179,158 @@ async fn drive(server: &Server, args: &LoadtestArgs) -> anyhow::Result<()> {
     drop(watch);
 
     let (cpu0, _) = server.usage()?;
-    let tally = Arc::new(Tally::default());
+    let cache = server.store.with_extension("worker-cache");
+    let base = GrpcLink::connect(&server.url, &cache, Duration::from_millis(500))?;
+    let scene = Arc::new(tokio::sync::OnceCell::new());
+    let flow = Arc::new(Flow::default());
+    let (stop_tx, stop_rx) = tokio::sync::watch::channel(None);
     let start = Instant::now();
-    let mut tasks = Vec::new();
+    let mut workers = Vec::new();
     for _ in 0..args.connections {
-        let channel = Endpoint::from_shared(server.url.clone())?.connect().await.context("connecting a worker")?;
-        let tally = tally.clone();
-        tasks.push(tokio::spawn(simulated_worker(channel, tally, units)));
+        let link = SimulatedLink {
+            link: base.another_connection(&server.url)?,
+            scene: Arc::clone(&scene),
+            flow: Arc::clone(&flow),
+        };
+        let settings = worker::Settings {
+            coordinator: server.url.clone(),
+            threads: args.threads,
+            max_backoff: Duration::from_millis(500),
+            give_up_after: Some(Duration::from_secs(30)),
+        };
+        workers.push(tokio::spawn(worker::drive(
+            link,
+            Arc::new(EmptyResults(args.threads)),
+            settings,
+            stop_rx.clone(),
+        )));
     }
-    for t in tasks {
-        t.await.context("a simulated worker panicked")??;
+    // Done when the job is: every unit merged once.
+    let Watch::Stream(mut watch) = jobs.watch(&job).await? else { anyhow::bail!("the farm lost job {job}") };
+    let mut done = 0;
+    while let Some(s) = watch.next().await? {
+        done = s.units_done;
+        match s.state {
+            JobState::Done => break,
+            JobState::Failed | JobState::Cancelled => anyhow::bail!("the job ended early: {}", s.error),
+            JobState::Loading | JobState::Running => {}
+        }
     }
     let secs = start.elapsed().as_secs_f64();
     let (cpu1, peak) = server.usage()?;
-
-    let done = match jobs.watch(&job).await? {
-        Watch::Stream(mut s) => s.next().await?.map_or(0, |s| s.units_done),
-        Watch::NotFound(_) => 0,
-    };
+    let _ = stop_tx.send(Some(worker::Stop::Signal));
+    let mut submitted = 0;
+    for w in workers {
+        submitted += w.await.context("a simulated worker panicked")??;
+    }
     let image_bytes = jobs.fetch_exr(&job).await?.len();
 
-    let accepted = tally.accepted.load(Ordering::Relaxed);
     anyhow::ensure!(done == units, "the job reports {done} of {units} units done");
-    anyhow::ensure!(accepted == units, "{accepted} results accepted for {units} units");
-    println!("merged {accepted} unit results in {secs:.2} s: {:.0} results/s", accepted as f64 / secs);
+    let flowing = flow.seconds().unwrap_or(secs);
+    println!(
+        "merged {done} unit results in {flowing:.3} s from the first result sent to the last answered: {:.0} \
+         results/s ({:.0}/s over {secs:.2} s with the workers' start); {submitted} sent, {} duplicates",
+        done as f64 / flowing,
+        done as f64 / secs,
+        submitted.saturating_sub(done)
+    );
     println!(
         "coordinator CPU {:.2} s ({:.0} % of one core), peak memory {:.1} MiB",
         cpu1 - cpu0,
         100.0 * (cpu1 - cpu0) / secs,
         peak as f64 / (1 << 20) as f64
     );
+    let (lease, result) = wire_sizes(&JobSpec { job_id: job.clone(), ..spec.clone() }, args.tile);
     println!(
-        "wire per unit: lease reply {:.0} B + result {:.0} B (protobuf); final image {:.1} KiB of EXR for {}×{} px",
-        tally.lease_bytes.load(Ordering::Relaxed) as f64 / units as f64,
-        tally.result_bytes.load(Ordering::Relaxed) as f64 / units as f64,
+        "wire per unit: leased unit {lease} B + result {result} B (protobuf); final image {:.1} KiB of EXR for {}×{} px",
         image_bytes as f64 / 1024.0,
         args.size,
         args.size
     );
+    let _ = std::fs::remove_dir_all(&cache);
     Ok(())
 }
 
-/// Registers, then leases one unit at a time and returns it at once until all `units`
-/// have been accepted.
-async fn simulated_worker(channel: Channel, tally: Arc<Tally>, units: u64) -> anyhow::Result<()> {
-    let mut farm = WorkerRpc::new(channel)
-        .max_decoding_message_size(proto::MAX_MESSAGE_BYTES)
-        .max_encoding_message_size(proto::MAX_MESSAGE_BYTES);
-    let worker_id = farm
-        .register(proto::RegisterRequest {
-            protocol_version: proto::PROTOCOL_VERSION,
-            threads: 1,
-            hostname: "loadtest".into(),
-            version: env!("CARGO_PKG_VERSION").into(),
-        })
-        .await?
-        .into_inner()
-        .worker_id;
-    loop {
-        let reply = farm.lease(proto::LeaseRequest { worker_id, max_units: 1 }).await?.into_inner();
-        if reply.units.is_empty() {
-            // Nothing to lease now: the job is done, or its last units are out with
-            // other simulated workers, who return them at once.
-            if tally.accepted.load(Ordering::Relaxed) >= units {
-                return Ok(());
-            }
-            tokio::time::sleep(Duration::from_millis(u64::from(reply.retry_after_ms).clamp(1, 100))).await;
-            continue;
-        }
-        tally.lease_bytes.fetch_add(reply.encoded_len() as u64, Ordering::Relaxed);
-        for unit in reply.units {
-            let tile = unit.tile.context("a unit without a tile")?;
-            let pixels = (tile.width * tile.height) as usize;
-            let spp = unit.sample_end - unit.sample_start;
-            let result = proto::UnitResult {
-                worker_id,
-                job_id: unit.job.map(|j| j.job_id).unwrap_or_default(),
-                unit_id: unit.unit_id,
-                tile: Some(tile),
-                sample_start: unit.sample_start,
-                sample_end: unit.sample_end,
-                sums: vec![0; pixels * 48],
-                counts: vec![spp; pixels],
-                nonfinite: 0,
-                rays: 0,
-            };
-            tally.result_bytes.fetch_add(result.encoded_len() as u64, Ordering::Relaxed);
-            if farm.submit_result(result).await?.into_inner().accepted {
-                tally.accepted.fetch_add(1, Ordering::Relaxed);
-            }
-        }
+/// The encoded sizes of one leased unit and of its result.
+fn wire_sizes(spec: &JobSpec, tile: u32) -> (usize, usize) {
+    let tile = Tile::new(0, 0, tile, tile);
+    let samples = SampleRange::new(0, 1);
+    let unit = proto::wire::unit_to_proto(spec, 1, tile, samples);
+    let key = UnitKey { job_id: "job-1".into(), unit_id: 1 };
+    let mut acc = Accumulation::new(tile);
+    acc.counts.fill(1);
+    (unit.encoded_len(), proto::wire::result_to_proto(1, &key, samples, &acc, 0).encoded_len())
+}
+
+/// When results flowed: the first sent, the last answered.
+#[derive(Default)]
+struct Flow {
+    first_sent: std::sync::OnceLock<Instant>,
+    last_answered: std::sync::Mutex<Option<Instant>>,
+}
+
+impl Flow {
+    fn seconds(&self) -> Option<f64> {
+        let first = self.first_sent.get()?;
+        let last = (*self.last_answered.lock().unwrap_or_else(|p| p.into_inner()))?;
+        Some(last.duration_since(*first).as_secs_f64()).filter(|&s| s > 0.0)
+    }
+}
+
+/// The real gRPC link, with the scene loaded once for all simulated workers (they
+/// all share one process; a farm's workers each load it once too), and the flow of
+/// results timed.
+#[derive(Clone)]
+struct SimulatedLink {
+    link: GrpcLink,
+    scene: Arc<tokio::sync::OnceCell<Arc<LoadedJob>>>,
+    flow: Arc<Flow>,
+}
+
+impl worker::Link for SimulatedLink {
+    async fn register(&self, threads: usize) -> Result<worker::Registration, Failure> {
+        self.link.register(threads).await
+    }
+
+    async fn lease(&self, worker_id: u64, max_units: u32) -> Result<worker::Grant, Failure> {
+        self.link.lease(worker_id, max_units).await
+    }
+
+    async fn heartbeat(&self, worker_id: u64, held: Vec<UnitKey>) -> Result<worker::Renewal, Failure> {
+        self.link.heartbeat(worker_id, held).await
+    }
+
+    async fn submit(&self, worker_id: u64, units: Vec<Arc<Rendered>>) -> Result<Vec<Result<bool, String>>, Failure> {
+        self.flow.first_sent.get_or_init(Instant::now);
+        let outcomes = self.link.submit(worker_id, units).await;
+        *self.flow.last_answered.lock().unwrap_or_else(|p| p.into_inner()) = Some(Instant::now());
+        outcomes
+    }
+
+    async fn prepare(&self, job: Arc<JobSpec>) -> Result<Arc<LoadedJob>, String> {
+        let first = self.scene.get_or_try_init(|| self.link.prepare(job.clone())).await?;
+        Ok(Arc::new(LoadedJob { spec: (*job).clone(), scene: Arc::clone(&first.scene), integrator: job.integrator }))
+    }
+}
+
+/// Renders nothing: a unit's result is zero radiance with the right sample counts.
+struct EmptyResults(usize);
+
+impl worker::Executor for EmptyResults {
+    fn threads(&self) -> usize {
+        self.0
+    }
+
+    fn render(
+        &self,
+        _: Arc<LoadedJob>,
+        tile: Tile,
+        samples: SampleRange,
+        _: Arc<AtomicBool>,
+        done: impl FnOnce(RenderOutcome) + Send + 'static,
+    ) {
+        let mut acc = Accumulation::new(tile);
+        acc.counts.fill(samples.len());
+        done(RenderOutcome::Done { acc, rays: 0, elapsed: Duration::ZERO });
     }
 }

@@ -5,7 +5,6 @@
 
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
-use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::{Duration, Instant};
 
 use anyhow::Context;
@@ -18,11 +17,11 @@ use proto::domain::JobSpec;
 use crate::commands::follow::{Followed, JobFeed, follow};
 use crate::commands::local::LocalWorkers;
 use crate::commands::progress::{JobBar, summary};
+use crate::edge::in_process::InProcessLink;
 use crate::edge::server::Server;
 use crate::farm::Shared;
 use crate::farm::assets::{AssetRef, AssetStore, LocalScene};
 use crate::farm::checkpoint;
-use crate::farm::job::UnitResult;
 use crate::farm::lifecycle::submit_job;
 use crate::farm::state::Farm;
 use crate::farm::status::{JobState, JobStatus};
@@ -363,15 +362,16 @@ async fn execute(plan: Plan, args: &RunArgs) -> anyhow::Result<()> {
     let name = spec.scene.path.clone();
     let job = submit_job(&shared, name, spec, restore.map(|s| s.job))?;
 
+    let (stop_tx, stop_rx) = tokio::sync::watch::channel(None);
+    let mut in_process = None;
     let (server, mut children) = if workers > 0 {
         let server = Server::start(Arc::clone(&shared), "127.0.0.1:0").await?;
         let children = LocalWorkers::spawn(workers, threads, &server.url(), &cache)?;
         tracing::info!("serving on {}; {workers} local worker(s) × {threads} thread(s)", server.url());
         (Some(server), Some(children))
     } else {
-        let shared = Arc::clone(&shared);
-        let job = job.clone();
-        std::thread::spawn(move || execute_in_process(&shared, &job, threads));
+        let task = tokio::spawn(execute_in_process(Arc::clone(&shared), job.clone(), threads, stop_rx.clone()));
+        in_process = Some(task);
         (None, None)
     };
 
@@ -400,6 +400,10 @@ async fn execute(plan: Plan, args: &RunArgs) -> anyhow::Result<()> {
 
     // Tell the workers to stop, give them a moment, then make sure they are gone.
     shared.farm().shutting_down = true;
+    let _ = stop_tx.send(Some(worker::Stop::Signal));
+    if let Some(task) = in_process {
+        let _ = tokio::time::timeout(Duration::from_secs(5), task).await;
+    }
     if let Some(c) = children {
         if outcome.is_ok() {
             c.shutdown(Duration::from_secs(5)).await;
@@ -466,76 +470,64 @@ fn write_partial(shared: &Shared, job: &str, output: &Path) -> anyhow::Result<()
     Ok(())
 }
 
-/// Runs `render` on one unit, turning a panic into its message (a tracer bug must stop
-/// the job with a clear error, not kill a thread and leave the job waiting for it).
-fn render_caught<R>(render: impl FnOnce() -> R) -> Result<R, String> {
-    std::panic::catch_unwind(std::panic::AssertUnwindSafe(render))
-        .map_err(|p| tracer::render::panic_message(p.as_ref()))
+/// Renders a job's units in this process: the worker's own machine, linked to this
+/// process's farm state instead of a coordinator over the network, leases, renders and
+/// submits them through the same checks and merge as remote workers. Returns when
+/// `stop` is set (or the farm shuts down).
+async fn execute_in_process(
+    shared: Arc<Shared>,
+    job: String,
+    threads: usize,
+    stop: tokio::sync::watch::Receiver<Option<worker::Stop>>,
+) {
+    let pool = match worker::RenderPool::new(threads) {
+        Ok(p) => p,
+        Err(e) => return shared.fail(&job, format!("{e:#}")),
+    };
+    let (lease, heartbeat) = {
+        let farm = shared.farm();
+        (farm.config.lease, farm.config.heartbeat)
+    };
+    let settings = worker::Settings {
+        coordinator: "this process".into(),
+        threads,
+        max_backoff: heartbeat.min(lease),
+        give_up_after: None,
+    };
+    let executor = Arc::new(FailOnPanic { pool, shared: Arc::clone(&shared), job: job.clone() });
+    if let Err(e) = worker::drive(InProcessLink(Arc::clone(&shared)), executor, settings, stop).await {
+        shared.fail(&job, format!("rendering in this process: {e:#}"));
+    }
 }
 
-/// Renders a job's units in this process: leases from the same farm state as remote
-/// workers do and submits through the same checks and merge. `threads` threads each
-/// lease, render and submit one unit at a time, like a worker's threads, so no thread
-/// waits for another's slowest unit.
-fn execute_in_process(shared: &Shared, job: &str, threads: usize) {
-    let me = shared.farm().register("in-process".into(), threads as u32, Instant::now());
-    let stop = AtomicBool::new(false);
-    std::thread::scope(|s| {
-        for i in 0..threads.max(1) {
-            let spawned = std::thread::Builder::new()
-                .name(format!("render-{i}"))
-                .spawn_scoped(s, || in_process_thread(shared, job, me, &stop));
-            if let Err(e) = spawned {
-                stop.store(true, Ordering::Relaxed);
-                shared.fail(job, format!("starting render threads: {e}"));
-                return;
-            }
-        }
-    });
+/// The render pool, with a panic in the tracer (a bug) ending the job with its
+/// message, rather than the unit being leased and failing again for ever.
+struct FailOnPanic<E> {
+    pool: E,
+    shared: Arc<Shared>,
+    job: String,
 }
 
-fn in_process_thread(shared: &Shared, job: &str, me: crate::farm::job::WorkerId, stop: &AtomicBool) {
-    while !stop.load(Ordering::Relaxed) {
-        let (unit, scene, integrator, finished) = {
-            let mut farm = shared.farm();
-            let unit = farm.lease(me, 1, Instant::now()).unwrap_or_default().pop();
-            let Ok(e) = farm.entry(job) else { return };
-            (unit, e.scene.clone(), e.spec.integrator, e.job.phase.is_final())
-        };
-        if finished {
-            return;
-        }
-        let (Some(u), Some(scene)) = (unit, scene) else {
-            std::thread::sleep(Duration::from_millis(20));
-            continue;
-        };
-        let rendered = render_caught(|| {
-            let (acc, count) = tracer::render::render_unit_counted(&scene, integrator, u.tile, u.samples);
-            UnitResult {
-                unit: u.unit,
-                tile: u.tile,
-                samples: SampleRange::new(u.samples.start, u.samples.end),
-                sums: acc.sums,
-                counts: acc.counts,
-                nonfinite: acc.nonfinite,
-                rays: count.rays,
+impl<E: worker::Executor> worker::Executor for FailOnPanic<E> {
+    fn threads(&self) -> usize {
+        self.pool.threads()
+    }
+
+    fn render(
+        &self,
+        job: Arc<worker::LoadedJob>,
+        tile: tracer::film::Tile,
+        samples: SampleRange,
+        cancel: Arc<std::sync::atomic::AtomicBool>,
+        done: impl FnOnce(worker::RenderOutcome) + Send + 'static,
+    ) {
+        let (shared, id) = (Arc::clone(&self.shared), self.job.clone());
+        self.pool.render(job, tile, samples, cancel, move |outcome| {
+            if let worker::RenderOutcome::Panicked(msg) = &outcome {
+                shared.fail(&id, format!("a render thread panicked (a tilefarm bug; please report it): {msg}"));
             }
+            done(outcome);
         });
-        match rendered {
-            Ok(r) => {
-                if let Err(e) = shared.submit_result(me, job, &r) {
-                    tracing::error!("in-process result rejected: {e}");
-                }
-            }
-            Err(msg) => {
-                // A bug in the tracer: stop the job with the message rather than leave
-                // it waiting for a unit no thread renders (completed units are
-                // checkpointed as usual).
-                stop.store(true, Ordering::Relaxed);
-                shared.fail(job, format!("a render thread panicked (a tilefarm bug; please report it): {msg}"));
-                return;
-            }
-        }
     }
 }
 
@@ -543,13 +535,70 @@ fn in_process_thread(shared: &Shared, job: &str, me: crate::farm::job::WorkerId,
 mod tests {
     use super::*;
 
-    /// A panic in a unit comes back as its message, so the job can stop with it
-    /// (before, the in-process thread died and the render waited forever).
+    /// Renders nothing: every unit panics, as a tracer bug would.
+    struct Panicking;
+
+    impl worker::Executor for Panicking {
+        fn threads(&self) -> usize {
+            1
+        }
+
+        fn render(
+            &self,
+            _: Arc<worker::LoadedJob>,
+            _: tracer::film::Tile,
+            _: SampleRange,
+            _: Arc<std::sync::atomic::AtomicBool>,
+            done: impl FnOnce(worker::RenderOutcome) + Send + 'static,
+        ) {
+            done(worker::RenderOutcome::Panicked("unit 11 out of bounds".into()));
+        }
+    }
+
+    /// A panic in a unit ends the job with its message (before, the render waited
+    /// for a unit that no thread would ever finish).
     #[test]
-    fn a_panicking_unit_is_reported_not_lost() {
-        assert_eq!(render_caught(|| 21 * 2), Ok(42));
-        let unit = 11;
-        let r: Result<u32, String> = render_caught(|| panic!("unit {unit} out of bounds"));
-        assert_eq!(r, Err("unit 11 out of bounds".to_string()));
+    fn a_panicking_unit_fails_the_job_with_its_message() {
+        let dir = std::env::temp_dir().join(format!("tilefarm-panic-test-{}", std::process::id()));
+        let shared = Arc::new(Shared::new(Farm::new(Default::default()), AssetStore::open(&dir).unwrap()));
+        let spec = JobSpec {
+            job_id: String::new(),
+            scene: AssetRef { path: "scene.toml".into(), sha256: "ab".repeat(32), size: 1 },
+            assets: vec![],
+            overrides: Default::default(),
+            integrator: Integrator::Path,
+            tile_size: None,
+            batch_spp: None,
+        };
+        let job = shared.farm().add_job("j".into(), spec);
+        let executor = FailOnPanic { pool: Panicking, shared: Arc::clone(&shared), job: job.clone() };
+        let scene = tracer::scene::scene_from_toml(
+            "[camera]\nposition = [0, 0, -5]\nlook_at = [0, 0, 0]\nwidth = 8\nheight = 8\n",
+            "scene.toml",
+            Path::new("."),
+        )
+        .unwrap();
+        let loaded = Arc::new(worker::LoadedJob {
+            spec: (*shared.farm().entry(&job).unwrap().spec).clone(),
+            scene: Arc::new(scene),
+            integrator: Integrator::Path,
+        });
+        let seen = Arc::new(std::sync::Mutex::new(None));
+        let s = Arc::clone(&seen);
+        use worker::Executor;
+        executor.render(
+            loaded,
+            tracer::film::Tile::new(0, 0, 8, 8),
+            SampleRange::new(0, 1),
+            Default::default(),
+            move |o| {
+                *s.lock().unwrap() = Some(matches!(o, worker::RenderOutcome::Panicked(_)));
+            },
+        );
+        assert_eq!(*seen.lock().unwrap(), Some(true), "the machine hears of it too");
+        let status = shared.farm().status(&job, Instant::now()).unwrap();
+        assert_eq!(status.state, JobState::Failed);
+        assert!(status.error.contains("unit 11 out of bounds"), "{}", status.error);
+        let _ = std::fs::remove_dir_all(&dir);
     }
 }

@@ -3,6 +3,7 @@
 //! messages shared with workers are mapped in `proto::wire`).
 
 pub mod client;
+pub mod in_process;
 pub mod server;
 pub mod service;
 pub mod wire;

@@ -84,6 +84,49 @@ impl proto::farm_server::Farm for FarmService {
         }
     }
 
+    async fn submit_results(
+        &self,
+        req: Request<proto::SubmitResultsRequest>,
+    ) -> Result<Response<proto::SubmitResultsReply>, Status> {
+        let r = req.into_inner();
+        if r.results.len() > proto::MAX_RESULTS_PER_CALL {
+            return Err(Status::invalid_argument(format!(
+                "{} results in one call; at most {} are taken",
+                r.results.len(),
+                proto::MAX_RESULTS_PER_CALL
+            )));
+        }
+        // Each result is checked on its own: a malformed one is refused, the others go on.
+        let decoded: Vec<Result<(String, UnitResult), String>> = r
+            .results
+            .into_iter()
+            .map(|m| {
+                let proto::wire::ReceivedResult { key, tile, samples, sums, counts, nonfinite, rays, .. } =
+                    proto::wire::result_from_proto(m)?;
+                Ok((key.job_id, UnitResult { unit: key.unit_id, tile, samples, sums, counts, nonfinite, rays }))
+            })
+            .collect();
+        let good = decoded.iter().filter_map(|d| d.as_ref().ok()).map(|(job, r)| (job.as_str(), r));
+        let mut merged = self.0.submit_results(r.worker_id, good).map_err(error_to_status)?.into_iter();
+        let outcomes = decoded
+            .iter()
+            .map(|d| {
+                let outcome = match d {
+                    Err(why) => Err(why.clone()),
+                    Ok((job, r)) => match merged.next().expect("one outcome per merged result") {
+                        Ok(applied) => Ok(applied == Applied::Merged),
+                        Err(e) => {
+                            tracing::warn!(unit = %format!("{job}/{}", r.unit), "result rejected: {e}");
+                            Err(e.to_string())
+                        }
+                    },
+                };
+                proto::wire::outcome_to_proto(outcome)
+            })
+            .collect();
+        Ok(Response::new(proto::SubmitResultsReply { outcomes }))
+    }
+
     type FetchAssetStream = BoxStream<proto::AssetChunk>;
 
     async fn fetch_asset(&self, req: Request<proto::AssetRequest>) -> Result<Response<Self::FetchAssetStream>, Status> {

@@ -62,30 +62,37 @@ impl Shared {
     /// Merges a unit's result; a result that finishes its job ends the job's render
     /// (its scene leaves memory, the farm's log records it).
     pub fn submit_result(&self, worker: WorkerId, job: &str, r: &UnitResult) -> Result<Applied, FarmError> {
-        let applied = {
+        let mut out = self.submit_results(worker, std::iter::once((job, r)))?;
+        out.pop().expect("one outcome per result")
+    }
+
+    /// Merges a worker's results under one lock; one outcome per result, in order. An
+    /// unknown worker fails the whole call (it must register again).
+    pub fn submit_results<'a>(
+        &self,
+        worker: WorkerId,
+        results: impl IntoIterator<Item = (&'a str, &'a UnitResult)>,
+    ) -> Result<Vec<Result<Applied, FarmError>>, FarmError> {
+        let mut outcomes = Vec::new();
+        {
             let mut farm = self.farm();
-            let (applied, finished) = farm.submit(worker, job, r, Instant::now())?;
-            if finished && let Ok(e) = farm.entry_mut(job) {
-                let j = &e.job;
-                tracing::info!(
-                    job = %j.id,
-                    scene = %j.name,
-                    width = j.width,
-                    height = j.height,
-                    spp = j.spp,
-                    units = j.units_total(),
-                    samples = j.samples_done,
-                    rays = j.rays,
-                    nonfinite = j.nonfinite,
-                    seconds = j.elapsed().as_secs_f64(),
-                    "job finished"
-                );
-                e.scene = None;
+            let now = Instant::now();
+            for (job, r) in results {
+                let outcome = match farm.submit(worker, job, r, now) {
+                    Err(e @ FarmError::UnknownWorker(_)) => return Err(e),
+                    Err(e) => Err(e),
+                    Ok((applied, finished)) => {
+                        if finished && let Ok(e) = farm.entry_mut(job) {
+                            finish(e);
+                        }
+                        Ok(applied)
+                    }
+                };
+                outcomes.push(outcome);
             }
-            applied
-        };
+        }
         self.changed.notify_one();
-        Ok(applied)
+        Ok(outcomes)
     }
 
     pub fn cancel(&self, job: &str) -> Result<JobStatus, FarmError> {
@@ -159,6 +166,25 @@ impl Shared {
             tracing::info!(job = %id, "finished job no longer listed; its image stays in the store");
         }
     }
+}
+
+/// A job's last unit is merged: its render is over.
+fn finish(e: &mut super::state::JobEntry) {
+    let j = &e.job;
+    tracing::info!(
+        job = %j.id,
+        scene = %j.name,
+        width = j.width,
+        height = j.height,
+        spp = j.spp,
+        units = j.units_total(),
+        samples = j.samples_done,
+        rays = j.rays,
+        nonfinite = j.nonfinite,
+        seconds = j.elapsed().as_secs_f64(),
+        "job finished"
+    );
+    e.scene = None;
 }
 
 /// Writes an EXR so that a crash leaves the old file or the whole new one.

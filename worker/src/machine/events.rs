@@ -34,7 +34,7 @@ impl Machine {
             Event::Registered(result) => self.on_registered(result, now)?,
             Event::Leased { worker_id, result } => self.on_leased(worker_id, result, now),
             Event::Heartbeat { worker_id, result } => self.on_heartbeat(worker_id, result, now),
-            Event::Submitted { serial, worker_id, result } => self.on_submitted(serial, worker_id, result, now),
+            Event::Submitted { serials, worker_id, result } => self.on_submitted(serials, worker_id, result, now),
             Event::JobReady { job, result } => self.on_job_ready(job, result, now),
             Event::Rendered { serial, outcome } => self.on_rendered(serial, outcome),
         }
@@ -166,7 +166,6 @@ impl Machine {
 
     fn prepare(&mut self, job: Arc<JobSpec>) {
         self.loading.insert(job.job_id.clone());
-        info!("job {}: preparing scene '{}'", job.job_id, job.scene.path);
         self.queued.push(Action::Prepare { job });
     }
 
@@ -266,30 +265,52 @@ impl Machine {
         }
     }
 
-    fn on_submitted(&mut self, serial: u64, worker_id: u64, result: Result<bool, Failure>, now: Instant) {
+    fn on_submitted(
+        &mut self,
+        serials: Vec<u64>,
+        worker_id: u64,
+        result: Result<Vec<Result<bool, String>>, Failure>,
+        now: Instant,
+    ) {
         self.submits_in_flight = self.submits_in_flight.saturating_sub(1);
-        let key = self.slots.get(&serial).map(|s| s.unit.key.clone());
-        let key_text = key.as_ref().map_or_else(|| "?".to_string(), UnitKey::to_string);
+        let key_text =
+            |m: &Self, serial: &u64| m.slots.get(serial).map_or_else(|| "?".into(), |s| s.unit.key.to_string());
         match result {
-            Ok(accepted) => {
+            Ok(outcomes) => {
                 self.submit_backoff.reset();
-                self.slots.remove(&serial);
-                self.submitted += 1;
-                if accepted {
-                    debug!("unit {key_text} submitted");
-                } else {
-                    debug!("unit {key_text} was already done elsewhere (duplicate ignored)");
+                if outcomes.len() != serials.len() {
+                    warn!("the coordinator answered {} results with {} outcomes", serials.len(), outcomes.len());
+                }
+                for (serial, outcome) in serials.iter().zip(outcomes.into_iter().chain(std::iter::repeat(Ok(false)))) {
+                    let key = key_text(self, serial);
+                    self.slots.remove(serial);
+                    match outcome {
+                        Ok(true) => {
+                            self.submitted += 1;
+                            debug!("unit {key} submitted");
+                        }
+                        Ok(false) => {
+                            self.submitted += 1;
+                            debug!("unit {key} was already done elsewhere (duplicate ignored)");
+                        }
+                        Err(why) => warn!("the coordinator refused the result of unit {key}: {why}"),
+                    }
                 }
             }
             Err(Failure::Rejected { code, message }) => {
-                self.slots.remove(&serial);
-                warn!("the coordinator rejected the result of unit {key_text} ({code}): {message}");
+                for serial in &serials {
+                    warn!("the coordinator rejected the result of unit {} ({code}): {message}", key_text(self, serial));
+                    self.slots.remove(serial);
+                }
             }
             Err(e) => {
                 // Kept, to be sent again (under a new worker id if need be).
-                if let Some(SlotState::Finished { submitting, .. }) = self.slots.get_mut(&serial).map(|s| &mut s.state)
-                {
-                    *submitting = false;
+                for serial in &serials {
+                    if let Some(SlotState::Finished { submitting, .. }) =
+                        self.slots.get_mut(serial).map(|s| &mut s.state)
+                    {
+                        *submitting = false;
+                    }
                 }
                 if let Failure::UnknownWorker(m) = &e {
                     self.lost_registration(worker_id, m, now);
@@ -299,7 +320,7 @@ impl Machine {
                         d = d.min(DRAIN_RETRY);
                     }
                     self.submit_next_at = self.submit_next_at.max(now + d);
-                    warn!("cannot submit unit {key_text}: {e}; keeping it, retrying in {d:?}");
+                    warn!("cannot submit {} result(s): {e}; keeping them, retrying in {d:?}", serials.len());
                 }
             }
         }

@@ -46,8 +46,11 @@ const DRAIN_RETRY: Duration = Duration::from_millis(250);
 const DEFAULT_IDLE_WAIT: Duration = Duration::from_millis(500);
 /// Units of a job whose scene failed to load are dropped for this long.
 const FAILED_JOB_MEMORY: Duration = Duration::from_secs(30);
-/// Results sent concurrently (HTTP/2 multiplexes them on one connection).
+/// Submissions in flight at once (HTTP/2 multiplexes them on one connection); each
+/// carries every result ready when it starts, within the message size.
 const MAX_SUBMITS_IN_FLIGHT: usize = 4;
+/// Room kept free in a submission's message for the call's own fields.
+const SUBMIT_MARGIN_BYTES: usize = 64 * 1024;
 /// Loaded scenes kept beyond those in use.
 const SCENE_CACHE_JOBS: usize = 2;
 
@@ -109,11 +112,12 @@ pub enum Event {
         worker_id: u64,
         result: Result<Renewal, Failure>,
     },
-    /// A result was sent: whether the coordinator merged it (false: a duplicate).
+    /// Results were sent (`serials`, in order): for each, whether the coordinator merged
+    /// it (false: a duplicate) or why it refused it.
     Submitted {
-        serial: u64,
+        serials: Vec<u64>,
         worker_id: u64,
-        result: Result<bool, Failure>,
+        result: Result<Vec<Result<bool, String>>, Failure>,
     },
     JobReady {
         job: Arc<JobSpec>,
@@ -146,10 +150,11 @@ pub enum Action {
         worker_id: u64,
         max_units: u32,
     },
+    /// Send these results in one call (`serials` name them in the reply's event).
     Submit {
-        serial: u64,
+        serials: Vec<u64>,
         worker_id: u64,
-        unit: Arc<Rendered>,
+        units: Vec<Arc<Rendered>>,
     },
     /// Download the job's files and load its scene.
     Prepare {
@@ -171,7 +176,7 @@ impl std::fmt::Debug for Action {
             Action::Register => write!(f, "Register"),
             Action::Heartbeat { worker_id, held } => write!(f, "Heartbeat({worker_id}, {} held)", held.len()),
             Action::Lease { worker_id, max_units } => write!(f, "Lease({worker_id}, {max_units})"),
-            Action::Submit { serial, unit, .. } => write!(f, "Submit(#{serial} {})", unit.key),
+            Action::Submit { serials, .. } => write!(f, "Submit({serials:?})"),
             Action::Prepare { job } => write!(f, "Prepare({})", job.job_id),
             Action::Render { serial, tile, samples, .. } => write!(f, "Render(#{serial} {tile:?} {samples:?})"),
         }
@@ -360,13 +365,30 @@ impl Machine {
         }
         while self.submit_wanted() && now >= self.submit_next_at {
             let Some(worker_id) = self.worker_id else { break };
-            let Some((&serial, slot)) = self.slots.iter_mut().find(|(_, s)| s.unsent()) else { break };
-            let SlotState::Finished { unit, submitting } = &mut slot.state else { break };
-            *submitting = true;
+            let (serials, units) = self.next_batch();
             self.submits_in_flight += 1;
-            out.push(Action::Submit { serial, worker_id, unit: Arc::clone(unit) });
+            out.push(Action::Submit { serials, worker_id, units });
         }
         out
+    }
+
+    /// The unsent results for one submission, marked as being sent: as many as fit in a
+    /// message, at least one.
+    fn next_batch(&mut self) -> (Vec<u64>, Vec<Arc<Rendered>>) {
+        let budget = proto::MAX_MESSAGE_BYTES - SUBMIT_MARGIN_BYTES;
+        let (mut serials, mut units, mut bytes) = (Vec::new(), Vec::new(), 0);
+        for (&serial, slot) in &mut self.slots {
+            let SlotState::Finished { unit, submitting: submitting @ false } = &mut slot.state else { continue };
+            let size = proto::wire::result_bytes_bound(unit.acc.tile);
+            if !units.is_empty() && (bytes + size > budget || units.len() == proto::MAX_RESULTS_PER_CALL) {
+                break;
+            }
+            *submitting = true;
+            bytes += size;
+            serials.push(serial);
+            units.push(Arc::clone(unit));
+        }
+        (serials, units)
     }
 
     /// The earliest future time at which something is due (the shell sleeps until

@@ -1,7 +1,7 @@
 //! The worker's protocol, driven event by event with a made-up clock: no network, no
 //! threads, no sleeping.
 
-use std::sync::{Arc, OnceLock};
+use std::sync::Arc;
 use std::time::{Duration, Instant};
 
 use proto::domain::{AssetRef, JobSpec, UnitKey, WorkUnit};
@@ -24,26 +24,15 @@ fn spec(id: &str) -> Arc<JobSpec> {
     })
 }
 
-/// A 64×32 scene (its file written once per test run).
+/// A 64×32 scene.
 fn scene() -> tracer::scene::Scene {
-    static FILE: OnceLock<std::path::PathBuf> = OnceLock::new();
-    let path = FILE.get_or_init(|| {
-        let dir = std::env::temp_dir().join(format!("tilefarm-machine-test-{}", std::process::id()));
-        std::fs::create_dir_all(&dir).unwrap();
-        let path = dir.join("scene.toml");
-        std::fs::write(
-            &path,
-            "[camera]\nposition = [0, 0, -5]\nlook_at = [0, 0, 0]\nwidth = 64\nheight = 32\n\n\
-             [[sphere]]\ncenter = [0, 0, 0]\nradius = 1\nkd = [0.5, 0.5, 0.5]\n",
-        )
-        .unwrap();
-        path
-    });
-    tracer::scene::load_scene(path).unwrap()
+    let toml = "[camera]\nposition = [0, 0, -5]\nlook_at = [0, 0, 0]\nwidth = 64\nheight = 32\n\n\
+                [[sphere]]\ncenter = [0, 0, 0]\nradius = 1\nkd = [0.5, 0.5, 0.5]\n";
+    tracer::scene::scene_from_toml(toml, "scene.toml", std::path::Path::new(".")).unwrap()
 }
 
 fn loaded(job: &Arc<JobSpec>) -> Arc<LoadedJob> {
-    Arc::new(LoadedJob { spec: (**job).clone(), scene: scene(), integrator: job.integrator })
+    Arc::new(LoadedJob { spec: (**job).clone(), scene: Arc::new(scene()), integrator: job.integrator })
 }
 
 fn unit(job: &Arc<JobSpec>, id: u64, tile: Tile) -> Result<WorkUnit, String> {
@@ -76,7 +65,10 @@ fn names(actions: &[Action]) -> Vec<String> {
             Action::Register => "register".to_string(),
             Action::Heartbeat { held, .. } => format!("heartbeat {}", held.len()),
             Action::Lease { max_units, .. } => format!("lease {max_units}"),
-            Action::Submit { unit, worker_id, .. } => format!("submit {} as {worker_id}", unit.key),
+            Action::Submit { units, worker_id, .. } => {
+                let keys: Vec<String> = units.iter().map(|u| u.key.to_string()).collect();
+                format!("submit {} as {worker_id}", keys.join(","))
+            }
             Action::Prepare { job } => format!("prepare {}", job.job_id),
             Action::Render { serial, .. } => format!("render #{serial}"),
         })
@@ -98,6 +90,11 @@ fn grant(units: Vec<Result<WorkUnit, String>>) -> Event {
 fn done(serial: u64, t: Tile) -> Event {
     let outcome = RenderOutcome::Done { acc: Accumulation::new(t), rays: 10, elapsed: Duration::from_millis(5) };
     Event::Rendered { serial, outcome }
+}
+
+/// The answer to a submission of `serials`.
+fn answered(serials: &[u64], result: Result<Vec<Result<bool, String>>, Failure>) -> Event {
+    Event::Submitted { serials: serials.to_vec(), worker_id: WORKER, result }
 }
 
 fn transport() -> Failure {
@@ -127,7 +124,7 @@ fn a_rendered_unit_is_submitted_and_the_window_refilled() {
     assert_eq!(names(&m.actions(t)), ["prepare job-1", "render #0", "render #1"]);
     m.handle(done(0, tile(0)), t).unwrap();
     assert_eq!(names(&m.actions(t)), ["lease 1", "submit job-1/0 as 7"]);
-    m.handle(Event::Submitted { serial: 0, worker_id: WORKER, result: Ok(true) }, t).unwrap();
+    m.handle(answered(&[0], Ok(vec![Ok(true)])), t).unwrap();
     assert_eq!(m.submitted(), 1);
     assert_eq!(m.unsent(), 0);
     // A second scene of the same job is not loaded again.
@@ -158,10 +155,11 @@ fn heartbeats_renew_what_is_held_and_abandoned_units_are_cancelled() {
     assert_eq!(names(&m.actions(t2)), ["heartbeat 1"]);
 }
 
-/// A result whose lease lapsed, or that the coordinator refuses, is dropped; one that
-/// could not be sent is kept and sent again after a backoff.
+/// Results finished together leave in one call. Those that could not be sent are kept
+/// and sent again after a backoff; one the coordinator refuses (its lease lapsed) is
+/// dropped, and the others of the call are taken.
 #[test]
-fn results_are_resent_after_transport_failures_and_dropped_when_refused() {
+fn results_are_batched_resent_after_transport_failures_and_dropped_when_refused() {
     let (mut m, t) = (machine(1), Instant::now());
     registered(&mut m, t);
     let job = spec("job-1");
@@ -170,15 +168,32 @@ fn results_are_resent_after_transport_failures_and_dropped_when_refused() {
     m.actions(t);
     m.handle(done(0, tile(0)), t).unwrap();
     m.handle(done(1, tile(1)), t).unwrap();
-    assert_eq!(names(&m.actions(t)), ["lease 2", "submit job-1/0 as 7", "submit job-1/1 as 7"]);
-    let refused = Failure::Rejected { code: "FailedPrecondition".into(), message: "lease lapsed".into() };
-    m.handle(Event::Submitted { serial: 0, worker_id: WORKER, result: Err(refused) }, t).unwrap();
-    m.handle(Event::Submitted { serial: 1, worker_id: WORKER, result: Err(transport()) }, t).unwrap();
-    assert_eq!(m.unsent(), 1);
-    assert!(m.actions(t).is_empty(), "not at once");
+    assert_eq!(names(&m.actions(t)), ["lease 2", "submit job-1/0,job-1/1 as 7"]);
+    m.handle(answered(&[0, 1], Err(transport())), t).unwrap();
+    assert_eq!(m.unsent(), 2);
+    assert!(m.actions(t).iter().all(|a| !matches!(a, Action::Submit { .. })), "not at once");
     let retry = m.next_deadline(t).unwrap();
     assert!(retry > t && retry <= t + Duration::from_millis(100), "{:?}", retry - t);
-    assert_eq!(names(&m.actions(retry)), ["submit job-1/1 as 7"]);
+    assert_eq!(names(&m.actions(retry)), ["submit job-1/0,job-1/1 as 7"]);
+    m.handle(answered(&[0, 1], Ok(vec![Err("lease lapsed".into()), Ok(true)])), retry).unwrap();
+    assert_eq!((m.unsent(), m.submitted()), (0, 1));
+}
+
+/// A refusal of the whole call (say, a coordinator of another protocol) drops its
+/// results rather than sending them for ever.
+#[test]
+fn a_refused_call_drops_its_results() {
+    let (mut m, t) = (machine(1), Instant::now());
+    registered(&mut m, t);
+    let job = spec("job-1");
+    m.handle(grant(vec![unit(&job, 0, tile(0))]), t).unwrap();
+    m.handle(Event::JobReady { job: job.clone(), result: Ok(loaded(&job)) }, t).unwrap();
+    m.actions(t);
+    m.handle(done(0, tile(0)), t).unwrap();
+    assert_eq!(names(&m.actions(t)), ["submit job-1/0 as 7"]);
+    let refused = Failure::Rejected { code: "InvalidArgument".into(), message: "too many results".into() };
+    m.handle(answered(&[0], Err(refused)), t).unwrap();
+    assert_eq!((m.unsent(), m.submitted()), (0, 0));
 }
 
 /// A coordinator that is away: registration retries back off exponentially, with
@@ -228,7 +243,7 @@ fn an_unknown_worker_registers_again_and_keeps_its_results() {
     m.handle(done(0, tile(0)), t).unwrap();
     assert_eq!(names(&m.actions(t)), ["submit job-1/0 as 7"], "the lease is still out");
     let unknown = Failure::UnknownWorker("unknown worker 7: register again".into());
-    m.handle(Event::Submitted { serial: 0, worker_id: WORKER, result: Err(unknown) }, t).unwrap();
+    m.handle(answered(&[0], Err(unknown)), t).unwrap();
     assert_eq!(names(&m.actions(t)), ["register"]);
     m.handle(registration(8), t).unwrap();
     // It renews the unit it holds (rendered, unsent) at once, and leases afresh.
@@ -249,7 +264,7 @@ fn the_coordinators_stop_drains_finished_results_and_drops_the_rest() {
     assert!(!m.done(t), "a finished result is still to be sent");
     // No more leases or heartbeats; the unit waiting for job-2's scene is dropped.
     assert_eq!(names(&m.actions(t)), ["submit job-1/0 as 7"]);
-    m.handle(Event::Submitted { serial: 0, worker_id: WORKER, result: Ok(true) }, t).unwrap();
+    m.handle(answered(&[0], Ok(vec![Ok(true)])), t).unwrap();
     assert!(m.done(t));
 }
 
@@ -264,7 +279,7 @@ fn a_signal_stops_within_the_grace_period_even_with_unsent_results() {
     m.handle(done(0, tile(0)), t).unwrap();
     m.begin_drain("signal received", SIGNAL_GRACE, t);
     assert_eq!(names(&m.actions(t)), ["submit job-1/0 as 7"]);
-    m.handle(Event::Submitted { serial: 0, worker_id: WORKER, result: Err(transport()) }, t).unwrap();
+    m.handle(answered(&[0], Err(transport())), t).unwrap();
     // While stopping, retries come at least every DRAIN_RETRY.
     let retry = m.next_deadline(t).unwrap();
     assert!(retry - t <= DRAIN_RETRY, "{:?}", retry - t);
@@ -324,4 +339,26 @@ fn a_worker_gives_up_on_a_coordinator_gone_for_too_long() {
     let late = t + Duration::from_secs(6);
     m.actions(late);
     assert!(m.done(late), "nothing to submit: it stops at once");
+}
+
+#[test]
+fn a_submission_carries_at_most_the_calls_limit() {
+    let (mut m, t) = (machine(150), Instant::now());
+    registered(&mut m, t);
+    let job = spec("job-1");
+    m.handle(grant((0..300).map(|i| unit(&job, i, tile(i as u32))).collect()), t).unwrap();
+    m.handle(Event::JobReady { job: job.clone(), result: Ok(loaded(&job)) }, t).unwrap();
+    m.actions(t);
+    for serial in 0..300 {
+        m.handle(done(serial, tile(serial as u32)), t).unwrap();
+    }
+    let sizes: Vec<usize> = m
+        .actions(t)
+        .iter()
+        .filter_map(|a| match a {
+            Action::Submit { units, .. } => Some(units.len()),
+            _ => None,
+        })
+        .collect();
+    assert_eq!(sizes, [proto::MAX_RESULTS_PER_CALL, 300 - proto::MAX_RESULTS_PER_CALL]);
 }
