@@ -23,5 +23,5 @@ pub mod sampler;
 pub mod sampling;
 pub mod scene;
 pub mod shapes;
+pub(crate) mod simd;
 pub mod texture;
-pub(crate) mod wide;

@@ -68,8 +68,8 @@ fn render_unit_avx2(
     render_unit_simd(scene, integrator, tile, samples)
 }
 
-/// The AVX2 variants' body: eight paths at a time (`integrator/packet.rs`) for the path
-/// integrators where that pays (see [`crate::integrator::packet::pays`]), else the loop
+/// The AVX2 variants' body: eight paths at a time (`integrator/eight_paths.rs`) for the path
+/// integrators where that pays (see [`crate::integrator::eight_paths::pays`]), else the loop
 /// below. Both give the same bits.
 ///
 /// Only called from functions compiled with AVX2, on CPUs that have it.
@@ -82,9 +82,10 @@ fn render_unit_simd(
     samples: SampleRange,
 ) -> (Accumulation, RayCount) {
     if let Some(opt) = path_options(integrator, scene)
-        && crate::integrator::packet::pays(scene)
+        && crate::integrator::eight_paths::pays(scene)
+        && let Some(simd) = crate::simd::Simd::detect()
     {
-        return crate::integrator::packet::render_unit(scene, &opt, tile, samples);
+        return crate::integrator::eight_paths::render_unit(simd, scene, &opt, tile, samples);
     }
     render_unit_loop(scene, integrator, tile, samples)
 }
@@ -350,8 +351,8 @@ radiance = [0.05, 0.06, 0.08]
             crate::scene::scene_from_toml(&format!("{camera}[[mesh]]\nobj = \"mirror.obj\"\n{light}"), "m.toml", &dir)
                 .unwrap();
         let _ = std::fs::remove_dir_all(&dir);
-        assert!(tree.packed.is_none() && crate::integrator::packet::pays(&tree));
-        assert!(mirror.packed.is_none() && mirror.lights.wide_ok() && !crate::integrator::packet::pays(&mirror));
+        assert!(tree.packed.is_none() && crate::integrator::eight_paths::pays(&tree));
+        assert!(mirror.packed.is_none() && mirror.lights.wide_ok() && !crate::integrator::eight_paths::pays(&mirror));
         let mut scenes = vec![
             ("variants.toml".to_string(), extra),
             ("wide.toml".to_string(), wide),
@@ -370,13 +371,13 @@ radiance = [0.05, 0.06, 0.08]
     }
 
     /// The instruction-set variants of the render loop, and with them the eight-path
-    /// renderer of `integrator/packet.rs` (with packet queries for the scenes traced by
+    /// renderer of `integrator/eight_paths.rs` (with packet queries for the scenes traced by
     /// brute force, all but the cup), give the baseline loop's bits, for every path
     /// integrator and an AOV.
     #[cfg(target_arch = "x86_64")]
     #[test]
     fn loop_variants_are_the_baseline_loop() {
-        crate::wide::tests::require_avx2();
+        crate::simd::tests::require_avx2();
         let integrators = [Integrator::Path, Integrator::PathLightOnly, Integrator::PathBsdfOnly, Integrator::Normals];
         let mut in_packets = 0;
         for (name, mut scene) in test_scenes() {

@@ -35,7 +35,7 @@
 
 use glam::Vec2;
 
-use crate::wide::{F8, M8, U8, V2w, W, lanes};
+use crate::simd::{F8, M8, Simd, U8, V2w, W, lanes};
 
 /// Number of dimension slots (each `next_1d` or `next_2d` call is one) served by scrambled Sobol;
 /// later slots use the hash fallback.
@@ -166,13 +166,11 @@ pub(crate) struct SamplerLanes {
     dimension: U8,
 }
 
-impl Default for SamplerLanes {
-    fn default() -> Self {
-        Self { pixel_key: [0; W], index_reversed: U8::splat(0), dimension: U8::splat(0) }
-    }
-}
-
 impl SamplerLanes {
+    pub fn new(simd: Simd) -> Self {
+        Self { pixel_key: [0; W], index_reversed: simd.splat_u(0), dimension: simd.splat_u(0) }
+    }
+
     /// Lane `l` becomes `s`.
     #[inline(always)]
     pub fn set(&mut self, l: usize, s: &Sampler) {
@@ -197,18 +195,20 @@ impl SamplerLanes {
     fn take(&mut self, mask: M8) -> (U8, u32) {
         let d = self.dimension;
         self.dimension = mask.select_u(d.map(|x| x.saturating_add(1)), d);
-        (d, (mask & d.ge(U8::splat(SOBOL_DIMENSIONS))).bits())
+        (d, (mask & d.ge(d.simd().splat_u(SOBOL_DIMENSIONS))).bits())
     }
 
     /// [`Sampler::next_1d`] for the lanes of `mask` (the others' values are unspecified).
     #[inline(always)]
     pub fn next_1d(&mut self, mask: M8) -> F8 {
         let (d, deep) = self.take(mask);
+        let simd = d.simd();
         let key: [u64; W] = lanes(|l| slot_key(self.pixel_key[l], d.0[l], 1));
-        let shuffled_rev = U8(lanes(|l| laine_karras(self.index_reversed.0[l], key[l] as u32)));
-        let x = U8(lanes(|l| laine_karras(shuffled_rev.0[l].reverse_bits(), (key[l] >> 32) as u32).reverse_bits()));
-        let mut u = F8(lanes(|l| unit_f32(x.0[l])));
-        for l in crate::wide::each(deep) {
+        let shuffled_rev = simd.u8(lanes(|l| laine_karras(self.index_reversed.0[l], key[l] as u32)));
+        let x =
+            simd.u8(lanes(|l| laine_karras(shuffled_rev.0[l].reverse_bits(), (key[l] >> 32) as u32).reverse_bits()));
+        let mut u = simd.f8(lanes(|l| unit_f32(x.0[l])));
+        for l in crate::simd::each(deep) {
             u.0[l] = unit_f32(self.get(l).fallback_hash(d.0[l]) as u32);
         }
         u
@@ -218,14 +218,15 @@ impl SamplerLanes {
     #[inline(always)]
     pub fn next_2d(&mut self, mask: M8) -> V2w {
         let (d, deep) = self.take(mask);
+        let simd = d.simd();
         let key: [u64; W] = lanes(|l| slot_key(self.pixel_key[l], d.0[l], 1));
         let key_y: [u64; W] = lanes(|l| slot_key(self.pixel_key[l], d.0[l], 2));
-        let shuffled_rev = U8(lanes(|l| laine_karras(self.index_reversed.0[l], key[l] as u32)));
+        let shuffled_rev = simd.u8(lanes(|l| laine_karras(self.index_reversed.0[l], key[l] as u32)));
         let shuffled = shuffled_rev.map(u32::reverse_bits);
-        let x = U8(lanes(|l| laine_karras(shuffled.0[l], (key[l] >> 32) as u32).reverse_bits()));
-        let y = U8(lanes(|l| laine_karras(sobol1_reversed(shuffled.0[l]), key_y[l] as u32).reverse_bits()));
-        let mut u = V2w { x: F8(lanes(|l| unit_f32(x.0[l]))), y: F8(lanes(|l| unit_f32(y.0[l]))) };
-        for l in crate::wide::each(deep) {
+        let x = simd.u8(lanes(|l| laine_karras(shuffled.0[l], (key[l] >> 32) as u32).reverse_bits()));
+        let y = simd.u8(lanes(|l| laine_karras(sobol1_reversed(shuffled.0[l]), key_y[l] as u32).reverse_bits()));
+        let mut u = V2w { x: simd.f8(lanes(|l| unit_f32(x.0[l]))), y: simd.f8(lanes(|l| unit_f32(y.0[l]))) };
+        for l in crate::simd::each(deep) {
             let h = self.get(l).fallback_hash(d.0[l]);
             (u.x.0[l], u.y.0[l]) = (unit_f32(h as u32), unit_f32((h >> 32) as u32));
         }
@@ -340,8 +341,8 @@ mod tests {
     /// numbers, also past the Sobol slots (the hash fallback).
     #[test]
     fn lanes_draw_what_the_scalar_sampler_draws() {
-        crate::wide::tests::require_avx2();
-        let mut lanes = SamplerLanes::default();
+        let simd = crate::simd::tests::require_avx2();
+        let mut lanes = SamplerLanes::new(simd);
         let mut scalar: Vec<Sampler> = (0..W as u32).map(|l| Sampler::new(SEED, 3 + l, 7 * l, l * 1000 + 5)).collect();
         for (l, s) in scalar.iter().enumerate() {
             lanes.set(l, s);
@@ -350,15 +351,15 @@ mod tests {
         for step in 0..200 {
             h = h.wrapping_mul(0x9e37_79b9).wrapping_add(0x7f4a_7c15);
             let bits = (h >> 7) & 0xff;
-            let mask = M8::from_bits(bits);
+            let mask = simd.mask(bits);
             if step % 3 == 0 {
                 let u = lanes.next_1d(mask);
-                for l in crate::wide::each(bits) {
+                for l in crate::simd::each(bits) {
                     assert_eq!(u.0[l].to_bits(), scalar[l].next_1d().to_bits(), "step {step} lane {l}");
                 }
             } else {
                 let u = lanes.next_2d(mask);
-                for l in crate::wide::each(bits) {
+                for l in crate::simd::each(bits) {
                     let v = scalar[l].next_2d();
                     assert_eq!(
                         (u.x.0[l].to_bits(), u.y.0[l].to_bits()),

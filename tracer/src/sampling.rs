@@ -223,13 +223,13 @@ pub fn power_heuristic(nf: f32, f_pdf: f32, ng: f32, g_pdf: f32) -> f32 {
 }
 
 /// The warps of the eight-path integrator: each is its scalar namesake (without
-/// `_wide`) lane by lane, with the same operations in the same order (see `wide.rs`).
+/// `_wide`) lane by lane, with the same operations in the same order (see `simd.rs`).
 pub(crate) mod wide {
     use std::f32::consts::FRAC_PI_4;
 
     use super::{INV_2PI, INV_PI};
     use crate::math;
-    use crate::wide::{F8, M8, U8, V2w, V3w, lanes};
+    use crate::simd::{F8, M8, V2w, V3w, lanes};
 
     #[inline(always)]
     pub fn sin_cos_octant(x: F8) -> (F8, F8) {
@@ -243,9 +243,10 @@ pub(crate) mod wide {
     pub fn sin_cos_turns(t: F8) -> (F8, F8) {
         let t8 = 8.0 * t;
         let k = t8.floor();
-        let octant = U8(lanes(|l| k.0[l] as i32 as u32));
+        let simd = t.simd();
+        let octant = simd.u8(lanes(|l| k.0[l] as i32 as u32));
         // Octants 1, 3, 5, 7; 1, 2, 5, 6; 4 to 7; 2 to 5 (as `matches!` in the scalar).
-        let bit = |add: u32, bit: u32| M8(lanes(|l| ((octant.0[l].wrapping_add(add) >> bit) & 1).wrapping_neg()));
+        let bit = |add: u32, bit: u32| simd.mask_from_bools(lanes(|l| (octant.0[l].wrapping_add(add) >> bit) & 1 != 0));
         let r = bit(0, 0).select(1.0 - (t8 - k), t8 - k);
         let (s, c) = sin_cos_octant(r * FRAC_PI_4);
         let swap = bit(1, 1);
@@ -274,7 +275,8 @@ pub(crate) mod wide {
         let (r, other) = (wide.select(o.x, o.y), wide.select(o.y, o.x));
         let (sin, cos) = sin_cos_octant(FRAC_PI_4 * (other / r));
         let (x, y) = (r * wide.select(cos, sin), r * wide.select(sin, cos));
-        V2w { x: center.select(F8::ZERO, x), y: center.select(F8::ZERO, y) }
+        let zero = u.x.simd().zero();
+        V2w { x: center.select(zero, x), y: center.select(zero, y) }
     }
 
     #[inline(always)]
@@ -306,7 +308,8 @@ pub(crate) mod wide {
         let (f2, g2) = (f * f, g * g);
         let sum = f2 + g2;
         let ok = sum.gt(0.0) & sum.is_finite();
-        f.is_infinite().select(F8::ONE, ok.select(f2 / sum, F8::ZERO))
+        let simd = f.simd();
+        f.is_infinite().select(simd.one(), ok.select(f2 / sum, simd.zero()))
     }
 
     /// For the lanes of `mask` (the others' values are unspecified).
@@ -314,15 +317,16 @@ pub(crate) mod wide {
     pub fn power_cosine_pdf(cos_theta: F8, exponent: F8, mask: M8) -> F8 {
         let n = exponent.max(0.0);
         let c = cos_theta.min(1.0);
-        let pow = F8(lanes(|l| if mask.0[l] != 0 { math::powf(c.0[l], n.0[l]) } else { 0.0 }));
-        cos_theta.le(0.0).select(F8::ZERO, (n + 1.0) * INV_2PI * pow)
+        let simd = c.simd();
+        let pow = simd.f8(lanes(|l| if mask.0[l] != 0 { math::powf(c.0[l], n.0[l]) } else { 0.0 }));
+        cos_theta.le(0.0).select(simd.zero(), (n + 1.0) * INV_2PI * pow)
     }
 
     /// For the lanes of `mask` (the others' values are unspecified).
     #[inline(always)]
     pub fn sample_power_cosine(u: V2w, exponent: F8, mask: M8) -> V3w {
         let inv_np1 = 1.0 / (exponent.max(0.0) + 1.0);
-        let on = |f: fn(f32) -> f32, x: F8| F8(lanes(|l| if mask.0[l] != 0 { f(x.0[l]) } else { 0.0 }));
+        let on = |f: fn(f32) -> f32, x: F8| x.simd().f8(lanes(|l| if mask.0[l] != 0 { f(x.0[l]) } else { 0.0 }));
         let log_cos = on(math::ln, u.x) * inv_np1;
         let cos_theta = on(math::exp, log_cos);
         let sin_theta = (-on(math::exp_m1, 2.0 * log_cos)).clamp(0.0, 1.0).sqrt();
@@ -373,16 +377,16 @@ mod tests {
     /// The eight-lane twins of the sine and cosine and of the warps give the scalar bits.
     #[test]
     fn wide_twins_are_the_scalar_functions() {
-        crate::wide::tests::require_avx2();
+        let simd = crate::simd::tests::require_avx2();
         let mut rng = Rng::new(11);
         for k in 0..20_000 {
             let u: [Vec2; 8] = std::array::from_fn(|l| match (k + l) % 5 {
                 0 => Vec2::new((k % 65) as f32 / 64.0, (k % 33) as f32 / 32.0),
                 _ => rng.vec2(),
             });
-            let uw = crate::wide::V2w {
-                x: crate::wide::F8(std::array::from_fn(|l| u[l].x)),
-                y: crate::wide::F8(std::array::from_fn(|l| u[l].y)),
+            let uw = crate::simd::V2w {
+                x: simd.f8(std::array::from_fn(|l| u[l].x)),
+                y: simd.f8(std::array::from_fn(|l| u[l].y)),
             };
             let (s, c) = wide::sin_cos_turns(uw.x);
             let d = wide::sample_uniform_disk_concentric(uw);
@@ -403,6 +407,61 @@ mod tests {
                 );
             }
         }
+    }
+
+    /// The eight-lane twins of the triangle warp, the power heuristic and the power
+    /// cosine lobe give the scalar bits, on ordinary values and on zeros, infinities and
+    /// the edges of the unit square.
+    #[test]
+    fn more_wide_twins_are_the_scalar_functions() {
+        let simd = crate::simd::tests::require_avx2();
+        let mut rng = Rng::new(17);
+        let special = [0.0f32, 1.0, f32::INFINITY, 1e-30, 0.999_999_94];
+        let (mut lobes, mut heuristics) = (0, 0);
+        for k in 0..20_000 {
+            let pick = |rng: &mut Rng, l: usize| {
+                if (k + l).is_multiple_of(7) { special[(k / 7 + l) % special.len()] } else { rng.f32() }
+            };
+            let u: [Vec2; 8] = std::array::from_fn(|l| Vec2::new(pick(&mut rng, l).min(1.0), rng.f32()));
+            let (fp, gp): ([f32; 8], [f32; 8]) = (
+                std::array::from_fn(|l| 3.0 * pick(&mut rng, l)),
+                std::array::from_fn(|l| 2.0 * pick(&mut rng, l + 3)),
+            );
+            let exponent: [f32; 8] = std::array::from_fn(|_| 1.0 + 500.0 * rng.f32() * rng.f32());
+            let cos: [f32; 8] = std::array::from_fn(|_| 2.0 * rng.f32() - 1.0);
+            let uw = crate::simd::V2w {
+                x: simd.f8(std::array::from_fn(|l| u[l].x)),
+                y: simd.f8(std::array::from_fn(|l| u[l].y)),
+            };
+            let tri = wide::sample_uniform_triangle(uw);
+            let heur = wide::power_heuristic(1.0, simd.f8(fp), 2.0, simd.f8(gp));
+            let (n, c) = (simd.f8(exponent), simd.f8(cos));
+            let mask = simd.mask((k as u32).wrapping_mul(0x9e37_79b9) >> 24);
+            let pdf = wide::power_cosine_pdf(c, n, mask);
+            let lobe = wide::sample_power_cosine(uw, n, mask);
+            let cpdf = wide::cosine_hemisphere_pdf(c);
+            let dir = wide::spherical_direction(uw.x, c, uw.y);
+            for l in 0..8 {
+                let bits3 = |v: Vec3| v.to_array().map(f32::to_bits);
+                assert_eq!(
+                    [tri[0].0[l], tri[1].0[l], tri[2].0[l]].map(f32::to_bits),
+                    sample_uniform_triangle(u[l]).map(f32::to_bits),
+                    "triangle {}",
+                    u[l]
+                );
+                let h = power_heuristic(1.0, fp[l], 2.0, gp[l]);
+                assert!(heur.0[l].to_bits() == h.to_bits(), "heuristic {} {}: {} vs {h}", fp[l], gp[l], heur.0[l]);
+                heuristics += usize::from(h > 0.0 && h < 1.0);
+                assert_eq!(cpdf.0[l].to_bits(), cosine_hemisphere_pdf(cos[l]).to_bits());
+                assert_eq!(bits3(dir.get(l)), bits3(spherical_direction(u[l].x, cos[l], u[l].y)));
+                if mask.0[l] != 0 {
+                    assert_eq!(pdf.0[l].to_bits(), power_cosine_pdf(cos[l], exponent[l]).to_bits(), "lobe pdf");
+                    assert_eq!(bits3(lobe.get(l)), bits3(sample_power_cosine(u[l], exponent[l])), "lobe {}", u[l]);
+                    lobes += 1;
+                }
+            }
+        }
+        assert!(lobes > 50_000 && heuristics > 50_000, "{lobes} lobes, {heuristics} heuristics");
     }
 
     #[test]

@@ -280,12 +280,12 @@ fn bench_scene(name: &str, scene: &Scene, args: &BenchArgs) {
 }
 
 /// For scenes that the renderer traces in packets of eight (brute force with AVX2,
-/// `tracer::accel::packet`): the same rays, eight at a time in the order given, as the
+/// `tracer::accel::ray_packets`): the same rays, eight at a time in the order given, as the
 /// path renderer traces them (each packet's rays from eight independent paths).
 fn packet_rate(scene: &Scene, what: &str, repeat: usize, rays: &[(Ray, f32)], any_hit: bool) {
     #[cfg(target_arch = "x86_64")]
     if let Some(packed) = scene.packed.as_ref().filter(|p| p.packets()) {
-        use tracer::accel::packet::{PACKET, RayPacket};
+        use tracer::accel::ray_packets::{PACKET, RayPacket};
         let packets: Vec<RayPacket> = rays
             .chunks(PACKET)
             .map(|c| {

@@ -2,12 +2,12 @@
 //! can be tested against brute force on any shapes, and is monomorphised (no `dyn`) for
 //! the scene's triangles and spheres.
 
+mod block_test;
 pub mod kdtree;
-mod lanes;
-pub mod packed;
 #[cfg(target_arch = "x86_64")]
-pub mod packet;
+pub mod ray_packets;
 mod store;
+pub mod triangle_blocks;
 
 pub use kdtree::{BuildParams, KdTree, KdTreeStats};
 

@@ -26,7 +26,7 @@
 
 use super::{BsdfSample, reflect_about, reflect_about_wide, same_hemisphere, to_side_of, to_side_of_wide};
 use crate::sampling::{cosine_hemisphere_pdf, power_cosine_pdf, sample_cosine_hemisphere, sample_power_cosine, wide};
-use crate::wide::{F8, M8, V2w, V3w, W};
+use crate::simd::{F8, M8, Simd, V2w, V3w, W};
 use glam::{Vec2, Vec3};
 use std::f32::consts::FRAC_1_PI;
 
@@ -165,13 +165,13 @@ pub(crate) struct BlinnPhongW {
 impl BlinnPhongW {
     /// Lane `l` is `of(l)`.
     #[inline(always)]
-    pub fn from_fn(of: impl Fn(usize) -> BlinnPhong) -> Self {
+    pub fn from_fn(simd: Simd, of: impl Fn(usize) -> BlinnPhong) -> Self {
         let b: [BlinnPhong; W] = std::array::from_fn(of);
         Self {
-            kd: V3w::from_fn(|l| b[l].kd),
-            ks: V3w::from_fn(|l| b[l].ks),
-            exponent: F8(std::array::from_fn(|l| b[l].exponent)),
-            spec_prob: F8(std::array::from_fn(|l| b[l].spec_prob)),
+            kd: simd.v3_from_fn(|l| b[l].kd),
+            ks: simd.v3_from_fn(|l| b[l].ks),
+            exponent: simd.f8(std::array::from_fn(|l| b[l].exponent)),
+            spec_prob: simd.f8(std::array::from_fn(|l| b[l].spec_prob)),
         }
     }
 
@@ -184,7 +184,8 @@ impl BlinnPhongW {
         let wo_dot_h = 0.5 * len;
         let pdf = wide::power_cosine_pdf(h.z, self.exponent, mask) / (4.0 * wo_dot_h);
         let none = len.is_nan() | len.le(0.0) | !pdf.is_finite();
-        (none.select(F8::ZERO, pdf), none.select(F8::ZERO, wi.z / wo.z.max(wi.z)))
+        let zero = len.simd().zero();
+        (none.select(zero, pdf), none.select(zero, wi.z / wo.z.max(wi.z)))
     }
 
     /// [`BlinnPhong::eval_pdf`] for the lanes of `mask`.
@@ -196,7 +197,8 @@ impl BlinnPhongW {
         let (pdf_s, ratio) = self.specular(wo, wi, mask & same);
         let f = self.kd * (FRAC_1_PI * wi.z) + self.ks * (pdf_s * ratio);
         let pdf = (1.0 - self.spec_prob) * wide::cosine_hemisphere_pdf(wi.z) + self.spec_prob * pdf_s;
-        (same.select3(f, V3w::splat(Vec3::ZERO)), same.select(pdf, F8::ZERO))
+        let simd = pdf.simd();
+        (same.select3(f, simd.v3(Vec3::ZERO)), same.select(pdf, simd.zero()))
     }
 
     /// [`BlinnPhong::sample`] for the lanes of `mask`: `(wi, weight, pdf, valid)`.
@@ -206,7 +208,7 @@ impl BlinnPhongW {
         let wo_up = V3w::new(wo.x, wo.y, wo.z.abs());
         let spec = u_lobe.lt(self.spec_prob);
         let (on_spec, on_diffuse) = (mask & spec, mask & !spec);
-        let mut wi_up = V3w::splat(Vec3::ZERO);
+        let mut wi_up = wo.simd().v3(Vec3::ZERO);
         if on_spec.any() {
             let h = wide::sample_power_cosine(u, self.exponent, on_spec);
             wi_up = on_spec.select3(reflect_about_wide(wo_up, h).normalize_or_zero(), wi_up);

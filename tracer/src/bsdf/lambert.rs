@@ -2,7 +2,7 @@
 
 use super::{BsdfSample, same_hemisphere, to_side_of, to_side_of_wide};
 use crate::sampling::{cosine_hemisphere_pdf, sample_cosine_hemisphere, wide};
-use crate::wide::{F8, M8, V2w, V3w};
+use crate::simd::{F8, M8, V2w, V3w};
 use glam::{Vec2, Vec3};
 use std::f32::consts::FRAC_1_PI;
 
@@ -52,13 +52,13 @@ impl LambertW {
     #[inline(always)]
     pub fn eval(&self, wo: V3w, wi: V3w) -> V3w {
         let same = (wo.z * wi.z).gt(0.0);
-        same.select3(self.kd * (FRAC_1_PI * wi.z.abs()), V3w::splat(Vec3::ZERO))
+        same.select3(self.kd * (FRAC_1_PI * wi.z.abs()), wi.simd().v3(Vec3::ZERO))
     }
 
     #[inline(always)]
     pub fn pdf(&self, wo: V3w, wi: V3w) -> F8 {
         let same = (wo.z * wi.z).gt(0.0);
-        same.select(wide::cosine_hemisphere_pdf(wi.z.abs()), F8::ZERO)
+        same.select(wide::cosine_hemisphere_pdf(wi.z.abs()), wi.simd().zero())
     }
 
     /// For the lanes of `mask`: `(wi, pdf, valid)`; the weight is `kd`.

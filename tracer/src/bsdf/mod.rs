@@ -28,7 +28,7 @@ use glam::{Vec2, Vec3};
 use lambert::Lambert;
 use mirror::SpecularReflection;
 
-use crate::wide::V3w;
+use crate::simd::V3w;
 
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub enum Bsdf {

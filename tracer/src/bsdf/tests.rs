@@ -502,8 +502,8 @@ fn directions(rng: &mut Rng, k: usize) -> [Vec3; 8] {
 fn wide_bsdfs_are_their_scalar_twins() {
     use crate::bsdf::blinn_phong::BlinnPhongW;
     use crate::bsdf::lambert::LambertW;
-    use crate::wide::{F8, M8, V2w, V3w};
-    crate::wide::tests::require_avx2();
+    use crate::simd::V2w;
+    let simd = crate::simd::tests::require_avx2();
     let mut rng = Rng::new(23);
     let mut sampled = 0;
     for k in 0..4000 {
@@ -514,15 +514,15 @@ fn wide_bsdfs_are_their_scalar_twins() {
         let kd: [Vec3; 8] = std::array::from_fn(|_| colour(&mut rng));
         let ks: [Vec3; 8] = std::array::from_fn(|_| colour(&mut rng));
         let exponent: [f32; 8] = std::array::from_fn(|_| 1.0 + 999.0 * rng.f32() * rng.f32());
-        let (wov, wiv) = (V3w::from_fn(|l| wo[l]), V3w::from_fn(|l| wi[l]));
-        let uv = V2w { x: F8(std::array::from_fn(|l| u[l].x)), y: F8(std::array::from_fn(|l| u[l].y)) };
+        let (wov, wiv) = (simd.v3_from_fn(|l| wo[l]), simd.v3_from_fn(|l| wi[l]));
+        let uv = V2w { x: simd.f8(std::array::from_fn(|l| u[l].x)), y: simd.f8(std::array::from_fn(|l| u[l].y)) };
 
-        let lambert = LambertW { kd: V3w::from_fn(|l| kd[l]) };
+        let lambert = LambertW { kd: simd.v3_from_fn(|l| kd[l]) };
         let (f, pdf) = (lambert.eval(wov, wiv), lambert.pdf(wov, wiv));
-        let (swi, spdf, ok) = lambert.sample(wov, uv, M8::ALL);
-        let phong = BlinnPhongW::from_fn(|l| BlinnPhong::new(kd[l], ks[l], exponent[l]));
-        let (pf, ppdf) = phong.eval_pdf(wov, wiv, M8::ALL);
-        let (pwi, pweight, pspdf, pok) = phong.sample(wov, F8(u_lobe), uv, M8::ALL);
+        let (swi, spdf, ok) = lambert.sample(wov, uv, simd.all());
+        let phong = BlinnPhongW::from_fn(simd, |l| BlinnPhong::new(kd[l], ks[l], exponent[l]));
+        let (pf, ppdf) = phong.eval_pdf(wov, wiv, simd.all());
+        let (pwi, pweight, pspdf, pok) = phong.sample(wov, simd.f8(u_lobe), uv, simd.all());
         for l in 0..8 {
             let s = Lambert { kd: kd[l] };
             assert_eq!(bits3(f.get(l)), bits3(s.eval(wo[l], wi[l])), "lambert eval, lane {l}");
@@ -558,13 +558,12 @@ fn wide_bsdfs_are_their_scalar_twins() {
 #[test]
 fn wide_frames_are_their_scalar_twin() {
     use crate::geometry::{Frame, FrameW};
-    use crate::wide::V3w;
-    crate::wide::tests::require_avx2();
+    let simd = crate::simd::tests::require_avx2();
     let mut rng = Rng::new(29);
     for k in 0..4000 {
         let (n, v) = (directions(&mut rng, k), directions(&mut rng, k + 1));
-        let fw = FrameW::from_normal(V3w::from_fn(|l| n[l]));
-        let (local, world) = (fw.to_local(V3w::from_fn(|l| v[l])), fw.to_world(V3w::from_fn(|l| v[l])));
+        let fw = FrameW::from_normal(simd.v3_from_fn(|l| n[l]));
+        let (local, world) = (fw.to_local(simd.v3_from_fn(|l| v[l])), fw.to_world(simd.v3_from_fn(|l| v[l])));
         for l in 0..8 {
             let f = Frame::from_normal(n[l]);
             assert_eq!(bits3(local.get(l)), bits3(f.to_local(v[l])), "to_local, lane {l}");

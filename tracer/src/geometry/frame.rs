@@ -1,6 +1,6 @@
 use glam::Vec3;
 
-use crate::wide::{F8, V3w};
+use crate::simd::V3w;
 
 /// An orthonormal basis with `n` as the local z axis, used for shading ("local space").
 #[derive(Clone, Copy, Debug)]
@@ -47,7 +47,7 @@ impl FrameW {
     /// [`Frame::from_normal`], lane by lane.
     #[inline(always)]
     pub fn from_normal(n: V3w) -> Self {
-        let sign = F8::ONE.copysign(n.z);
+        let sign = n.simd().one().copysign(n.z);
         let a = -1.0 / (sign + n.z);
         let b = n.x * n.y * a;
         let s = V3w::new(1.0 + sign * n.x * n.x * a, sign * b, -sign * n.x);

@@ -3,7 +3,7 @@
 
 pub mod aov;
 #[cfg(target_arch = "x86_64")]
-pub(crate) mod packet;
+pub(crate) mod eight_paths;
 pub mod path;
 
 use glam::Vec3;

@@ -9,7 +9,7 @@
 //! between two ray queries that the caller answers: the closest hit of the path's next
 //! segment, and the visibility of the light sample that next-event estimation took
 //! there ([`ShadowQuery`]). [`li`] answers them one path at a time; the eight-lane
-//! renderer (`integrator/packet.rs`) answers eight paths' queries at once. Both run the
+//! renderer (`integrator/eight_paths.rs`) answers eight paths' queries at once. Both run the
 //! same code per path, so a sample's radiance is the same bits either way.
 
 use glam::{Vec2, Vec3};

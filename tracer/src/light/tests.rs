@@ -162,3 +162,82 @@ fn spot_falls_off_smoothly_to_zero_at_the_cone() {
     assert!((at(0.0) - 1.0).abs() < 1e-5 && (at(19.0) - 1.0).abs() < 1e-5);
     assert!(at(25.0) > 0.0 && at(25.0) < 1.0 && at(31.0) == 0.0);
 }
+
+/// [`LightSet::select_at_wide`] and [`LightSet::sample_li_wide`] give, lane by lane,
+/// their scalar twins' bits: which light, its pmf and the rescaled coordinate; whether
+/// a sample exists, its direction, radiance, pdf, end point and kind — for every kind of
+/// light, at points all around them (behind the one-sided triangle, inside the sphere,
+/// outside the spot's cone).
+#[test]
+fn the_wide_light_choice_and_samples_are_their_scalar_twins() {
+    let simd = crate::simd::tests::require_avx2();
+    let mut lights = mixed_lights();
+    lights.push(Light::Spot {
+        position: Vec3::new(-2.0, 3.0, 1.0),
+        direction: Vec3::new(0.3, -1.0, 0.0).normalize(),
+        intensity: Vec3::splat(4.0),
+        cos_total: 0.8,
+        cos_falloff_start: 0.9,
+    });
+    let set = LightSet::new(lights, 2, 10.0);
+    assert!(set.wide_ok());
+    let mut h = 0x9e37_79b9_7f4a_7c15u64;
+    let mut next = || {
+        h = h.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
+        (h >> 40) as f32 / (1u64 << 24) as f32
+    };
+    let bits = |v: Vec3| v.to_array().map(f32::to_bits);
+    let (mut chosen_lanes, mut sampled_lanes, mut kinds) = (0, 0, [0usize; 6]);
+    for k in 0..4000 {
+        let p: [Vec3; 8] =
+            std::array::from_fn(|_| Vec3::new(10.0 * next() - 5.0, 6.0 * next() - 2.0, 4.0 * next() - 2.0));
+        let u: [f32; 8] = std::array::from_fn(|_| next());
+        let u2: [Vec2; 8] = std::array::from_fn(|_| Vec2::new(next(), next()));
+        let pw = simd.v3_from_fn(|l| p[l]);
+        let (light, pmf, ux, chosen) = set.select_at_wide(pw, simd.f8(u));
+        for l in 0..8 {
+            match set.select_at(p[l], u[l]) {
+                Some((i, pm, ur)) => {
+                    assert_ne!(chosen.0[l], 0, "lane {l} at {}: should choose", p[l]);
+                    assert_eq!(
+                        (light.0[l] as usize, pmf.0[l].to_bits(), ux.0[l].to_bits()),
+                        (i, pm.to_bits(), ur.to_bits()),
+                        "choice at {}",
+                        p[l]
+                    );
+                    chosen_lanes += 1;
+                }
+                None => assert_eq!(chosen.0[l], 0, "lane {l} at {}: nothing to choose", p[l]),
+            }
+        }
+        let which = simd.u8(std::array::from_fn(|l| ((k + l) % set.lights.len()) as u32));
+        let uv = V2w { x: simd.f8(std::array::from_fn(|l| u2[l].x)), y: simd.f8(std::array::from_fn(|l| u2[l].y)) };
+        let s = set.sample_li_wide(which, pw, uv, simd.all());
+        for l in 0..8 {
+            let i = which.0[l] as usize;
+            match set.lights[i].sample_li(p[l], u2[l]) {
+                Some(x) => {
+                    assert_ne!(s.some.0[l], 0, "light {i} at {}: should sample", p[l]);
+                    assert_eq!(
+                        (bits(s.wi.get(l)), bits(s.li.get(l)), s.pdf.0[l].to_bits(), s.delta.0[l] != 0),
+                        (bits(x.wi), bits(x.li), x.pdf.to_bits(), x.delta),
+                        "light {i} at {}",
+                        p[l]
+                    );
+                    match x.target {
+                        Some(t) => {
+                            assert_eq!(s.at_infinity.0[l], 0);
+                            assert_eq!(bits(s.target.get(l)), bits(t), "light {i} target");
+                        }
+                        None => assert_ne!(s.at_infinity.0[l], 0),
+                    }
+                    sampled_lanes += 1;
+                    kinds[i] += 1;
+                }
+                None => assert_eq!(s.some.0[l], 0, "light {i} at {}: no sample", p[l]),
+            }
+        }
+    }
+    assert!(chosen_lanes > 20_000 && sampled_lanes > 15_000, "{chosen_lanes} chosen, {sampled_lanes} sampled");
+    assert!(kinds.iter().all(|&n| n > 1000), "every kind sampled: {kinds:?}");
+}

@@ -8,7 +8,7 @@ use glam::{Mat3, Vec3};
 use super::file::{LightDesc, SceneFile, SphereDesc, UpAxis};
 use super::obj::{ObjError, ObjModel, load_obj_as};
 use super::{Geometry, NONE, Scene, Sphere, TriangleMesh};
-use crate::accel::packed::PackedTriangles;
+use crate::accel::triangle_blocks::PackedTriangles;
 use crate::accel::{BuildParams, KdTree, Primitives};
 use crate::camera::Camera;
 use crate::light::{Light, LightSet};

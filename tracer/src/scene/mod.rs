@@ -17,15 +17,15 @@ pub use overrides::Overrides;
 
 use glam::{Vec2, Vec3};
 
-use crate::accel::packed::PackedTriangles;
+use crate::accel::triangle_blocks::PackedTriangles;
 use crate::accel::{Hit, KdTree};
 use crate::camera::Camera;
 use crate::geometry::Ray;
 use crate::light::LightSet;
 use crate::material::Material;
 use crate::math;
+use crate::simd::{F8, M8, U8, V3w, each};
 use crate::texture::Texture;
-use crate::wide::{F8, M8, U8, V3w, each};
 
 /// Everything needed to render: immutable once built, shared by all render threads.
 pub struct Scene {
@@ -139,11 +139,12 @@ impl Scene {
     ) -> (V3w, V3w, V3w) {
         let (prim, t, u, v) = hit;
         let g = &self.geometry;
-        let zero = V3w::splat(Vec3::ZERO);
+        let simd = origin.simd();
+        let zero = simd.v3(Vec3::ZERO);
         let (mut p, mut ng, mut ns) = (zero, zero, zero);
         if tri.any() {
             let (mut p0, mut p1, mut p2) = (zero, zero, zero);
-            let (mut n0, mut n1, mut n2, mut smooth) = (zero, zero, zero, M8::NONE);
+            let (mut n0, mut n1, mut n2, mut smooth) = (zero, zero, zero, simd.none());
             for l in each(tri.bits()) {
                 let i = prim.0[l] as usize;
                 let [a, b, c] = *g.triangle(i);
@@ -172,14 +173,14 @@ impl Scene {
             ns = tri.select3(n_s, ns);
         }
         if sph.any() {
-            let (mut c, mut r) = (zero, F8::ZERO);
+            let (mut c, mut r) = (zero, simd.zero());
             for l in each(sph.bits()) {
                 let s = &g.spheres[prim.0[l] as usize - g.triangle_count()];
                 c.set(l, s.center);
                 r.0[l] = s.radius;
             }
             let n = (origin + t * dir - c).normalize_or_zero();
-            let n = (n.x.eq(0.0) & n.y.eq(0.0) & n.z.eq(0.0)).select3(V3w::splat(Vec3::Z), n);
+            let n = (n.x.eq(0.0) & n.y.eq(0.0) & n.z.eq(0.0)).select3(simd.v3(Vec3::Z), n);
             p = sph.select3(c + r * n, p);
             ng = sph.select3(n, ng);
             ns = sph.select3(n, ns);
@@ -197,7 +198,7 @@ mod tests {
     /// on an edge) and on spheres.
     #[test]
     fn interaction_wide_is_the_interaction() {
-        crate::wide::tests::require_avx2();
+        let simd = crate::simd::tests::require_avx2();
         let dir = std::env::temp_dir().join(format!("tilefarm-interaction-{}", std::process::id()));
         std::fs::create_dir_all(&dir).unwrap();
         std::fs::write(
@@ -215,10 +216,10 @@ mod tests {
         // (prim, u, v): u = 0.5, v = 0 puts the second triangle's normals at zero; at
         // u = 0.8 they face away from the face normal, as do the third's.
         let hits = [(0, 0.2, 0.3), (1, 0.5, 0.0), (1, 0.8, 0.0), (2, 0.1, 0.7), (3, 0.0, 0.0), (2, 0.5, 0.5)];
-        let mut origin = V3w::splat(Vec3::ZERO);
-        let mut dirw = V3w::splat(Vec3::ZERO);
-        let (mut prim, mut t, mut u, mut v) = (U8::splat(0), F8::ZERO, F8::ZERO, F8::ZERO);
-        let (mut tri, mut sph) = (M8::NONE, M8::NONE);
+        let mut origin = simd.v3(Vec3::ZERO);
+        let mut dirw = simd.v3(Vec3::ZERO);
+        let (mut prim, mut t, mut u, mut v) = (simd.splat_u(0), simd.zero(), simd.zero(), simd.zero());
+        let (mut tri, mut sph) = (simd.none(), simd.none());
         let mut want = Vec::new();
         for (l, &(p, hu, hv)) in hits.iter().enumerate() {
             let o = Vec3::new(0.3 + l as f32 * 0.1, -0.2, 5.0);

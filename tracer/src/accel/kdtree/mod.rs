@@ -3,14 +3,14 @@
 //! into cache-line treelets of three levels for traversal, in `treelet.rs`; a
 //! stack-based front-to-back traversal in `traverse.rs` whose answers are bit-identical
 //! to the brute-force loops. Leaves test their triangles eight at a time
-//! (`accel/lanes.rs`).
+//! (`accel/block_test.rs`).
 
 mod build;
 mod traverse;
 mod treelet;
 
 use self::treelet::{Treelet, to_treelets};
-use super::lanes::Simd;
+use super::block_test::InstructionSet;
 use super::{Hit, Primitives, Ray};
 use crate::geometry::Aabb;
 
@@ -20,7 +20,7 @@ const MAX_DEPTH: u32 = 60;
 /// Build parameters.
 ///
 /// Leaves test their triangles eight at a time (corners loaded by index,
-/// `accel/lanes.rs`), which makes a primitive test cheap against a node step (a likely
+/// `accel/block_test.rs`), which makes a primitive test cheap against a node step (a likely
 /// cache miss), so big leaves and shallow trees win: the defaults are the best closest-
 /// and any-hit throughput of incoherent rays on large meshes. The measurements behind
 /// each default, with their commands, are in `bench/RESULTS.md` ("kd-tree build
@@ -182,7 +182,7 @@ pub struct KdTree {
     stats: KdTreeStats,
     /// The instruction set of the treelet step and of the leaves' eight-lane triangle
     /// test.
-    simd: Simd,
+    simd: InstructionSet,
 }
 
 impl KdTree {
@@ -196,7 +196,7 @@ impl KdTree {
             bytes: treelets.len() * size_of::<Treelet>() + leaves.len() * size_of::<u32>(),
             ..binary_stats(&b.out.nodes, b.max_depth as usize)
         };
-        KdTree { treelets, leaves, root, bounds: b.bounds, cell: b.cell, stats, simd: Simd::detect() }
+        KdTree { treelets, leaves, root, bounds: b.bounds, cell: b.cell, stats, simd: InstructionSet::detect() }
     }
 
     /// Union of the primitives' bounds (empty for an empty set).
@@ -229,11 +229,11 @@ impl KdTree {
     /// returns.
     pub fn intersect<P: Primitives>(&self, prims: &P, ray: &Ray, tmax: f32) -> Option<Hit> {
         match self.simd {
-            Simd::Baseline => self.intersect_impl::<P, false>(prims, ray, tmax),
+            InstructionSet::Baseline => self.intersect_impl::<P, false>(prims, ray, tmax),
             #[cfg(target_arch = "x86_64")]
             // SAFETY: `Avx2` and `Avx512` are only chosen when the CPU reports AVX2. (The
             // leaves stay at eight lanes with AVX-512: sixteen were no faster.)
-            Simd::Avx2 | Simd::Avx512 => unsafe { self.intersect_avx2(prims, ray, tmax) },
+            InstructionSet::Avx2 | InstructionSet::Avx512 => unsafe { self.intersect_avx2(prims, ray, tmax) },
         }
     }
 
@@ -241,10 +241,10 @@ impl KdTree {
     /// [`super::brute_force_occluded`], stopping at the first hit found.
     pub fn occluded<P: Primitives>(&self, prims: &P, ray: &Ray, tmax: f32) -> bool {
         match self.simd {
-            Simd::Baseline => self.occluded_impl::<P, false>(prims, ray, tmax),
+            InstructionSet::Baseline => self.occluded_impl::<P, false>(prims, ray, tmax),
             #[cfg(target_arch = "x86_64")]
             // SAFETY: as in `intersect`.
-            Simd::Avx2 | Simd::Avx512 => unsafe { self.occluded_avx2(prims, ray, tmax) },
+            InstructionSet::Avx2 | InstructionSet::Avx512 => unsafe { self.occluded_avx2(prims, ray, tmax) },
         }
     }
 

@@ -32,7 +32,7 @@ use super::treelet::{EMPTY, LEAF, ONE, RayAxes, Stack, TREELET, Treelet};
 #[cfg(target_arch = "x86_64")]
 use super::treelet::{RayLanes, step_avx2};
 #[cfg(target_arch = "x86_64")]
-use crate::accel::lanes::{LANES, Lanes, gather_test_avx2};
+use crate::accel::block_test::{LANES, Lanes, gather_test_avx2};
 use crate::accel::{Hit, PrimHit, Primitives, RayPrecomp, brute_force_intersect};
 use crate::geometry::Ray;
 
@@ -135,7 +135,7 @@ impl KdTree {
             slack,
         };
         #[cfg(target_arch = "x86_64")]
-        // SAFETY: `AVX2` is set only on the paths `Simd::Avx2` selects.
+        // SAFETY: `AVX2` is set only on the paths `InstructionSet::Avx2` selects.
         let lanes = AVX2.then(|| unsafe { RayLanes::new(&axes) });
         #[cfg(not(target_arch = "x86_64"))]
         let lanes: Option<std::convert::Infallible> = None;
@@ -295,7 +295,7 @@ const GATHER_MIN_PRIMS: usize = 2;
 #[inline(always)]
 fn gatherable<P: Primitives>(prims: &P) -> &[[glam::Vec3; 3]] {
     let c = prims.triangle_corners();
-    if c.len() <= crate::accel::lanes::GATHER_MAX_TRIANGLES { c } else { &[] }
+    if c.len() <= crate::accel::block_test::GATHER_MAX_TRIANGLES { c } else { &[] }
 }
 
 /// Tests a leaf's primitives `ids` in groups of eight: triangles by the eight-lane pass
@@ -322,7 +322,7 @@ fn leaf_lanes<P: Primitives>(
             prefetch_all(prims, &ids[LANES..]);
         }
         for group in ids.chunks(LANES) {
-            // SAFETY: the callers run this only on the AVX2 paths `Simd::Avx2` selects.
+            // SAFETY: the callers run this only on the AVX2 paths `InstructionSet::Avx2` selects.
             let (keep, zero, other) = unsafe { gather_test_avx2(corners, group, &pre.shear, tmax, &mut lanes) };
             let scalar = zero | other;
             let mut m = keep | other;

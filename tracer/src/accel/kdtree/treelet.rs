@@ -557,7 +557,7 @@ mod tests {
     fn eight_lane_step_is_the_scalar_step() {
         #[cfg(target_arch = "x86_64")]
         {
-            crate::wide::tests::require_avx2();
+            crate::simd::tests::require_avx2();
             let mut r = Rng(3);
             for _ in 0..200_000 {
                 let (t, ray, lo, hi, reach) = case(&mut r);

@@ -1,6 +1,6 @@
 //! The watertight triangle test for eight (AVX2) or sixteen (AVX-512) triangles at once,
 //! bit for bit the scalar test's ([`intersect_triangle_corners`]): shared by the
-//! brute-force blocks of small scenes ([`super::packed`], corners stored lane by lane;
+//! brute-force blocks of small scenes ([`super::triangle_blocks`], corners stored lane by lane;
 //! with AVX-512 two blocks at a time) and the kd-tree's leaves (eight lanes, corners
 //! loaded by index from the scene's triangles).
 //!
@@ -29,7 +29,7 @@ pub(crate) const WIDE: usize = 16;
 
 /// Which instruction set the lane tests run with, decided once per structure.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub(crate) enum Simd {
+pub(crate) enum InstructionSet {
     Baseline,
     #[cfg(target_arch = "x86_64")]
     Avx2,
@@ -38,15 +38,15 @@ pub(crate) enum Simd {
     Avx512,
 }
 
-impl Simd {
+impl InstructionSet {
     /// For reports: `portable`, `AVX2` or `AVX-512`.
     pub(crate) fn name(self) -> &'static str {
         match self {
-            Simd::Baseline => "portable",
+            InstructionSet::Baseline => "portable",
             #[cfg(target_arch = "x86_64")]
-            Simd::Avx2 => "AVX2",
+            InstructionSet::Avx2 => "AVX2",
             #[cfg(target_arch = "x86_64")]
-            Simd::Avx512 => "AVX-512",
+            InstructionSet::Avx512 => "AVX-512",
         }
     }
 
@@ -59,14 +59,14 @@ impl Simd {
         {
             let avx2 = std::is_x86_feature_detected!("avx2") && cap != "baseline";
             if avx2 && std::is_x86_feature_detected!("avx512f") && cap != "avx2" {
-                return Simd::Avx512;
+                return InstructionSet::Avx512;
             }
             if avx2 {
-                return Simd::Avx2;
+                return InstructionSet::Avx2;
             }
         }
         let _ = cap;
-        Simd::Baseline
+        InstructionSet::Baseline
     }
 }
 
@@ -99,7 +99,7 @@ impl Lanes {
 /// nine permuted coordinate vectors (see [`watertight_avx2`]), the rest name one width's
 /// `set1`, `sub`, `mul` and `add`. The `@lanes` form takes the shear `[sx, sy, sz]`, the
 /// permuted origin `[ox, oy, oz]` and `tmax` as vectors, one ray per lane (see
-/// `accel/packet.rs`); the other broadcasts one ray's.
+/// `accel/ray_packets.rs`); the other broadcasts one ray's.
 macro_rules! lane_arithmetic {
     ($p:expr, $shear:expr, $tmax:expr, $set1:ident, $sub:ident, $mul:ident, $add:ident) => {{
         let (_, [sx, sy, sz], [ox, oy, oz]) = $shear.parts();
@@ -354,7 +354,7 @@ mod tests {
     /// past the ids or not triangles are never kept, and the latter are reported.
     #[test]
     fn gathered_lanes_are_the_scalar_test() {
-        crate::wide::tests::require_avx2();
+        crate::simd::tests::require_avx2();
         let mut r = Rng(3);
         // Small triangles around the origin, some sharing corners (edges: zero lanes).
         let corners: Vec<[Vec3; 3]> = (0..64)

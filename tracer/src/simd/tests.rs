@@ -1,23 +1,21 @@
-//! Tests of `wide.rs`.
+//! Tests of `simd.rs`.
 
 use super::*;
 
 /// The twin tests compare the AVX2 path with its scalar original, so on x86_64 they
 /// need a CPU with AVX2 (elsewhere the wide types are lane loops and always run). A
 /// CPU without it fails the test, saying why, rather than letting it pass unchecked.
-pub(crate) fn require_avx2() {
-    #[cfg(target_arch = "x86_64")]
-    assert!(
-        std::is_x86_feature_detected!("avx2"),
-        "this CPU has no AVX2: the test of the eight-lane path against its scalar twin cannot run here"
-    );
+/// Returns the capability the test's lane values need.
+pub(crate) fn require_avx2() -> Simd {
+    Simd::detect()
+        .expect("this CPU has no AVX2: the test of the eight-lane path against its scalar twin cannot run here")
 }
 
 /// Every operation gives, lane by lane, the scalar operation's bits, on ordinary
 /// values and on zeros of both signs, infinities, NaN and subnormals.
 #[test]
 fn operations_are_the_scalar_operations() {
-    crate::wide::tests::require_avx2();
+    let simd = require_avx2();
     let special = [0.0, -0.0, 1.0, -1.0, 0.5, f32::INFINITY, f32::NEG_INFINITY, f32::NAN, 1e-40, -3e-39, 7.25, -1e30];
     let mut h = 7u64;
     let mut next = || {
@@ -42,8 +40,8 @@ fn operations_are_the_scalar_operations() {
         }
     };
     for _ in 0..2000 {
-        let a = F8(std::array::from_fn(|_| next()));
-        let b = F8(std::array::from_fn(|_| next()));
+        let a = simd.f8(std::array::from_fn(|_| next()));
+        let b = simd.f8(std::array::from_fn(|_| next()));
         same(a + b, &|l| a.0[l] + b.0[l], "+");
         same(a - b, &|l| a.0[l] - b.0[l], "-");
         same(a * b, &|l| a.0[l] * b.0[l], "*");
@@ -59,9 +57,9 @@ fn operations_are_the_scalar_operations() {
         let zeros = |l: usize| a.0[l] == 0.0 && b.0[l] == 0.0;
         let skip = |x: F8, e: f32, l: usize| if zeros(l) { e } else { x.0[l] };
         let mx = a.max(b);
-        same(F8(std::array::from_fn(|l| skip(mx, a.0[l].max(b.0[l]), l))), &|l| a.0[l].max(b.0[l]), "max");
+        same(simd.f8(std::array::from_fn(|l| skip(mx, a.0[l].max(b.0[l]), l))), &|l| a.0[l].max(b.0[l]), "max");
         let mn = a.min(b);
-        same(F8(std::array::from_fn(|l| skip(mn, a.0[l].min(b.0[l]), l))), &|l| a.0[l].min(b.0[l]), "min");
+        same(simd.f8(std::array::from_fn(|l| skip(mn, a.0[l].min(b.0[l]), l))), &|l| a.0[l].min(b.0[l]), "min");
         mask(a.lt(b), &|l| a.0[l] < b.0[l], "<");
         mask(a.le(b), &|l| a.0[l] <= b.0[l], "<=");
         mask(a.gt(b), &|l| a.0[l] > b.0[l], ">");
@@ -74,8 +72,8 @@ fn operations_are_the_scalar_operations() {
         let m = a.lt(b);
         same(m.select(a, b), &|l| if a.0[l] < b.0[l] { a.0[l] } else { b.0[l] }, "select");
         assert_eq!(m.bits(), (0..W).fold(0, |s, l| s | (u32::from(a.0[l] < b.0[l]) << l)));
-        assert_eq!(M8::from_bits(m.bits()), m);
-        let (x, y) = (U8(a.0.map(f32::to_bits)), U8(b.0.map(f32::to_bits)));
+        assert_eq!(simd.mask(m.bits()), m);
+        let (x, y) = (simd.u8(a.0.map(f32::to_bits)), simd.u8(b.0.map(f32::to_bits)));
         mask(x.ge(y), &|l| x.0[l] >= y.0[l], "u32 >=");
         mask(x.eq(x), &|_| true, "u32 ==");
     }

@@ -1,4 +1,4 @@
-//! Eight lanes of `f32` / `u32` for the eight-path integrator (`integrator/packet.rs`).
+//! Eight lanes of `f32` / `u32` for the eight-path integrator (`integrator/eight_paths.rs`).
 //!
 //! Every operation gives, in each lane, exactly what the scalar operation of the same
 //! name gives (`+`, `<`, `f32::sqrt`, `f32::clamp`, ...), so a function written with
@@ -11,13 +11,13 @@
 //!
 //! On x86_64 the operations are AVX2 instructions, written with `core::arch` (the
 //! compiler's own vectoriser left plain lane loops half scalar). **They may only run
-//! where the CPU has AVX2.** That is kept by visibility: this module, and every type
-//! and function that holds or takes these types (`FrameW`, `LambertW`, `BlinnPhongW`,
-//! `LightSamplesW`, `SamplerLanes`, `sampling::wide`, the `*_wide` methods, the
-//! eight-path integrator), is `pub(crate)`, so safe code outside the crate can never
-//! make a lane value; inside it, the only way in is `render::render_unit_simd`, reached
-//! after `is_x86_feature_detected!("avx2")`, and the twin tests, which fail where the
-//! CPU lacks AVX2 (`tests::require_avx2`). Elsewhere the operations are lane loops.
+//! where the CPU has AVX2**, and the types make that so: every lane value carries a
+//! [`Simd`] — a zero-sized capability that only [`Simd::detect`] creates, after asking
+//! the CPU — and no lane value can be made without one (no constants, no conversions
+//! from scalars; the fields that would allow it are private to this module). An
+//! operation's operands therefore prove that the CPU has AVX2, and safe code cannot
+//! run these instructions on a CPU without it. Elsewhere the operations are lane loops
+//! and `detect` always succeeds.
 
 use std::ops::{Add, BitAnd, BitOr, Div, Mul, Neg, Not, Sub};
 
@@ -26,21 +26,128 @@ use glam::Vec3;
 /// Lanes of a wide value.
 pub const W: usize = 8;
 
+/// Proof that this CPU runs the lane operations (AVX2 on x86_64). Zero-sized; only
+/// [`Simd::detect`] makes one, so every lane value, which holds one, was made after
+/// the check.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct Simd(());
+
+impl Simd {
+    /// `Some` where the CPU has what the lane operations use.
+    #[inline]
+    pub fn detect() -> Option<Simd> {
+        #[cfg(target_arch = "x86_64")]
+        if !std::is_x86_feature_detected!("avx2") {
+            return None;
+        }
+        Some(Simd(()))
+    }
+
+    #[inline(always)]
+    pub fn f8(self, lanes: [f32; W]) -> F8 {
+        F8(lanes, self)
+    }
+
+    #[inline(always)]
+    pub fn splat(self, x: f32) -> F8 {
+        F8([x; W], self)
+    }
+
+    #[inline(always)]
+    pub fn zero(self) -> F8 {
+        self.splat(0.0)
+    }
+
+    #[inline(always)]
+    pub fn one(self) -> F8 {
+        self.splat(1.0)
+    }
+
+    #[inline(always)]
+    pub fn u8(self, lanes: [u32; W]) -> U8 {
+        U8(lanes, self)
+    }
+
+    #[inline(always)]
+    pub fn splat_u(self, x: u32) -> U8 {
+        U8([x; W], self)
+    }
+
+    /// Every lane set.
+    #[inline(always)]
+    pub fn all(self) -> M8 {
+        M8([u32::MAX; W], self)
+    }
+
+    /// No lane set.
+    #[inline(always)]
+    pub fn none(self) -> M8 {
+        M8([0; W], self)
+    }
+
+    /// The lanes set in bit mask `bits`.
+    #[inline(always)]
+    pub fn mask(self, bits: u32) -> M8 {
+        let lane = [1, 2, 4, 8, 16, 32, 64, 128];
+        M8(imp::eq_u(imp::and([bits; W], lane), lane), self)
+    }
+
+    #[inline(always)]
+    pub fn mask_from_bools(self, b: [bool; W]) -> M8 {
+        M8(lanes(|l| u32::from(b[l]).wrapping_neg()), self)
+    }
+
+    /// `v` in every lane.
+    #[inline(always)]
+    pub fn v3(self, v: Vec3) -> V3w {
+        V3w { x: self.splat(v.x), y: self.splat(v.y), z: self.splat(v.z) }
+    }
+
+    /// Lane `l` of the result is `f(l)`.
+    #[inline(always)]
+    pub fn v3_from_fn(self, f: impl Fn(usize) -> Vec3) -> V3w {
+        let mut r = self.v3(Vec3::ZERO);
+        for l in 0..W {
+            r.set(l, f(l));
+        }
+        r
+    }
+}
+
 /// Eight `f32`.
 #[derive(Clone, Copy, Debug, PartialEq)]
 #[repr(C, align(32))]
-pub struct F8(pub [f32; W]);
+pub struct F8(pub [f32; W], Simd);
 
 /// Eight `u32`.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 #[repr(C, align(32))]
-pub struct U8(pub [u32; W]);
+pub struct U8(pub [u32; W], Simd);
 
 /// Eight lane conditions, as all-ones / all-zeros words (what vector compares produce
 /// and blends consume).
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 #[repr(C, align(32))]
-pub struct M8(pub [u32; W]);
+pub struct M8(pub [u32; W], Simd);
+
+/// What a lane operation takes beside an `F8`: another, or one `f32` for every lane.
+pub trait Operand {
+    fn lanes(self) -> [f32; W];
+}
+
+impl Operand for F8 {
+    #[inline(always)]
+    fn lanes(self) -> [f32; W] {
+        self.0
+    }
+}
+
+impl Operand for f32 {
+    #[inline(always)]
+    fn lanes(self) -> [f32; W] {
+        [self; W]
+    }
+}
 
 /// `[f(0), f(1), ..]`: a lane-by-lane map (for what has no vector form).
 #[inline(always)]
@@ -63,8 +170,9 @@ mod imp {
     type Ux = [u32; W];
 
     // SAFETY (every function here): the arrays and the registers are 32 bytes of plain
-    // data; the instructions need AVX2, which the module comment makes the callers'
-    // precondition.
+    // data; the instructions need AVX2, which every caller has proven: each is a method
+    // of a lane value, which holds a `Simd`, which only `Simd::detect` makes, after the
+    // CPU reported AVX2.
     #[inline(always)]
     fn ps(a: Fx) -> __m256 {
         unsafe { core::mem::transmute::<Fx, __m256>(a) }
@@ -236,21 +344,21 @@ macro_rules! f8_binop {
             type Output = F8;
             #[inline(always)]
             fn $f(self, o: F8) -> F8 {
-                F8(imp::$f(self.0, o.0))
+                F8(imp::$f(self.0, o.0), self.1)
             }
         }
         impl $tr<f32> for F8 {
             type Output = F8;
             #[inline(always)]
             fn $f(self, o: f32) -> F8 {
-                F8(imp::$f(self.0, [o; W]))
+                F8(imp::$f(self.0, [o; W]), self.1)
             }
         }
         impl $tr<F8> for f32 {
             type Output = F8;
             #[inline(always)]
             fn $f(self, o: F8) -> F8 {
-                F8(imp::$f([self; W], o.0))
+                F8(imp::$f([self; W], o.0), o.1)
             }
         }
     };
@@ -265,33 +373,24 @@ impl Neg for F8 {
     /// Flips the sign bit, as `-x` does (also for zeros and NaN).
     #[inline(always)]
     fn neg(self) -> F8 {
-        F8::from_bits(imp::xor(self.to_bits(), [0x8000_0000; W]))
+        self.with_bits(imp::xor(self.to_bits(), [0x8000_0000; W]))
     }
 }
 
 macro_rules! f8_cmp {
     ($f:ident) => {
         #[inline(always)]
-        pub fn $f(self, o: impl Into<F8>) -> M8 {
-            M8(imp::$f(self.0, o.into().0))
+        pub fn $f(self, o: impl Operand) -> M8 {
+            M8(imp::$f(self.0, o.lanes()), self.1)
         }
     };
 }
 
-impl From<f32> for F8 {
-    #[inline(always)]
-    fn from(x: f32) -> F8 {
-        F8([x; W])
-    }
-}
-
 impl F8 {
-    pub const ZERO: F8 = F8([0.0; W]);
-    pub const ONE: F8 = F8([1.0; W]);
-
+    /// The capability this value carries (to make more lane values).
     #[inline(always)]
-    pub fn splat(x: f32) -> F8 {
-        F8([x; W])
+    pub fn simd(self) -> Simd {
+        self.1
     }
 
     #[inline(always)]
@@ -301,9 +400,9 @@ impl F8 {
     }
 
     #[inline(always)]
-    fn from_bits(b: [u32; W]) -> F8 {
+    fn with_bits(self, b: [u32; W]) -> F8 {
         // SAFETY: same size, plain data.
-        F8(unsafe { core::mem::transmute::<[u32; W], [f32; W]>(b) })
+        F8(unsafe { core::mem::transmute::<[u32; W], [f32; W]>(b) }, self.1)
     }
 
     f8_cmp!(lt);
@@ -316,38 +415,38 @@ impl F8 {
     /// `f32::max` lane by lane (NaN takes the other operand; see the module comment on
     /// zeros).
     #[inline(always)]
-    pub fn max(self, o: impl Into<F8>) -> F8 {
-        F8(imp::max(self.0, o.into().0))
+    pub fn max(self, o: impl Operand) -> F8 {
+        F8(imp::max(self.0, o.lanes()), self.1)
     }
 
     /// `f32::min` lane by lane (as [`F8::max`]).
     #[inline(always)]
-    pub fn min(self, o: impl Into<F8>) -> F8 {
-        F8(imp::min(self.0, o.into().0))
+    pub fn min(self, o: impl Operand) -> F8 {
+        F8(imp::min(self.0, o.lanes()), self.1)
     }
 
     /// `f32::clamp` lane by lane: `lo` below it, `hi` above, NaN kept.
     #[inline(always)]
     pub fn clamp(self, lo: f32, hi: f32) -> F8 {
-        let x = self.lt(lo).select(F8::splat(lo), self);
-        x.gt(hi).select(F8::splat(hi), x)
+        let x = self.lt(lo).select(self.1.splat(lo), self);
+        x.gt(hi).select(self.1.splat(hi), x)
     }
 
     /// Clears the sign bit, as `f32::abs`.
     #[inline(always)]
     pub fn abs(self) -> F8 {
-        F8::from_bits(imp::and(self.to_bits(), [0x7fff_ffff; W]))
+        self.with_bits(imp::and(self.to_bits(), [0x7fff_ffff; W]))
     }
 
     /// `f32::floor` lane by lane.
     #[inline(always)]
     pub fn floor(self) -> F8 {
-        F8(imp::floor(self.0))
+        F8(imp::floor(self.0), self.1)
     }
 
     #[inline(always)]
     pub fn sqrt(self) -> F8 {
-        F8(imp::sqrt(self.0))
+        F8(imp::sqrt(self.0), self.1)
     }
 
     /// `1.0 / x`.
@@ -359,20 +458,20 @@ impl F8 {
     /// `f32::copysign`: the magnitude of `self`, the sign bit of `sign`.
     #[inline(always)]
     pub fn copysign(self, sign: F8) -> F8 {
-        F8::from_bits(imp::or(imp::and(self.to_bits(), [0x7fff_ffff; W]), imp::and(sign.to_bits(), [0x8000_0000; W])))
+        self.with_bits(imp::or(imp::and(self.to_bits(), [0x7fff_ffff; W]), imp::and(sign.to_bits(), [0x8000_0000; W])))
     }
 
     /// `f32::signum`: NaN for NaN, else 1 with `self`'s sign.
     #[inline(always)]
     pub fn signum(self) -> F8 {
-        self.is_nan().select(F8::splat(f32::NAN), F8::ONE.copysign(self))
+        self.is_nan().select(self.1.splat(f32::NAN), self.1.one().copysign(self))
     }
 
     /// `f32::is_finite`: the exponent bits are not all ones.
     #[inline(always)]
     pub fn is_finite(self) -> M8 {
         let exp = imp::and(self.to_bits(), [0x7f80_0000; W]);
-        !M8(imp::eq_u(exp, [0x7f80_0000; W]))
+        !M8(imp::eq_u(exp, [0x7f80_0000; W]), self.1)
     }
 
     /// `f32::is_nan` (unordered with itself).
@@ -384,30 +483,20 @@ impl F8 {
     /// `f32::is_infinite`: the magnitude is the infinity's bits.
     #[inline(always)]
     pub fn is_infinite(self) -> M8 {
-        M8(imp::eq_u(imp::and(self.to_bits(), [0x7fff_ffff; W]), [0x7f80_0000; W]))
+        M8(imp::eq_u(imp::and(self.to_bits(), [0x7fff_ffff; W]), [0x7f80_0000; W]), self.1)
     }
 }
 
 impl M8 {
-    pub const ALL: M8 = M8([u32::MAX; W]);
-    pub const NONE: M8 = M8([0; W]);
-
-    /// The lanes set in bit mask `bits`.
     #[inline(always)]
-    pub fn from_bits(bits: u32) -> M8 {
-        let lane = [1, 2, 4, 8, 16, 32, 64, 128];
-        M8(imp::eq_u(imp::and([bits; W], lane), lane))
+    pub fn simd(self) -> Simd {
+        self.1
     }
 
     /// The lanes as a bit mask.
     #[inline(always)]
     pub fn bits(self) -> u32 {
         imp::bits(self.0)
-    }
-
-    #[inline(always)]
-    pub fn from_bools(b: [bool; W]) -> M8 {
-        M8(lanes(|l| u32::from(b[l]).wrapping_neg()))
     }
 
     #[inline(always)]
@@ -418,19 +507,19 @@ impl M8 {
     /// `if self { a } else { b }` lane by lane.
     #[inline(always)]
     pub fn select(self, a: F8, b: F8) -> F8 {
-        F8(imp::select(self.0, a.0, b.0))
+        F8(imp::select(self.0, a.0, b.0), self.1)
     }
 
     /// [`M8::select`] for integers.
     #[inline(always)]
     pub fn select_u(self, a: U8, b: U8) -> U8 {
-        U8(imp::select_u(self.0, a.0, b.0))
+        U8(imp::select_u(self.0, a.0, b.0), self.1)
     }
 
     /// [`M8::select`] for masks.
     #[inline(always)]
     pub fn select_m(self, a: M8, b: M8) -> M8 {
-        M8(imp::select_u(self.0, a.0, b.0))
+        M8(imp::select_u(self.0, a.0, b.0), self.1)
     }
 
     /// [`M8::select`] for vectors.
@@ -444,7 +533,7 @@ impl BitAnd for M8 {
     type Output = M8;
     #[inline(always)]
     fn bitand(self, o: M8) -> M8 {
-        M8(imp::and(self.0, o.0))
+        M8(imp::and(self.0, o.0), self.1)
     }
 }
 
@@ -452,7 +541,7 @@ impl BitOr for M8 {
     type Output = M8;
     #[inline(always)]
     fn bitor(self, o: M8) -> M8 {
-        M8(imp::or(self.0, o.0))
+        M8(imp::or(self.0, o.0), self.1)
     }
 }
 
@@ -460,31 +549,31 @@ impl Not for M8 {
     type Output = M8;
     #[inline(always)]
     fn not(self) -> M8 {
-        M8(imp::xor(self.0, [u32::MAX; W]))
+        M8(imp::xor(self.0, [u32::MAX; W]), self.1)
     }
 }
 
 impl U8 {
     #[inline(always)]
-    pub fn splat(x: u32) -> U8 {
-        U8([x; W])
+    pub fn simd(self) -> Simd {
+        self.1
     }
 
     #[inline(always)]
     pub fn eq(self, o: U8) -> M8 {
-        M8(imp::eq_u(self.0, o.0))
+        M8(imp::eq_u(self.0, o.0), self.1)
     }
 
     /// Unsigned `>=`.
     #[inline(always)]
     pub fn ge(self, o: U8) -> M8 {
-        M8(imp::ge_u(self.0, o.0))
+        M8(imp::ge_u(self.0, o.0), self.1)
     }
 
     /// Any function lane by lane.
     #[inline(always)]
     pub fn map(self, f: impl Fn(u32) -> u32) -> U8 {
-        U8(lanes(|l| f(self.0[l])))
+        U8(lanes(|l| f(self.0[l])), self.1)
     }
 }
 
@@ -577,8 +666,8 @@ impl Neg for V3w {
 
 impl V3w {
     #[inline(always)]
-    pub fn splat(v: Vec3) -> V3w {
-        V3w { x: F8::splat(v.x), y: F8::splat(v.y), z: F8::splat(v.z) }
+    pub fn simd(self) -> Simd {
+        self.x.1
     }
 
     #[inline(always)]
@@ -595,16 +684,6 @@ impl V3w {
     #[inline(always)]
     pub fn set(&mut self, l: usize, v: Vec3) {
         (self.x.0[l], self.y.0[l], self.z.0[l]) = (v.x, v.y, v.z);
-    }
-
-    /// Lane `l` of the result is `f(l)`.
-    #[inline(always)]
-    pub fn from_fn(f: impl Fn(usize) -> Vec3) -> V3w {
-        let mut r = V3w::splat(Vec3::ZERO);
-        for l in 0..W {
-            r.set(l, f(l));
-        }
-        r
     }
 
     /// `(x * o.x + y * o.y) + z * o.z`, as glam's `dot`.
@@ -640,7 +719,7 @@ impl V3w {
     pub fn normalize_or_zero(self) -> V3w {
         let rcp = self.length().recip();
         let ok = rcp.is_finite() & rcp.gt(0.0);
-        ok.select3(self * rcp, V3w::splat(Vec3::ZERO))
+        ok.select3(self * rcp, self.simd().v3(Vec3::ZERO))
     }
 
     /// glam's `max_element`: `max(x, max(y, z))` with `if a > b { a } else { b }`.

@@ -8,7 +8,7 @@
 //! blocks are tested at once, which pays (`bench/RESULTS.md`; `TILEFARM_SIMD=avx2`
 //! selects eight lanes).
 //!
-//! Exactness. Each block runs the eight-lane pass of `accel/lanes.rs`, whose kept lanes
+//! Exactness. Each block runs the eight-lane pass of `accel/block_test.rs`, whose kept lanes
 //! then finish with the scalar test's own last step (or run the scalar test, on an
 //! edge), in index order, with the current `tmax`: exactly the loop of
 //! [`brute_force_intersect`] / [`brute_force_occluded`], and so also exactly what the
@@ -19,9 +19,9 @@
 
 use glam::Vec3;
 
-use super::lanes::{LANES, Lanes, Simd};
+use super::block_test::{InstructionSet, LANES, Lanes};
 #[cfg(target_arch = "x86_64")]
-use super::lanes::{WIDE, watertight_avx2, watertight_avx512};
+use super::block_test::{WIDE, watertight_avx2, watertight_avx512};
 use super::{Hit, PrimHit, Primitives, RayPrecomp};
 use crate::geometry::triangle::RayShear;
 use crate::geometry::{Aabb, Ray};
@@ -51,7 +51,7 @@ struct Block {
 }
 
 /// One triangle's corners, each padded to four floats: what a 16-byte load broadcasts
-/// to the lanes of a packet query (`accel/packet.rs`).
+/// to the lanes of a packet query (`accel/ray_packets.rs`).
 #[derive(Clone, Copy, Debug)]
 #[repr(C, align(16))]
 pub(super) struct Corners4(pub(super) [[f32; 4]; 3]);
@@ -82,7 +82,7 @@ pub struct PackedTriangles {
     /// The spheres, primitives `len..len + spheres`.
     sphere_blocks: Vec<SphereBlock>,
     spheres: usize,
-    simd: Simd,
+    simd: InstructionSet,
     /// The triangles again, one by one, and the spheres (center, radius): for packets.
     corners4: Vec<Corners4>,
     sphere_list: Vec<(Vec3, f32)>,
@@ -128,7 +128,7 @@ impl PackedTriangles {
             tail,
             sphere_blocks,
             spheres: spheres.len(),
-            simd: Simd::detect(),
+            simd: InstructionSet::detect(),
             corners4,
             sphere_list: spheres.to_vec(),
         }
@@ -173,10 +173,10 @@ impl PackedTriangles {
         &self.sphere_list
     }
 
-    /// Whether the packet queries of `accel/packet.rs` may run: the CPU has AVX2 and
+    /// Whether the packet queries of `accel/ray_packets.rs` may run: the CPU has AVX2 and
     /// `TILEFARM_SIMD` does not ask for the baseline.
     pub fn packets(&self) -> bool {
-        self.simd != Simd::Baseline
+        self.simd != InstructionSet::Baseline
     }
 
     /// The block test's instruction set, for reports (`TILEFARM_SIMD` can lower it).
@@ -220,13 +220,13 @@ impl PackedTriangles {
     /// [`super::brute_force_intersect`]`(prims, ray, tmax)`.
     pub fn intersect<P: Primitives>(&self, prims: &P, ray: &Ray, tmax: f32) -> Option<Hit> {
         match self.simd {
-            Simd::Baseline => self.intersect_impl::<P, 0>(prims, ray, tmax),
+            InstructionSet::Baseline => self.intersect_impl::<P, 0>(prims, ray, tmax),
             #[cfg(target_arch = "x86_64")]
             // SAFETY: `Avx2` is only chosen when the CPU reports AVX2.
-            Simd::Avx2 => unsafe { self.intersect_avx2(prims, ray, tmax) },
+            InstructionSet::Avx2 => unsafe { self.intersect_avx2(prims, ray, tmax) },
             #[cfg(target_arch = "x86_64")]
             // SAFETY: `Avx512` is only chosen when the CPU reports AVX2 and AVX-512F.
-            Simd::Avx512 => unsafe { self.intersect_avx512(prims, ray, tmax) },
+            InstructionSet::Avx512 => unsafe { self.intersect_avx512(prims, ray, tmax) },
         }
     }
 
@@ -234,13 +234,13 @@ impl PackedTriangles {
     /// [`super::brute_force_occluded`]`(prims, ray, tmax)`.
     pub fn occluded<P: Primitives>(&self, prims: &P, ray: &Ray, tmax: f32) -> bool {
         match self.simd {
-            Simd::Baseline => self.occluded_impl::<P, 0>(prims, ray, tmax),
+            InstructionSet::Baseline => self.occluded_impl::<P, 0>(prims, ray, tmax),
             #[cfg(target_arch = "x86_64")]
             // SAFETY: as in `intersect`.
-            Simd::Avx2 => unsafe { self.occluded_avx2(prims, ray, tmax) },
+            InstructionSet::Avx2 => unsafe { self.occluded_avx2(prims, ray, tmax) },
             #[cfg(target_arch = "x86_64")]
             // SAFETY: as in `intersect`.
-            Simd::Avx512 => unsafe { self.occluded_avx512(prims, ray, tmax) },
+            InstructionSet::Avx512 => unsafe { self.occluded_avx512(prims, ray, tmax) },
         }
     }
 
@@ -397,7 +397,7 @@ const WIDE_LANES: usize = usize::MAX;
 fn block_test<const W: usize>(b: &Block, shear: &RayShear, tmax: f32, out: &mut Lanes) -> (u32, u32) {
     #[cfg(target_arch = "x86_64")]
     if W > 0 {
-        // SAFETY: `W > 0` only on the paths `Simd::Avx2` and `Simd::Avx512` select,
+        // SAFETY: `W > 0` only on the paths `InstructionSet::Avx2` and `InstructionSet::Avx512` select,
         // which run on CPUs that report AVX2.
         return unsafe { block_test_avx2(b, shear, tmax, out) };
     }
@@ -409,7 +409,7 @@ fn block_test<const W: usize>(b: &Block, shear: &RayShear, tmax: f32, out: &mut 
 fn pair_test(a: &Block, b: &Block, shear: &RayShear, tmax: f32, out: &mut Lanes) -> (u32, u32) {
     #[cfg(target_arch = "x86_64")]
     {
-        // SAFETY: called only from `each_hit::<_, WIDE>`, on the paths `Simd::Avx512`
+        // SAFETY: called only from `each_hit::<_, WIDE>`, on the paths `InstructionSet::Avx512`
         // selects, which run on CPUs that report AVX2 and AVX-512F.
         unsafe { pair_test_avx512(a, b, shear, tmax, out) }
     }

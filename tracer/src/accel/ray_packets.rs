@@ -1,5 +1,5 @@
 //! Eight rays at once against a small scene's primitives, by brute force: the ray
-//! queries of the eight-path renderer (`integrator/packet.rs`).
+//! queries of the eight-path renderer (`integrator/eight_paths.rs`).
 //!
 //! [`PackedTriangles`]' one-ray queries test a ray against eight triangles at a time and
 //! then finish the lanes that pass one by one; most of a query's instructions are that
@@ -24,8 +24,8 @@ use core::arch::x86_64::*;
 
 use glam::Vec3;
 
-use super::lanes::lane_arithmetic;
-use super::packed::PackedTriangles;
+use super::block_test::lane_arithmetic;
+use super::triangle_blocks::PackedTriangles;
 use super::{Hit, Primitives, RayPrecomp};
 use crate::geometry::Ray;
 
@@ -433,7 +433,7 @@ impl Best {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::accel::packed::tests::{Rng, scaled_scene};
+    use crate::accel::triangle_blocks::tests::{Rng, scaled_scene};
     use crate::accel::{brute_force_intersect, brute_force_occluded};
 
     /// Every active lane's answer is brute force's for its ray, bit for bit, whatever

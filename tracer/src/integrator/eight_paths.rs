@@ -1,6 +1,6 @@
 //! Eight paths in flight: the path integrator with eight samples' paths advanced
 //! together. In scenes traced by brute force ([`PackedTriangles`]) the ray queries of
-//! the eight paths are answered together by the packet queries of `accel/packet.rs`;
+//! the eight paths are answered together by the packet queries of `accel/ray_packets.rs`;
 //! elsewhere (the kd-tree) one by one.
 //!
 //! Each lane holds one sample's path. A round traces the closest hits of all lanes'
@@ -11,7 +11,7 @@
 //! Scattering takes one of two routes per lane. The common case, a diffuse or glossy
 //! surface without texture in a scene of at most 16 lights, runs
 //! eight lanes at once ([`scatter_wide`]): the one-path code's operations in the same
-//! order, on the eight-lane types of `wide.rs`, with each step's wide twin next to its
+//! order, on the eight-lane types of `simd.rs`, with each step's wide twin next to its
 //! scalar original. Every other lane runs the one-path [`PathState::scatter`] itself. Either
 //! way a sample's radiance is the same bits as with [`li`](super::path::li) (the
 //! render-variant test in `render.rs` holds them equal), and the film's fixed-point sums
@@ -21,8 +21,8 @@ use glam::{Vec2, Vec3};
 
 use super::RayCount;
 use super::path::{Options, PathState, ShadowQuery, Strategy, emitter_weight, transmittance};
-use crate::accel::packed::PackedTriangles;
-use crate::accel::packet::{PACKET, PacketHits, RayPacket};
+use crate::accel::ray_packets::{PACKET, PacketHits, RayPacket};
+use crate::accel::triangle_blocks::PackedTriangles;
 use crate::bsdf::Bsdf;
 use crate::bsdf::blinn_phong::{BlinnPhong, BlinnPhongW};
 use crate::bsdf::lambert::LambertW;
@@ -32,7 +32,7 @@ use crate::material::Material;
 use crate::sampler::{Sampler, SamplerLanes};
 use crate::sampling::wide;
 use crate::scene::Scene;
-use crate::wide::{F8, M8, U8, V2w, V3w, W, each};
+use crate::simd::{F8, M8, Simd, U8, V2w, V3w, W, each};
 
 /// Eight paths' state: lane by lane a [`PathState`].
 struct Paths {
@@ -201,7 +201,13 @@ pub(crate) fn pays(scene: &Scene) -> bool {
 ///
 /// [`li`]: super::path::li
 #[inline(always)]
-pub(crate) fn render_unit(scene: &Scene, opt: &Options, tile: Tile, samples: SampleRange) -> (Accumulation, RayCount) {
+pub(crate) fn render_unit(
+    simd: Simd,
+    scene: &Scene,
+    opt: &Options,
+    tile: Tile,
+    samples: SampleRange,
+) -> (Accumulation, RayCount) {
     let queries = match &scene.packed {
         Some(packed) if packed.packets() => Queries::Packets(packed),
         _ => Queries::OneByOne,
@@ -214,18 +220,18 @@ pub(crate) fn render_unit(scene: &Scene, opt: &Options, tile: Tile, samples: Sam
     let per_pixel = u64::from(samples.len());
     let total = tile.pixel_count() as u64 * per_pixel;
     let mut next = 0u64;
-    let zero = V3w::splat(Vec3::ZERO);
+    let zero = simd.v3(Vec3::ZERO);
     let mut paths = Paths {
         origin: zero,
-        dir: V3w::splat(Vec3::Z),
+        dir: simd.v3(Vec3::Z),
         l: zero,
         beta: zero,
-        prev_pdf: F8::ZERO,
-        prev_delta: M8::NONE,
+        prev_pdf: simd.zero(),
+        prev_delta: simd.none(),
         prev_p: zero,
-        depth: U8::splat(0),
+        depth: simd.splat_u(0),
     };
-    let mut samplers = SamplerLanes::default();
+    let mut samplers = SamplerLanes::new(simd);
     let mut pixels = [0usize; PACKET];
     // Lanes holding a path. Lanes are arrays with masks, not options: which lanes hold
     // a path, have a shadow ray or end is random, and branches on it mispredict.
@@ -267,10 +273,10 @@ pub(crate) fn render_unit(scene: &Scene, opt: &Options, tile: Tile, samples: Sam
             traced: 0,
             origin: zero,
             dir: zero,
-            tmax: F8::ZERO,
+            tmax: simd.zero(),
             unshadowed: zero,
-            weight: F8::ZERO,
-            pdf: F8::ONE,
+            weight: simd.zero(),
+            pdf: simd.one(),
         };
         let go_on = scatter(scene, &materials, &mut paths, &mut samplers, &hits, live, opt, &mut shadows);
 
@@ -293,7 +299,7 @@ pub(crate) fn render_unit(scene: &Scene, opt: &Options, tile: Tile, samples: Sam
             count.rays += u64::from(packet.count_ones());
             let blocked = queries.occluded(scene, &rays);
             // `PathState::add_light` with transmittance 1 for the lanes not blocked.
-            let lit = M8::from_bits(packet & !blocked);
+            let lit = simd.mask(packet & !blocked);
             let add = shadows.unshadowed * (1.0 * shadows.weight / shadows.pdf);
             paths.l = lit.select3(paths.l + add, paths.l);
         }
@@ -324,7 +330,8 @@ fn scatter(
     let g = &scene.geometry;
     let ntri = g.triangle_count();
     let (mut tri, mut sph, mut one, mut go_on) = (0u32, 0u32, 0u32, 0u32);
-    let mut material = U8::splat(0);
+    let simd = paths.depth.simd();
+    let mut material = simd.splat_u(0);
     for l in each(live & hits.found) {
         let prim = hits.prim[l] as usize;
         let (m, sphere) = if prim < ntri { (g.material(prim), false) } else { (g.spheres[prim - ntri].material, true) };
@@ -352,15 +359,15 @@ fn scatter(
         go_on |= u32::from(go) << l;
     }
     if tri | sph != 0 {
-        let hit = (U8(hits.prim), F8(hits.t), F8(hits.u), F8(hits.v));
+        let hit = (simd.u8(hits.prim), simd.f8(hits.t), simd.f8(hits.u), simd.f8(hits.v));
         go_on |= scatter_wide(
             scene,
             materials,
             paths,
             samplers,
             hit,
-            M8::from_bits(tri),
-            M8::from_bits(sph),
+            simd.mask(tri),
+            simd.mask(sph),
             material,
             opt,
             shadows,
@@ -394,6 +401,7 @@ fn scatter_wide(
         Strategy::BsdfOnly => (false, true),
     };
     let lanes = tri | sph;
+    let simd = lanes.simd();
     let (p, ng, ns) = scene.interaction_wide(paths.origin, paths.dir, hit, tri, sph);
     let wo = -paths.dir;
     let mat = |l: usize| &materials[material.0[l] as usize];
@@ -417,16 +425,16 @@ fn scatter_wide(
     }
 
     paths.depth = lanes.select_u(paths.depth.map(|d| d + 1), paths.depth);
-    let alive = if opt.max_depth >= 0 { lanes & !paths.depth.ge(U8::splat(opt.max_depth as u32)) } else { lanes };
+    let alive = if opt.max_depth >= 0 { lanes & !paths.depth.ge(simd.splat_u(opt.max_depth as u32)) } else { lanes };
     if !alive.any() {
         return 0;
     }
-    let glossy = alive & M8::from_bools(std::array::from_fn(|l| mat(l).glossy.is_some()));
+    let glossy = alive & simd.mask_from_bools(std::array::from_fn(|l| mat(l).glossy.is_some()));
     let diffuse = alive & !glossy;
-    let lambert = LambertW { kd: V3w::from_fn(|l| mat(l).kd) };
+    let lambert = LambertW { kd: simd.v3_from_fn(|l| mat(l).kd) };
     let blinn_phong = glossy
         .any()
-        .then(|| BlinnPhongW::from_fn(|l| mat(l).glossy.unwrap_or(BlinnPhong::new(Vec3::ZERO, Vec3::ZERO, 0.0))));
+        .then(|| BlinnPhongW::from_fn(simd, |l| mat(l).glossy.unwrap_or(BlinnPhong::new(Vec3::ZERO, Vec3::ZERO, 0.0))));
     // Reflection-only surfaces are two-sided: shade the side the ray arrives from.
     let back = ng.dot(wo).lt(0.0);
     let (ng, ns) = (back.select3(-ng, ng), back.select3(-ns, ns));
@@ -456,15 +464,15 @@ fn scatter_wide(
             // A light at a point (delta) cannot be hit by BSDF sampling: no MIS.
             let area_pdf = pmf * light_pdf;
             let pdf = delta.select(pmf, area_pdf);
-            let w = if use_bsdf_hits { wide::power_heuristic(1.0, area_pdf, 1.0, bsdf_pdf) } else { F8::ONE };
-            let w = delta.select(F8::ONE, w);
+            let w = if use_bsdf_hits { wide::power_heuristic(1.0, area_pdf, 1.0, bsdf_pdf) } else { simd.one() };
+            let w = delta.select(simd.one(), w);
             let origin = offset_origin_wide(p, ng, wi);
             let d = ls.target - origin;
             let dist = d.length();
             let far = ls.at_infinity;
             shadows.origin = keep.select3(origin, shadows.origin);
             shadows.dir = keep.select3(far.select3(wi, d / dist), shadows.dir);
-            shadows.tmax = keep.select(far.select(F8::splat(f32::INFINITY), dist * (1.0 - 1e-5)), shadows.tmax);
+            shadows.tmax = keep.select(far.select(simd.splat(f32::INFINITY), dist * (1.0 - 1e-5)), shadows.tmax);
             shadows.unshadowed = keep.select3(paths.beta * f * li, shadows.unshadowed);
             shadows.weight = keep.select(w, shadows.weight);
             shadows.pdf = keep.select(pdf, shadows.pdf);
@@ -475,7 +483,7 @@ fn scatter_wide(
 
     // BSDF sampling: the next segment. Lambert draws a direction; the glossy BSDF a lobe
     // choice, then a direction.
-    let u_lobe = if glossy.any() { samplers.next_1d(glossy) } else { F8::ZERO };
+    let u_lobe = if glossy.any() { samplers.next_1d(glossy) } else { simd.zero() };
     let u = samplers.next_2d(alive);
     let (mut wi, mut pdf, mut ok) = lambert.sample(wo_local, u, diffuse);
     let mut weight = lambert.kd;
@@ -490,13 +498,13 @@ fn scatter_wide(
     let go = ok & !ng.dot(wi).le(0.0) & beta.max_element().gt(0.0) & beta.is_finite();
     paths.beta = go.select3(beta, paths.beta);
     paths.prev_pdf = go.select(pdf, paths.prev_pdf);
-    paths.prev_delta = go.select_m(M8::NONE, paths.prev_delta);
+    paths.prev_delta = go.select_m(simd.none(), paths.prev_delta);
     paths.prev_p = go.select3(p, paths.prev_p);
     paths.origin = go.select3(offset_origin_wide(p, ng, wi), paths.origin);
     paths.dir = go.select3(wi, paths.dir);
 
     // Russian roulette.
-    let rr = go & paths.depth.ge(U8::splat(opt.rr_depth));
+    let rr = go & paths.depth.ge(simd.splat_u(opt.rr_depth));
     if !rr.any() {
         return go.bits();
     }

@@ -1,4 +1,4 @@
-//! Tests of `packed.rs`.
+//! Tests of `triangle_blocks.rs`.
 
 use super::*;
 use crate::accel::{brute_force_intersect, brute_force_occluded};
@@ -66,10 +66,10 @@ fn block_test_is_exactly_brute_force() {
         let detected = PackedTriangles::for_small_scene(&geo).expect("small");
         // The instruction set found here, the x86-64 baseline, and AVX2 where the
         // found one is AVX-512.
-        let baseline = PackedTriangles { simd: Simd::Baseline, ..detected.clone() };
+        let baseline = PackedTriangles { simd: InstructionSet::Baseline, ..detected.clone() };
         #[cfg(target_arch = "x86_64")]
         let avx2 = PackedTriangles {
-            simd: if detected.simd == Simd::Avx512 { Simd::Avx2 } else { detected.simd },
+            simd: if detected.simd == InstructionSet::Avx512 { InstructionSet::Avx2 } else { detected.simd },
             ..detected.clone()
         };
         #[cfg(not(target_arch = "x86_64"))]
@@ -109,7 +109,7 @@ fn block_test_is_exactly_brute_force() {
 #[cfg(target_arch = "x86_64")]
 #[test]
 fn avx2_block_test_matches_the_portable_one() {
-    crate::wide::tests::require_avx2();
+    crate::simd::tests::require_avx2();
     let mut r = Rng(9);
     let geo = scene(&mut r, 40, 11);
     let packed = PackedTriangles::for_small_scene(&geo).expect("small");
