@@ -5,6 +5,7 @@ pub mod bench;
 pub(crate) mod builtin;
 pub mod client;
 pub(crate) mod follow;
+pub(crate) mod in_process;
 pub mod loadtest;
 pub(crate) mod local;
 pub(crate) mod progress;

@@ -9,9 +9,7 @@ use tracer::film::{Accumulation, Image, SampleRange, Tile};
 
 use crate::farm::leases::{LeaseClock, Slot};
 use crate::farm::schedule;
-
-pub type WorkerId = u64;
-pub type UnitId = u64;
+pub use crate::farm::unit::{Applied, Rejection, Spare, Unit, UnitId, UnitRecord, UnitResult, UnitState, WorkerId};
 
 #[derive(Clone, Debug, PartialEq, Eq)]
 pub enum JobPhase {
@@ -27,81 +25,6 @@ impl JobPhase {
     pub fn is_final(&self) -> bool {
         matches!(self, JobPhase::Done | JobPhase::Failed(_) | JobPhase::Cancelled)
     }
-}
-
-#[derive(Clone, Debug, PartialEq, Eq)]
-pub enum UnitState {
-    Pending,
-    /// Out with `worker` since `since`; lapses at `deadline` unless renewed.
-    Leased {
-        worker: WorkerId,
-        deadline: Instant,
-        since: Instant,
-    },
-    Done,
-}
-
-/// A speculative second lease of a straggling unit: the first result wins.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub struct Spare {
-    pub worker: WorkerId,
-    pub deadline: Instant,
-}
-
-#[derive(Clone, Debug)]
-pub struct Unit {
-    pub tile_index: usize,
-    pub tile: Tile,
-    pub samples: SampleRange,
-    pub state: UnitState,
-    pub spare: Option<Spare>,
-    /// Every worker that ever held a lease on this unit: a late result from any of them is
-    /// the same deterministic work, so it is accepted while the unit is not done.
-    pub holders: Vec<WorkerId>,
-}
-
-/// Why a result was refused. The job's state is untouched in every case.
-#[derive(Debug, thiserror::Error, PartialEq, Eq)]
-pub enum Rejection {
-    #[error("unit {0} does not exist in this job")]
-    UnknownUnit(UnitId),
-    #[error("unit {0} was never leased to worker {1}")]
-    NotHolder(UnitId, WorkerId),
-    #[error("unit {unit}: {what}")]
-    Malformed { unit: UnitId, what: String },
-    #[error("the job is {0}")]
-    NotRunning(&'static str),
-}
-
-/// What happened to a valid result.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub enum Applied {
-    Merged,
-    /// The unit was already done: acknowledged and ignored.
-    Duplicate,
-    /// The job was cancelled or failed while the unit was out: acknowledged and dropped
-    /// (the worker did nothing wrong, so this is no error).
-    Discarded,
-}
-
-/// The contents of one unit's result, as received.
-#[derive(Clone, Debug)]
-pub struct UnitResult {
-    pub unit: UnitId,
-    pub tile: Tile,
-    pub samples: SampleRange,
-    pub sums: Vec<[i128; 3]>,
-    pub counts: Vec<u32>,
-    pub nonfinite: u64,
-    pub rays: u64,
-}
-
-/// A unit as a checkpoint records it.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub struct UnitRecord {
-    pub tile_index: u32,
-    pub samples: SampleRange,
-    pub done: bool,
 }
 
 /// Everything [`Job::restore`] needs.

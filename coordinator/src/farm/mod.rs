@@ -1,4 +1,4 @@
-//! The farm's state: jobs and their units ([`job`]), lease deadlines ([`leases`]),
+//! The farm's state: jobs ([`job`]) and their units ([`unit`]), lease deadlines ([`leases`]),
 //! the unit order ([`schedule`]), registered workers and the jobs in submission order
 //! ([`state`]), checkpoints ([`checkpoint`]), the content-addressed asset store
 //! ([`assets`]), what a job's status says ([`status`]), and the job lifecycle
@@ -12,6 +12,7 @@ pub mod lifecycle;
 pub mod schedule;
 pub mod state;
 pub mod status;
+pub mod unit;
 
 pub use lifecycle::Shared;
 pub use state::{Farm, FarmConfig, FarmError};

@@ -1,5 +1,8 @@
 //! SAH kd-tree build with perfect (clipped) splits.
 //!
+//! (One file of ~670 lines: the recursion, its SAH kernels and its scratch space share
+//! the private `Ref`, `Split` and `Ctx`, which a split would have to expose.)
+//!
 //! Every node holds its primitives as references: the primitive's index and its extent
 //! in the node's cell. A straddling primitive is re-bounded by clipping it to each child
 //! ("perfect splits", Havran; Wald & Havran 2006), so the SAH sees the geometry as it is.
@@ -58,10 +61,7 @@ const MAX_BINS: usize = 256;
 
 /// Bins per axis for a node of `n` references: about as many as the node has extent
 /// boundaries (so nodes just above `EXACT_MAX_PRIMS` lose little against the exact
-/// sweep), at most `MAX_BINS`. Measured by the SAH cost of the 1M-triangle tree
-/// (lower is better): 64 bins for all nodes with exact sweeps up to 64 references gave
-/// 84.40, 2n bins with exact sweeps up to 16 gives 84.24, up to 32 83.85; exact sweeps
-/// everywhere below 1000 references 83.65.
+/// sweep), at most `MAX_BINS` (the SAH costs behind the choice: `bench/RESULTS.md`).
 fn bins_for(n: usize) -> usize {
     (2 * n).clamp(16, MAX_BINS)
 }
