@@ -36,3 +36,18 @@ pub fn return_free_memory() {
         libc::malloc_trim(0);
     }
 }
+
+/// Has the C allocator serve large buffers (128 KiB and up: images, unit results,
+/// uploads) from their own mappings, returned to the kernel when freed (glibc's
+/// `M_MMAP_THRESHOLD`; on other platforms nothing). By default glibc raises that
+/// threshold each time such a buffer is freed, after which the same buffers come from
+/// the heap and their freed space stays resident: a long-running farm grew by each job
+/// it served. For servers; a render's own process does not need it.
+pub fn return_large_buffers_when_freed() {
+    #[cfg(all(target_os = "linux", target_env = "gnu"))]
+    // SAFETY: mallopt only changes allocator tuning; any value is valid, and a fixed
+    // threshold also turns off glibc's dynamic adjustment of it.
+    unsafe {
+        libc::mallopt(libc::M_MMAP_THRESHOLD, 128 * 1024);
+    }
+}

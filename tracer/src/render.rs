@@ -176,6 +176,7 @@ mod tests {
     /// The bundled scenes, plus one with what they lack: stochastic opacity on triangles
     /// and spheres, a thin lens, an environment, spot, point and directional lights, an
     /// emissive sphere, glass and a mirror.
+    // Long on purpose: A table of test scenes, one entry each; long as a list is, not as logic.
     fn test_scenes() -> Vec<(String, Scene)> {
         let dir = std::env::temp_dir().join(format!("tilefarm-render-variants-{}", std::process::id()));
         std::fs::create_dir_all(&dir).unwrap();

@@ -131,6 +131,7 @@ impl SplitMix {
     }
 }
 
+// Long on purpose: One scene's benchmark, its measurements in the order they are printed.
 fn bench_scene(name: &str, scene: &Scene, args: &BenchArgs) {
     let repeat = args.repeat.max(1);
     let geom = &scene.geometry;

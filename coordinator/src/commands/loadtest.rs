@@ -132,9 +132,10 @@ pub fn run(args: LoadtestArgs) -> anyhow::Result<()> {
     })
 }
 
-async fn drive(server: &Server, args: &LoadtestArgs) -> anyhow::Result<()> {
+/// Uploads the built-in Cornell box and submits it cut into the test's units; returns
+/// the job's spec and id.
+async fn submit_job(jobs: &mut FarmClient, args: &LoadtestArgs) -> anyhow::Result<(JobSpec, String)> {
     let scene = BuiltinScene::write()?;
-    let mut jobs = FarmClient::connect(&server.url).await?;
     let scene_ref = jobs.upload(&scene.path(), "scene.toml".into()).await?;
     let mut assets = Vec::new();
     for name in ["cbox.obj", "cbox.mtl"] {
@@ -155,6 +156,42 @@ async fn drive(server: &Server, args: &LoadtestArgs) -> anyhow::Result<()> {
         batch_spp: Some(1),
     };
     let job = jobs.submit("loadtest".into(), &spec).await.context("submitting the job")?;
+    Ok((spec, job))
+}
+
+/// Simulated workers, each the worker's machine over its own gRPC connection; stopped
+/// with `stop`.
+fn start_workers(
+    server: &Server,
+    args: &LoadtestArgs,
+    flow: &Arc<Flow>,
+    stop: &tokio::sync::watch::Receiver<Option<worker::Stop>>,
+) -> anyhow::Result<Vec<tokio::task::JoinHandle<anyhow::Result<u64>>>> {
+    let cache = server.store.with_extension("worker-cache");
+    let base = GrpcLink::connect(&server.url, &cache, Duration::from_millis(500))?;
+    let scene = Arc::new(tokio::sync::OnceCell::new());
+    let mut workers = Vec::new();
+    for _ in 0..args.connections {
+        let link = SimulatedLink {
+            link: base.another_connection(&server.url)?,
+            scene: Arc::clone(&scene),
+            flow: Arc::clone(flow),
+        };
+        let settings = worker::Settings {
+            coordinator: server.url.clone(),
+            threads: args.threads,
+            max_backoff: Duration::from_millis(500),
+            give_up_after: Some(Duration::from_secs(30)),
+        };
+        let executor = Arc::new(EmptyResults(args.threads));
+        workers.push(tokio::spawn(worker::drive(link, executor, settings, stop.clone())));
+    }
+    Ok(workers)
+}
+
+async fn drive(server: &Server, args: &LoadtestArgs) -> anyhow::Result<()> {
+    let mut jobs = FarmClient::connect(&server.url).await?;
+    let (spec, job) = submit_job(&mut jobs, args).await?;
     let tiles = args.size.div_ceil(args.tile) as u64;
     let units = tiles * tiles * args.spp as u64;
     println!(
@@ -179,32 +216,10 @@ async fn drive(server: &Server, args: &LoadtestArgs) -> anyhow::Result<()> {
     drop(watch);
 
     let (cpu0, _) = server.usage()?;
-    let cache = server.store.with_extension("worker-cache");
-    let base = GrpcLink::connect(&server.url, &cache, Duration::from_millis(500))?;
-    let scene = Arc::new(tokio::sync::OnceCell::new());
     let flow = Arc::new(Flow::default());
     let (stop_tx, stop_rx) = tokio::sync::watch::channel(None);
     let start = Instant::now();
-    let mut workers = Vec::new();
-    for _ in 0..args.connections {
-        let link = SimulatedLink {
-            link: base.another_connection(&server.url)?,
-            scene: Arc::clone(&scene),
-            flow: Arc::clone(&flow),
-        };
-        let settings = worker::Settings {
-            coordinator: server.url.clone(),
-            threads: args.threads,
-            max_backoff: Duration::from_millis(500),
-            give_up_after: Some(Duration::from_secs(30)),
-        };
-        workers.push(tokio::spawn(worker::drive(
-            link,
-            Arc::new(EmptyResults(args.threads)),
-            settings,
-            stop_rx.clone(),
-        )));
-    }
+    let workers = start_workers(server, args, &flow, &stop_rx)?;
     // Done when the job is: every unit merged once.
     let Watch::Stream(mut watch) = jobs.watch(&job).await? else { anyhow::bail!("the farm lost job {job}") };
     let mut done = 0;
@@ -247,7 +262,7 @@ async fn drive(server: &Server, args: &LoadtestArgs) -> anyhow::Result<()> {
         args.size,
         args.size
     );
-    let _ = std::fs::remove_dir_all(&cache);
+    let _ = std::fs::remove_dir_all(server.store.with_extension("worker-cache"));
     Ok(())
 }
 

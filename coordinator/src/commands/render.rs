@@ -361,24 +361,12 @@ async fn execute(plan: Plan, args: &RunArgs) -> anyhow::Result<()> {
     let name = spec.scene.path.clone();
     let job = submit_job(&shared, name, spec, restore.map(|s| s.job))?;
 
-    let (stop_tx, stop_rx) = tokio::sync::watch::channel(None);
-    let mut in_process = None;
-    let (server, mut children) = if workers > 0 {
-        let server = Server::start(Arc::clone(&shared), "127.0.0.1:0").await?;
-        let children = LocalWorkers::spawn(workers, threads, &server.url(), &cache)?;
-        tracing::info!("serving on {}; {workers} local worker(s) × {threads} thread(s)", server.url());
-        (Some(server), Some(children))
-    } else {
-        let task = tokio::spawn(execute_in_process(Arc::clone(&shared), job.clone(), threads, stop_rx.clone()));
-        in_process = Some(task);
-        (None, None)
-    };
-
+    let mut renderers = Renderers::start(&shared, &job, workers, threads, &cache).await?;
     let mut bar = JobBar::new(args.quiet);
     let mut feed = LocalJob {
         shared: &shared,
         job: &job,
-        children: children.as_mut(),
+        children: renderers.children.as_mut(),
         checkpoint: checkpoint_dir.as_deref(),
         pacer: checkpoint::Pacer::new(Duration::from_millis(args.checkpoint_interval_ms)),
         saved_units: resumed,
@@ -397,22 +385,7 @@ async fn execute(plan: Plan, args: &RunArgs) -> anyhow::Result<()> {
     };
     bar.finish();
 
-    // Tell the workers to stop, give them a moment, then make sure they are gone.
-    shared.farm().shutting_down = true;
-    let _ = stop_tx.send(Some(worker::Stop::Signal));
-    if let Some(task) = in_process {
-        let _ = tokio::time::timeout(Duration::from_secs(5), task).await;
-    }
-    if let Some(c) = children {
-        if outcome.is_ok() {
-            c.shutdown(Duration::from_secs(5)).await;
-        } else {
-            c.kill().await;
-        }
-    }
-    if let Some(s) = server {
-        s.stop().await;
-    }
+    renderers.stop(&shared, outcome.is_ok()).await;
     // Whatever happened, keep what was rendered.
     // (A checkpoint that cannot be written must not cost the image: say so, write it.)
     if let Some(dir) = &checkpoint_dir {
@@ -428,9 +401,71 @@ async fn execute(plan: Plan, args: &RunArgs) -> anyhow::Result<()> {
         write_partial(&shared, &job, &args.output)?;
     }
     let status = outcome?;
+    write_result(&shared, &job, args, &status, resumed, (earlier_samples, earlier_rays))
+}
+
+/// What renders a local job: worker processes with the server they connect to, or the
+/// worker's machine in this process.
+struct Renderers {
+    server: Option<Server>,
+    children: Option<LocalWorkers>,
+    in_process: Option<tokio::task::JoinHandle<()>>,
+    stop: tokio::sync::watch::Sender<Option<worker::Stop>>,
+}
+
+impl Renderers {
+    async fn start(
+        shared: &Arc<Shared>,
+        job: &str,
+        workers: usize,
+        threads: usize,
+        cache: &Path,
+    ) -> anyhow::Result<Self> {
+        let (stop, stop_rx) = tokio::sync::watch::channel(None);
+        if workers == 0 {
+            let task = tokio::spawn(execute_in_process(Arc::clone(shared), job.to_string(), threads, stop_rx));
+            return Ok(Self { server: None, children: None, in_process: Some(task), stop });
+        }
+        let server = Server::start(Arc::clone(shared), "127.0.0.1:0").await?;
+        let children = LocalWorkers::spawn(workers, threads, &server.url(), cache)?;
+        tracing::info!("serving on {}; {workers} local worker(s) × {threads} thread(s)", server.url());
+        Ok(Self { server: Some(server), children: Some(children), in_process: None, stop })
+    }
+
+    /// Tells the workers to stop, gives them a moment (when the job went well), then
+    /// makes sure they are gone.
+    async fn stop(self, shared: &Shared, gently: bool) {
+        shared.farm().shutting_down = true;
+        let _ = self.stop.send(Some(worker::Stop::Signal));
+        if let Some(task) = self.in_process {
+            let _ = tokio::time::timeout(Duration::from_secs(5), task).await;
+        }
+        if let Some(c) = self.children {
+            if gently {
+                c.shutdown(Duration::from_secs(5)).await;
+            } else {
+                c.kill().await;
+            }
+        }
+        if let Some(s) = self.server {
+            s.stop().await;
+        }
+    }
+}
+
+/// Writes a finished render's image (and preview) and prints its summary; `earlier` are
+/// the samples and rays a checkpoint already held.
+fn write_result(
+    shared: &Shared,
+    job: &str,
+    args: &RunArgs,
+    status: &JobStatus,
+    resumed: u64,
+    earlier: (u64, u64),
+) -> anyhow::Result<()> {
     let (image, info, nonfinite, total) = {
         let farm = shared.farm();
-        let e = farm.entry(&job)?;
+        let e = farm.entry(job)?;
         (e.job.image(), e.render_info(), e.job.nonfinite, e.job.units.len() as u64)
     };
     tracer::output::write_image_with(&image, info.as_ref(), &args.output)?;
@@ -439,7 +474,7 @@ async fn execute(plan: Plan, args: &RunArgs) -> anyhow::Result<()> {
     }
     println!(
         "{}; units: {resumed} from checkpoint + {} rendered = {total}; wrote {}",
-        summary(&status, earlier_samples, earlier_rays),
+        summary(status, earlier.0, earlier.1),
         status.units_done - resumed,
         args.output.display()
     );

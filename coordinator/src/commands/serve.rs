@@ -84,6 +84,7 @@ impl FarmArgs {
 
 pub fn run(args: ServeArgs) -> anyhow::Result<()> {
     let config = args.farm.config()?;
+    tracer::memory::return_large_buffers_when_freed();
     let store_dir = args
         .checkpoint
         .clone()

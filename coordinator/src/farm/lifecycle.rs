@@ -17,6 +17,10 @@ use super::job::{Applied, JobPhase, Restored, UnitResult, WorkerId};
 use super::state::{Farm, FarmError};
 use super::status::JobStatus;
 
+/// A finished job stays listed at least this long, so that those following it see it
+/// end (the status stream polls every 200 ms).
+const LISTED_AT_LEAST: Duration = Duration::from_secs(2);
+
 /// Defaults for jobs that do not set their own tile size and batch.
 #[derive(Clone, Copy, Debug)]
 pub struct JobDefaults {
@@ -159,6 +163,9 @@ impl Shared {
     /// in the store, where `fetch` still finds them).
     pub fn forget_finished(&self, retain: Duration) {
         let now = Instant::now();
+        // Whoever follows a job polls its status a few times a second: it stays listed
+        // long enough for them to see its end, whatever `retain` says.
+        let retain = retain.max(LISTED_AT_LEAST);
         let gone = self.farm().remove_jobs(|e| {
             e.stored.is_some() && e.job.finished.is_some_and(|t| now.saturating_duration_since(t) >= retain)
         });

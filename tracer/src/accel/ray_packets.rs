@@ -185,6 +185,7 @@ impl PackedTriangles {
     /// into masked stores, which cost a third of the query on AMD Zen 3.)
     #[target_feature(enable = "avx2")]
     #[inline]
+    // Long on purpose: The eight-ray triangle kernel in AVX2 intrinsics: one function so the compiler keeps the eight lanes in registers across the test.
     fn each8<P: Primitives>(&self, prims: &P, rays: &RayPacket, any: bool) -> Best {
         let mut best = Best::new(rays);
         let r = Lanes8::new(rays);

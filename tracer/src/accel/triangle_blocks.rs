@@ -298,6 +298,7 @@ impl PackedTriangles {
     /// current `tmax`, with the block tests skipping those that cannot pass. `hit` gets
     /// each hit and returns the `tmax` to go on with, or `None` to stop.
     #[inline(always)]
+    // Long on purpose: The block loop with its exact finishing step; one function so the compiler keeps the block in registers.
     fn each_hit<P: Primitives, const W: usize>(
         &self,
         prims: &P,

@@ -111,6 +111,7 @@ pub(crate) struct Chi2Result {
 /// With `cap = Some((axis, cos_max))` only the cone of directions within acos(cos_max)
 /// of `axis` is binned (in coordinates about the axis) and everything outside it joins
 /// the failed category: a zoom that gives sharp lobes enough cells to be tested.
+// Long on purpose: A test harness: bin, integrate, pool and test, in order.
 pub(crate) fn chi2_sphere(
     mut sample: impl FnMut(&mut Rng) -> Option<Vec3>,
     pdf: impl Fn(Vec3) -> f64 + Sync,

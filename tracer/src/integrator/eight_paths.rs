@@ -201,6 +201,7 @@ pub(crate) fn pays(scene: &Scene) -> bool {
 ///
 /// [`li`]: super::path::li
 #[inline(always)]
+// Long on purpose: The eight-path loop: refill idle lanes, trace, scatter, trace shadows, retire; one inlined loop so the packet state stays in registers.
 pub(crate) fn render_unit(
     simd: Simd,
     scene: &Scene,
@@ -383,6 +384,7 @@ fn scatter(
 /// go on.
 #[allow(clippy::too_many_arguments)]
 #[inline(always)]
+// Long on purpose: The twin of path.rs's `scatter`, step for step in the same order, so that the two can be read side by side; one inlined function keeps the lanes in registers.
 fn scatter_wide(
     scene: &Scene,
     materials: &[WideMaterial],

@@ -119,6 +119,7 @@ impl PathState {
     /// [`PathState::add_light`], before the next call) and whether the path goes on,
     /// with [`PathState::ray`] its next segment.
     #[inline(always)]
+    // Long on purpose: The path integrator's step as the math reads (emission, NEE, BSDF sampling, roulette); one inlined function keeps the path state in registers (see eight_paths.rs, its twin, step for step).
     pub fn scatter(
         &mut self,
         scene: &Scene,

@@ -185,6 +185,7 @@ impl LightSet {
     /// [`Light::sample_li`] of light `light[l]` at `p[l]` for the lanes of `mask`; lanes
     /// not `some` have no sample.
     #[inline(always)]
+    // Long on purpose: The twin of `Light::sample_li`: one arm per light kind as there, gathered per lane, then each arm's math on all lanes.
     pub(crate) fn sample_li_wide(&self, light: U8, p: V3w, u: V2w, mask: M8) -> LightSamplesW {
         let simd = p.simd();
         let zero = simd.v3(Vec3::ZERO);

@@ -169,6 +169,7 @@ fn vec3(v: [f32; 3]) -> Vec3 {
     Vec3::from_array(v)
 }
 
+// Long on purpose: One scene assembled in order (camera, materials, meshes, spheres, lights), each step short and commented; the order is the file's.
 fn assemble(file: &SceneFile, text: &str, name: &str, base: &Path) -> Result<Scene, SceneError> {
     // Errors name the file and the field's line, as TOML's own errors do.
     let invalid = |field: String, message: String| {
@@ -335,6 +336,7 @@ fn sphere_material(
 }
 
 /// Collects area lights and builds the kd-tree.
+// Long on purpose: The scene's last steps in order (store, accelerator, lights, checks), sharing its parts.
 fn finish(b: Builder, camera: Camera, settings: RenderSettings, mut lights: Vec<Light>, background: Vec3) -> Scene {
     let Builder { mesh, spheres, materials, material_names, textures, warnings } = b;
     // From here on the scene keeps only the compact runtime form of the mesh.

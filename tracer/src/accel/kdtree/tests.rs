@@ -61,6 +61,7 @@ fn geometry(tris: &[[Vec3; 3]], spheres: Vec<Sphere>) -> Geometry {
 /// A random scene mixing the cases that stress exactness: overlapping and duplicated
 /// triangles, axis-aligned and coplanar ones on a grid, degenerate ones, clusters,
 /// shared-edge fans, and spheres (some duplicated, some tiny).
+// Long on purpose: A test-scene generator: one arm per kind of hard case.
 fn random_scene(seed: u64, n: usize) -> Geometry {
     let mut r = Rng(seed);
     let mut tris: Vec<[Vec3; 3]> = Vec::with_capacity(n);

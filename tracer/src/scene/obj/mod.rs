@@ -226,6 +226,7 @@ impl<'a> Builder<'a> {
         self.materials.len() as u32 - 1
     }
 
+    // Long on purpose: One pass over the parsed file in its order (groups, materials, faces); its steps share the per-pass index maps, so it stays one function.
     fn build(mut self, models: &[tobj::Model]) -> Result<ObjModel, ObjError> {
         let scan = self.scan;
         let mut pos_map = vec![NONE; scan.num_v];

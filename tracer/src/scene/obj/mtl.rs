@@ -120,6 +120,7 @@ fn to_vec3(c: Option<[f32; 3]>) -> Option<Vec3> {
 }
 
 /// Parses MTL text into materials. `dir` is the folder texture paths are relative to.
+// Long on purpose: One arm per MTL keyword, in one loop over the lines: a lexer reads best as one match.
 pub(super) fn parse_mtl_str(
     text: &str,
     display: &str,

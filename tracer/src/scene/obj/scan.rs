@@ -115,6 +115,7 @@ fn parse_corner(tok: &str, counts: (usize, usize, usize)) -> Result<Corner, Stri
 }
 
 /// Scans `text` (already valid UTF-8). Errors name `display` and the line.
+// Long on purpose: One arm per OBJ keyword, in one loop over the lines: a lexer reads best as one match.
 pub(super) fn scan(text: &str, display: &str) -> Result<ObjScan, ObjError> {
     let mut out = ObjScan { text: String::with_capacity(text.len()), ..Default::default() };
     let mut smoothing_ids: HashMap<u64, u32> = HashMap::new();
