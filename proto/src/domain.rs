@@ -53,16 +53,23 @@ pub struct WorkUnit {
     pub samples: SampleRange,
 }
 
-/// A unit result as received: checked for shape (a valid tile and sample range, whole
-/// pixels of sums); whether it fits its unit is the job's to check.
+/// The contents of one unit's result: per-pixel fixed-point sums and sample counts.
 #[derive(Clone, Debug)]
-pub struct ReceivedResult {
-    pub worker_id: u64,
-    pub key: UnitKey,
+pub struct UnitResult {
+    pub unit: u64,
     pub tile: Tile,
     pub samples: SampleRange,
     pub sums: Vec<[i128; 3]>,
     pub counts: Vec<u32>,
     pub nonfinite: u64,
     pub rays: u64,
+}
+
+/// A unit result as received: checked for shape (a valid tile and sample range, whole
+/// pixels of sums); whether it fits its unit is the job's to check.
+#[derive(Clone, Debug)]
+pub struct ReceivedResult {
+    pub worker_id: u64,
+    pub job_id: String,
+    pub result: UnitResult,
 }

@@ -10,7 +10,7 @@ use tracer::film::{Accumulation, SampleRange, Tile};
 use tracer::integrator::Integrator;
 use tracer::scene::Overrides;
 
-pub use crate::domain::{AssetRef, JobSpec, ReceivedResult, UnitKey, WorkUnit};
+pub use crate::domain::{AssetRef, JobSpec, ReceivedResult, UnitKey, UnitResult, WorkUnit};
 
 /// Largest tile side the worker accepts.
 pub const MAX_TILE_SIDE: u32 = 4096;
@@ -185,16 +185,9 @@ pub fn result_from_proto(r: crate::UnitResult) -> Result<ReceivedResult, String>
     let samples = samples_from_proto(r.sample_start, r.sample_end).map_err(|e| format!("unit {key}: {e}"))?;
     let sums = Accumulation::sums_from_bytes(&r.sums)
         .ok_or_else(|| format!("unit {key}: sums are not a whole number of pixels (48 bytes each)"))?;
-    Ok(ReceivedResult {
-        worker_id: r.worker_id,
-        key,
-        tile,
-        samples,
-        sums,
-        counts: r.counts,
-        nonfinite: r.nonfinite,
-        rays: r.rays,
-    })
+    let result =
+        UnitResult { unit: key.unit_id, tile, samples, sums, counts: r.counts, nonfinite: r.nonfinite, rays: r.rays };
+    Ok(ReceivedResult { worker_id: r.worker_id, job_id: key.job_id, result })
 }
 
 /// A leased unit as the wire message `Unit` carries it.
@@ -371,7 +364,7 @@ mod tests {
         let good = result_to_proto(9, &UnitKey { job_id: "job-1".into(), unit_id: 3 }, SampleRange::new(0, 4), &acc, 5);
         let r = result_from_proto(good.clone()).unwrap();
         assert_eq!(
-            (r.worker_id, r.key.unit_id, r.tile, r.samples, r.sums.len()),
+            (r.worker_id, r.result.unit, r.result.tile, r.result.samples, r.result.sums.len()),
             (9, 3, acc.tile, SampleRange::new(0, 4), 2)
         );
         let bad = [

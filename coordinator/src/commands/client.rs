@@ -35,15 +35,9 @@ pub struct SubmitArgs {
     /// Wait for the job, showing progress, and write the image.
     #[arg(long)]
     pub wait: bool,
-    /// Where --wait writes the image (.exr, or .png for a tone-mapped preview).
-    #[arg(short, long, value_name = "FILE", default_value = "out.exr")]
-    pub output: PathBuf,
-    /// With --wait: rewrite a PNG preview of the image so far every few seconds.
-    #[arg(long, value_name = "FILE.png")]
-    pub preview: Option<PathBuf>,
-    /// No progress bar.
-    #[arg(long, short)]
-    pub quiet: bool,
+    /// With --wait: where the image goes.
+    #[command(flatten)]
+    pub image: ImageArgs,
     #[command(flatten)]
     pub job: JobArgs,
 }
@@ -54,7 +48,14 @@ pub struct FetchArgs {
     pub job: String,
     #[command(flatten)]
     pub coordinator: FarmAddress,
-    /// Where to write the image (.exr, or .png for a tone-mapped preview).
+    #[command(flatten)]
+    pub image: ImageArgs,
+}
+
+/// Where a followed job's image goes, and how its progress shows.
+#[derive(Args)]
+pub struct ImageArgs {
+    /// The image file (.exr, or .png for a tone-mapped preview).
     #[arg(short, long, value_name = "FILE", default_value = "out.exr")]
     pub output: PathBuf,
     /// Rewrite a PNG preview of the image so far every few seconds.
@@ -97,7 +98,7 @@ fn runtime() -> anyhow::Result<tokio::runtime::Runtime> {
 pub fn submit(args: SubmitArgs) -> anyhow::Result<()> {
     runtime()?.block_on(async move {
         if args.wait {
-            tracer::output::check_output_paths(&args.output, args.preview.as_deref())?;
+            tracer::output::check_output_paths(&args.image.output, args.image.preview.as_deref())?;
         }
         let local = LocalScene::collect(&args.scene)?;
         // Refused here, before a job exists: a job that cannot load only fails later.
@@ -123,7 +124,8 @@ pub fn submit(args: SubmitArgs) -> anyhow::Result<()> {
                 Watch::Stream(s) => s,
                 Watch::NotFound(m) => anyhow::bail!("{m}"),
             };
-            wait(&mut client, stream, &job, args.quiet, &args.output, args.preview.as_deref()).await?;
+            wait(&mut client, stream, &job, args.image.quiet, &args.image.output, args.image.preview.as_deref())
+                .await?;
         }
         Ok(())
     })
@@ -161,24 +163,24 @@ async fn fetch_and_write(
 
 /// `coordinator fetch`: follows a job to its end and writes its image.
 pub fn fetch(args: FetchArgs) -> anyhow::Result<()> {
-    tracer::output::check_output_paths(&args.output, args.preview.as_deref())?;
+    tracer::output::check_output_paths(&args.image.output, args.image.preview.as_deref())?;
     runtime()?.block_on(async move {
         let mut client = FarmClient::connect(&args.coordinator.address).await?;
         // A job that finished long ago is no longer listed, but its image is stored.
         let stream = match client.watch(&args.job).await? {
             Watch::Stream(s) => s,
             Watch::NotFound(m) => {
-                let Ok(image) = fetch_and_write(&mut client, &args.job, &args.output).await else {
+                let Ok(image) = fetch_and_write(&mut client, &args.job, &args.image.output).await else {
                     anyhow::bail!("{m}");
                 };
-                if let Some(p) = &args.preview {
+                if let Some(p) = &args.image.preview {
                     tracer::output::write_png(&image, p)?;
                 }
-                println!("{} finished earlier; wrote {}", args.job, args.output.display());
+                println!("{} finished earlier; wrote {}", args.job, args.image.output.display());
                 return Ok(());
             }
         };
-        wait(&mut client, stream, &args.job, args.quiet, &args.output, args.preview.as_deref()).await
+        wait(&mut client, stream, &args.job, args.image.quiet, &args.image.output, args.image.preview.as_deref()).await
     })
 }
 

@@ -72,10 +72,10 @@ impl proto::farm_server::Farm for FarmService {
     }
 
     async fn submit_result(&self, req: Request<proto::UnitResult>) -> Result<Response<proto::SubmitReply>, Status> {
-        let proto::wire::ReceivedResult { worker_id, key, tile, samples, sums, counts, nonfinite, rays } =
+        let proto::wire::ReceivedResult { worker_id, job_id, result } =
             proto::wire::result_from_proto(req.into_inner()).map_err(Status::invalid_argument)?;
-        let result = UnitResult { unit: key.unit_id, tile, samples, sums, counts, nonfinite, rays };
-        match self.0.submit_result(worker_id, &key.job_id, &result) {
+        let key = format!("{job_id}/{}", result.unit);
+        match self.0.submit_result(worker_id, &job_id, &result) {
             Ok(a) => Ok(Response::new(proto::SubmitReply { accepted: a == Applied::Merged })),
             Err(e) => {
                 tracing::warn!(worker = worker_id, unit = %key, "result rejected: {e}");
@@ -101,9 +101,8 @@ impl proto::farm_server::Farm for FarmService {
             .results
             .into_iter()
             .map(|m| {
-                let proto::wire::ReceivedResult { key, tile, samples, sums, counts, nonfinite, rays, .. } =
-                    proto::wire::result_from_proto(m)?;
-                Ok((key.job_id, UnitResult { unit: key.unit_id, tile, samples, sums, counts, nonfinite, rays }))
+                let received = proto::wire::result_from_proto(m)?;
+                Ok((received.job_id, received.result))
             })
             .collect();
         let good = decoded.iter().filter_map(|d| d.as_ref().ok()).map(|(job, r)| (job.as_str(), r));

@@ -64,17 +64,8 @@ pub enum Applied {
     Discarded,
 }
 
-/// The contents of one unit's result, as received.
-#[derive(Clone, Debug)]
-pub struct UnitResult {
-    pub unit: UnitId,
-    pub tile: Tile,
-    pub samples: SampleRange,
-    pub sums: Vec<[i128; 3]>,
-    pub counts: Vec<u32>,
-    pub nonfinite: u64,
-    pub rays: u64,
-}
+/// The contents of one unit's result, as received (the type the wire mapping checks).
+pub use proto::domain::UnitResult;
 
 /// A unit as a checkpoint records it.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]

@@ -87,6 +87,14 @@ fn grant(units: Vec<Result<WorkUnit, String>>) -> Event {
     Event::Leased { worker_id: WORKER, result: Ok(Grant { units, retry_after_ms: 0, shutdown: false }) }
 }
 
+/// `units` of job-1 (units 0, 1, ... on tiles 0, 1, ...) leased and their scene loaded.
+fn leased_and_loaded(m: &mut Machine, t: Instant, units: u64) -> Arc<JobSpec> {
+    let job = spec("job-1");
+    m.handle(grant((0..units).map(|i| unit(&job, i, tile(i as u32))).collect()), t).unwrap();
+    m.handle(Event::JobReady { job: job.clone(), result: Ok(loaded(&job)) }, t).unwrap();
+    job
+}
+
 fn done(serial: u64, t: Tile) -> Event {
     let outcome = RenderOutcome::Done { acc: Accumulation::new(t), rays: 10, elapsed: Duration::from_millis(5) };
     Event::Rendered { serial, outcome }
@@ -118,9 +126,7 @@ fn leased_units_wait_for_their_scene_once_then_render() {
 fn a_rendered_unit_is_submitted_and_the_window_refilled() {
     let (mut m, t) = (machine(1), Instant::now());
     registered(&mut m, t);
-    let job = spec("job-1");
-    m.handle(grant(vec![unit(&job, 0, tile(0)), unit(&job, 1, tile(1))]), t).unwrap();
-    m.handle(Event::JobReady { job: job.clone(), result: Ok(loaded(&job)) }, t).unwrap();
+    let job = leased_and_loaded(&mut m, t, 2);
     assert_eq!(names(&m.actions(t)), ["prepare job-1", "render #0", "render #1"]);
     m.handle(done(0, tile(0)), t).unwrap();
     assert_eq!(names(&m.actions(t)), ["lease 1", "submit job-1/0 as 7"]);
@@ -136,9 +142,7 @@ fn a_rendered_unit_is_submitted_and_the_window_refilled() {
 fn heartbeats_renew_what_is_held_and_abandoned_units_are_cancelled() {
     let (mut m, t) = (machine(1), Instant::now());
     registered(&mut m, t);
-    let job = spec("job-1");
-    m.handle(grant(vec![unit(&job, 0, tile(0)), unit(&job, 1, tile(1))]), t).unwrap();
-    m.handle(Event::JobReady { job: job.clone(), result: Ok(loaded(&job)) }, t).unwrap();
+    leased_and_loaded(&mut m, t, 2);
     let renders: Vec<Action> = m.actions(t).into_iter().filter(|a| matches!(a, Action::Render { .. })).collect();
     let Action::Render { cancel, .. } = &renders[1] else { panic!("{renders:?}") };
     let t1 = t + Duration::from_secs(1);
@@ -162,9 +166,7 @@ fn heartbeats_renew_what_is_held_and_abandoned_units_are_cancelled() {
 fn results_are_batched_resent_after_transport_failures_and_dropped_when_refused() {
     let (mut m, t) = (machine(1), Instant::now());
     registered(&mut m, t);
-    let job = spec("job-1");
-    m.handle(grant(vec![unit(&job, 0, tile(0)), unit(&job, 1, tile(1))]), t).unwrap();
-    m.handle(Event::JobReady { job: job.clone(), result: Ok(loaded(&job)) }, t).unwrap();
+    leased_and_loaded(&mut m, t, 2);
     m.actions(t);
     m.handle(done(0, tile(0)), t).unwrap();
     m.handle(done(1, tile(1)), t).unwrap();
@@ -185,9 +187,7 @@ fn results_are_batched_resent_after_transport_failures_and_dropped_when_refused(
 fn a_refused_call_drops_its_results() {
     let (mut m, t) = (machine(1), Instant::now());
     registered(&mut m, t);
-    let job = spec("job-1");
-    m.handle(grant(vec![unit(&job, 0, tile(0))]), t).unwrap();
-    m.handle(Event::JobReady { job: job.clone(), result: Ok(loaded(&job)) }, t).unwrap();
+    leased_and_loaded(&mut m, t, 1);
     m.actions(t);
     m.handle(done(0, tile(0)), t).unwrap();
     assert_eq!(names(&m.actions(t)), ["submit job-1/0 as 7"]);
@@ -236,9 +236,7 @@ fn registration_retries_back_off_with_jitter() {
 fn an_unknown_worker_registers_again_and_keeps_its_results() {
     let (mut m, t) = (machine(1), Instant::now());
     registered(&mut m, t);
-    let job = spec("job-1");
-    m.handle(grant(vec![unit(&job, 0, tile(0))]), t).unwrap();
-    m.handle(Event::JobReady { job: job.clone(), result: Ok(loaded(&job)) }, t).unwrap();
+    leased_and_loaded(&mut m, t, 1);
     assert_eq!(names(&m.actions(t)), ["prepare job-1", "render #0", "lease 1"]);
     m.handle(done(0, tile(0)), t).unwrap();
     assert_eq!(names(&m.actions(t)), ["submit job-1/0 as 7"], "the lease is still out");
@@ -272,9 +270,7 @@ fn the_coordinators_stop_drains_finished_results_and_drops_the_rest() {
 fn a_signal_stops_within_the_grace_period_even_with_unsent_results() {
     let (mut m, t) = (machine(1), Instant::now());
     registered(&mut m, t);
-    let job = spec("job-1");
-    m.handle(grant(vec![unit(&job, 0, tile(0))]), t).unwrap();
-    m.handle(Event::JobReady { job: job.clone(), result: Ok(loaded(&job)) }, t).unwrap();
+    leased_and_loaded(&mut m, t, 1);
     m.actions(t);
     m.handle(done(0, tile(0)), t).unwrap();
     m.begin_drain("signal received", SIGNAL_GRACE, t);
@@ -345,9 +341,7 @@ fn a_worker_gives_up_on_a_coordinator_gone_for_too_long() {
 fn a_submission_carries_at_most_the_calls_limit() {
     let (mut m, t) = (machine(150), Instant::now());
     registered(&mut m, t);
-    let job = spec("job-1");
-    m.handle(grant((0..300).map(|i| unit(&job, i, tile(i as u32))).collect()), t).unwrap();
-    m.handle(Event::JobReady { job: job.clone(), result: Ok(loaded(&job)) }, t).unwrap();
+    leased_and_loaded(&mut m, t, 300);
     m.actions(t);
     for serial in 0..300 {
         m.handle(done(serial, tile(serial as u32)), t).unwrap();
