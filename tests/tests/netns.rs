@@ -84,6 +84,7 @@ fn a_worker_whose_link_is_cut_and_restored_still_gives_the_same_bits() {
     serve
         .args([
             "serve",
+            "--insecure",
             "--listen",
             &format!("0.0.0.0:{port}"),
             "--lease-ms",

@@ -99,6 +99,9 @@ pub fn sanitize_asset_path(path: &str) -> anyhow::Result<PathBuf> {
 #[derive(Debug)]
 pub struct AssetCache {
     root: PathBuf,
+    /// A job's scene may refer only to the job's own files (see
+    /// [`AssetCache::trust_scene_paths`]).
+    confine: bool,
 }
 
 impl AssetCache {
@@ -107,7 +110,15 @@ impl AssetCache {
             let dir = root.join(sub);
             fs::create_dir_all(&dir).with_context(|| format!("cannot create cache folder {}", dir.display()))?;
         }
-        Ok(Self { root: root.to_path_buf() })
+        Ok(Self { root: root.to_path_buf(), confine: true })
+    }
+
+    /// Lets scenes refer to files outside their job (absolute paths, `..` past the
+    /// job's folder): for `render`'s own local workers, which read the user's scene where
+    /// it lies, never for a farm's.
+    pub fn trust_scene_paths(mut self) -> Self {
+        self.confine = false;
+        self
     }
 
     pub fn root(&self) -> &Path {
@@ -363,6 +374,10 @@ pub async fn prepare_job(
 /// overrides. Blocking.
 pub fn load_job(cache: &AssetCache, job: &JobSpec) -> anyhow::Result<LoadedJob> {
     let scene_path = cache.lay_out_job(job)?;
+    if cache.confine {
+        tracer::scene::assets::check_within(&scene_path, &cache.job_dir(&job.job_id)?)
+            .map_err(|e| anyhow!("job {}: {e}", job.job_id))?;
+    }
     let mut scene =
         tracer::scene::load_scene_as(&scene_path, &job.scene.path, job.overrides.up).map_err(|e| anyhow!("{e}"))?;
     job.overrides.apply(&mut scene).map_err(|e| anyhow!("{}: settings: {e}", job.scene.path))?;

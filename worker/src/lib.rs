@@ -77,6 +77,12 @@ pub struct Args {
     /// so a farm survives a coordinator restart.
     #[arg(long, value_name = "MS")]
     give_up_after_ms: Option<u64>,
+
+    /// Let scenes refer to files outside their job (absolute paths, `..`): what
+    /// `coordinator render` gives its own local workers, which read the user's scene where
+    /// it lies. A farm's workers never trust a scene's paths.
+    #[arg(long, hide = true)]
+    trust_scene_paths: bool,
 }
 
 /// Runs a worker until it is told to stop, then exits the process.
@@ -104,6 +110,7 @@ pub fn run(args: Args) -> ! {
         cache_dir: args.cache.unwrap_or_else(asset_cache::default_cache_dir),
         max_backoff: Duration::from_millis(args.max_backoff_ms),
         give_up_after: args.give_up_after_ms.map(Duration::from_millis),
+        trust_scene_paths: args.trust_scene_paths,
     };
     let code = runtime.block_on(async move {
         let (stop_tx, stop_rx) = watch::channel(None);

@@ -26,6 +26,8 @@ pub struct Config {
     /// Stop (exit 0) once the coordinator has been unreachable this long; `None` waits
     /// for it forever.
     pub give_up_after: Option<Duration>,
+    /// Let scenes refer to files outside their job ([`AssetCache::trust_scene_paths`]).
+    pub trust_scene_paths: bool,
 }
 
 /// Why the worker was asked to stop from outside.
@@ -49,7 +51,8 @@ impl From<Stop> for &'static str {
 /// cache folder, the coordinator refusing this worker.
 pub async fn run(config: Config, stop: watch::Receiver<Option<Stop>>) -> anyhow::Result<()> {
     let client = rpc::connect(&config.coordinator)?;
-    let cache = Arc::new(AssetCache::open(&config.cache_dir)?);
+    let cache = AssetCache::open(&config.cache_dir)?;
+    let cache = Arc::new(if config.trust_scene_paths { cache.trust_scene_paths() } else { cache });
     let pool = RenderPool::new(config.threads)?;
     info!(
         "worker {} starting: {} render threads, cache {}, coordinator {}",

@@ -38,6 +38,7 @@ impl LocalWorkers {
                 .arg("--cache")
                 .arg(cache_root.join(format!("worker-{i}")))
                 .arg("--exit-on-stdin-eof")
+                .arg("--trust-scene-paths")
                 .stdin(Stdio::piped())
                 .kill_on_drop(true)
                 .spawn()

@@ -352,7 +352,10 @@ async fn execute(plan: Plan, args: &RunArgs) -> anyhow::Result<()> {
     let cores = std::thread::available_parallelism().map_or(2, |n| n.get());
     let workers = args.local_workers.unwrap_or((cores / 2).max(1));
     let threads = args.threads.map_or_else(|| (cores / workers.max(1)).max(1), |t| t as usize);
-    let shared = Arc::new(Shared::new(Farm::new(args.farm.config()?), store));
+    let mut shared = Shared::new(Farm::new(args.farm.config()?), store);
+    // The user's own scene, read where it lies (also through absolute paths).
+    shared.defaults.confine_scenes = false;
+    let shared = Arc::new(shared);
     let resumed = restore.as_ref().map_or(0, |s| s.units_done() as u64);
     let (earlier_samples, earlier_rays) = restore.as_ref().map_or((0, 0), |s| (s.samples_done(), s.job.rays));
     if let (Some(s), Some(dir)) = (&restore, &checkpoint_dir) {

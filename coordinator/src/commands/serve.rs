@@ -21,6 +21,11 @@ pub struct ServeArgs {
     /// (the address is printed).
     #[arg(long, default_value = "127.0.0.1:7878")]
     pub listen: String,
+    /// Serve on an address other machines can reach although the farm has no TLS or
+    /// access tokens yet: anyone who reaches the port can submit, cancel and fetch jobs
+    /// and join as a worker. Only on a network you trust.
+    #[arg(long)]
+    pub insecure: bool,
     /// Where uploaded scene files are kept (content-addressed).
     #[arg(long)]
     pub store: Option<PathBuf>,
@@ -64,6 +69,10 @@ pub struct FarmArgs {
     /// it comes back). Must exceed --lease-ms.
     #[arg(long, default_value_t = 60_000)]
     pub forget_worker_ms: u64,
+    /// Most memory one job's image may take while it renders (52 bytes per pixel), in
+    /// MiB; a larger job is refused, naming the limit, before anything is allocated.
+    #[arg(long, value_name = "MIB", default_value_t = 8192)]
+    pub max_job_memory_mb: u64,
 }
 
 impl FarmArgs {
@@ -73,7 +82,9 @@ impl FarmArgs {
             "--lease-ms must exceed --heartbeat-ms"
         );
         anyhow::ensure!(self.forget_worker_ms > self.lease_ms, "--forget-worker-ms must exceed --lease-ms");
+        anyhow::ensure!(self.max_job_memory_mb > 0, "--max-job-memory-mb must be at least 1");
         Ok(FarmConfig {
+            max_job_bytes: self.max_job_memory_mb << 20,
             lease: Duration::from_millis(self.lease_ms),
             heartbeat: Duration::from_millis(self.heartbeat_ms),
             speculate_after: Duration::from_millis(self.speculate_after_ms),
@@ -82,7 +93,29 @@ impl FarmArgs {
     }
 }
 
+/// Whether every address `listen` names is a loopback one.
+fn loopback_only(listen: &str) -> anyhow::Result<bool> {
+    use std::net::ToSocketAddrs;
+    let addrs: Vec<std::net::SocketAddr> =
+        listen.to_socket_addrs().with_context(|| format!("--listen {listen}: not an address"))?.collect();
+    Ok(!addrs.is_empty() && addrs.iter().all(|a| a.ip().is_loopback()))
+}
+
 pub fn run(args: ServeArgs) -> anyhow::Result<()> {
+    if !loopback_only(&args.listen)? {
+        anyhow::ensure!(
+            args.insecure,
+            "--listen {}: other machines could reach this farm, and it has no TLS or access tokens yet, so anyone \
+             who reaches the port could submit, cancel or fetch jobs and join as a worker; listen on 127.0.0.1, or \
+             add --insecure to serve it anyway on a network you trust",
+            args.listen
+        );
+        eprintln!(
+            "WARNING: serving on {} without TLS or access tokens (--insecure): anyone who can reach this port \
+             controls the farm and its images",
+            args.listen
+        );
+    }
     let config = args.farm.config()?;
     tracer::memory::return_large_buffers_when_freed();
     let store_dir = args

@@ -15,6 +15,11 @@ use super::wire::{error_to_status, status_to_proto};
 use crate::farm::Shared;
 use crate::farm::job::{Applied, UnitResult};
 
+/// Longest hostname or version a worker may register with.
+const MAX_NAME_BYTES: usize = 255;
+/// Most units one heartbeat may renew (a worker leases twice its threads).
+const MAX_HELD_PER_HEARTBEAT: usize = 65_536;
+
 /// Upper bound on one uploaded file.
 const MAX_ASSET_BYTES: usize = 4 << 30;
 
@@ -31,6 +36,13 @@ impl proto::farm_server::Farm for FarmService {
                 "protocol version {} is not this coordinator's {}",
                 r.protocol_version,
                 proto::PROTOCOL_VERSION
+            )));
+        }
+        if r.hostname.len() > MAX_NAME_BYTES || r.version.len() > MAX_NAME_BYTES {
+            return Err(Status::invalid_argument(format!(
+                "hostname and version: at most {MAX_NAME_BYTES} bytes each (got {} and {})",
+                r.hostname.len(),
+                r.version.len()
             )));
         }
         let mut farm = self.0.farm();
@@ -62,6 +74,12 @@ impl proto::farm_server::Farm for FarmService {
         req: Request<proto::HeartbeatRequest>,
     ) -> Result<Response<proto::HeartbeatReply>, Status> {
         let r = req.into_inner();
+        if r.held.len() > MAX_HELD_PER_HEARTBEAT {
+            return Err(Status::invalid_argument(format!(
+                "held: {} units; a worker holds at most {MAX_HELD_PER_HEARTBEAT}",
+                r.held.len()
+            )));
+        }
         let held: Vec<(String, u64)> = r.held.into_iter().map(|k| (k.job_id, k.unit_id)).collect();
         let mut farm = self.0.farm();
         let abandon = farm.heartbeat(r.worker_id, &held, Instant::now()).map_err(error_to_status)?;

@@ -9,6 +9,11 @@ use tracer::film::{Accumulation, Image, SampleRange, Tile};
 
 use crate::farm::leases::{LeaseClock, Slot};
 use crate::farm::schedule;
+/// Most units a job may have.
+pub const MAX_UNITS: u64 = 1 << 22;
+/// Bytes of a pixel's accumulation: three i128 sums and a u32 count.
+pub const ACCUMULATION_BYTES_PER_PIXEL: u64 = 52;
+
 pub use crate::farm::unit::{Applied, Rejection, Spare, Unit, UnitId, UnitRecord, UnitResult, UnitState, WorkerId};
 
 #[derive(Clone, Debug, PartialEq, Eq)]
@@ -130,6 +135,37 @@ impl Job {
     }
 
     /// The scene loaded: lay out the units and start.
+    /// Checks, before anything is allocated, that a job of this shape fits: at most
+    /// [`MAX_UNITS`] units, tiles within the wire's limit, and its accumulations (52 bytes
+    /// per pixel) within `max_bytes`. The error names the setting and the limit.
+    pub fn check_size(width: u32, height: u32, spp: u32, tile: u32, batch: u32, max_bytes: u64) -> Result<(), String> {
+        if tile == 0 || tile > proto::wire::MAX_TILE_SIDE {
+            return Err(format!("tile size {tile}: must be between 1 and {}", proto::wire::MAX_TILE_SIDE));
+        }
+        if batch == 0 || batch > proto::wire::MAX_SAMPLES_PER_UNIT {
+            return Err(format!("batch_spp {batch}: must be between 1 and {}", proto::wire::MAX_SAMPLES_PER_UNIT));
+        }
+        let bytes = u64::from(width) * u64::from(height) * ACCUMULATION_BYTES_PER_PIXEL;
+        if bytes > max_bytes {
+            return Err(format!(
+                "a {width}×{height} image needs {} MiB of accumulation, more than this farm's limit of {} MiB \
+                 (--max-job-memory-mb)",
+                bytes >> 20,
+                max_bytes >> 20
+            ));
+        }
+        let tiles = u64::from(width.div_ceil(tile)) * u64::from(height.div_ceil(tile));
+        let units = tiles * u64::from(spp.div_ceil(batch));
+        if units > MAX_UNITS {
+            return Err(format!(
+                "{units} units of work ({tiles} tiles × {} batches of {batch} spp): more than the {MAX_UNITS} a job may \
+                 have; raise the tile size or batch_spp",
+                spp.div_ceil(batch)
+            ));
+        }
+        Ok(())
+    }
+
     pub fn start(&mut self, width: u32, height: u32, spp: u32, tile_size: u32, batch_spp: u32, non_negative: bool) {
         let tiles = Tile::grid(width, height, tile_size);
         self.units = schedule::progressive_units(&tiles, spp, batch_spp)

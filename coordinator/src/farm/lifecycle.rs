@@ -26,11 +26,14 @@ const LISTED_AT_LEAST: Duration = Duration::from_secs(2);
 pub struct JobDefaults {
     pub tile: u32,
     pub batch_spp: u32,
+    /// A scene may refer only to its job's uploaded files (a farm's rule); `render`, which
+    /// reads the user's own scene where it lies, turns it off.
+    pub confine_scenes: bool,
 }
 
 impl Default for JobDefaults {
     fn default() -> Self {
-        Self { tile: 64, batch_spp: 16 }
+        Self { tile: 64, batch_spp: 16, confine_scenes: true }
     }
 }
 
@@ -256,7 +259,11 @@ fn load_job(shared: &Arc<Shared>, job: &str, restore: Option<Restored>) -> anyho
     let scene_path = {
         let store = shared.store();
         let dir = store.dir().join("jobs").join(job);
-        store.materialize(&dir, &spec.scene, &spec.assets)?
+        let scene_path = store.materialize(&dir, &spec.scene, &spec.assets)?;
+        if shared.defaults.confine_scenes {
+            tracer::scene::assets::check_within(&scene_path, &dir)?;
+        }
+        scene_path
     };
     // Named as the user named them (`quad.mtl`), not as the job folder's copies.
     let mut loaded = tracer::scene::load_scene_as(&scene_path, &spec.scene.path, spec.overrides.up)?;
@@ -272,6 +279,9 @@ fn load_job(shared: &Arc<Shared>, job: &str, restore: Option<Restored>) -> anyho
     let tile = spec.tile_size.unwrap_or(shared.defaults.tile);
     let batch = spec.batch_spp.unwrap_or(shared.defaults.batch_spp);
     let (w, h, spp) = (loaded.camera.width, loaded.camera.height, loaded.settings.spp);
+    let max_bytes = shared.farm().config.max_job_bytes;
+    let final_spp = spec.overrides.spp.unwrap_or(spp).max(spp);
+    super::job::Job::check_size(w, h, final_spp, tile, batch, max_bytes).map_err(anyhow::Error::msg)?;
     let mut farm = shared.farm();
     let e = farm.entry_mut(job)?;
     if e.job.phase.is_final() {

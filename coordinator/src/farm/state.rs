@@ -25,6 +25,8 @@ pub struct FarmConfig {
     /// A worker not heard from for this long is forgotten (it registers again if it
     /// comes back), so a farm's memory follows its live workers, not its history.
     pub forget_worker_after: Duration,
+    /// Most bytes one job's accumulations may take.
+    pub max_job_bytes: u64,
 }
 
 impl Default for FarmConfig {
@@ -34,6 +36,7 @@ impl Default for FarmConfig {
             heartbeat: Duration::from_secs(2),
             speculate_after: Duration::from_secs(10),
             forget_worker_after: Duration::from_secs(60),
+            max_job_bytes: 8 << 30,
         }
     }
 }

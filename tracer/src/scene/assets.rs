@@ -6,11 +6,68 @@ use std::path::{Path, PathBuf};
 use super::SceneError;
 use super::file::SceneFile;
 use super::load::{SceneKind, read_scene_text, scene_kind};
-use super::obj::obj_dependencies;
+use super::obj::obj_dependencies_where;
 
 /// The scene file itself first, then every file it refers to (OBJ, MTL, textures),
 /// each once. Files that do not exist are listed too: loading will report them.
 pub fn scene_files(scene_path: &Path) -> Result<Vec<PathBuf>, SceneError> {
+    files_where(scene_path, &|_| true)
+}
+
+/// Checks that a scene refers only to files inside `root` (a farm job's folder, which
+/// holds just the job's uploaded files): an absolute path, a `..` past the folder or a
+/// link out of it is an error naming the reference, and no file outside `root` is read
+/// on the way. A scene loaded after this check reads nothing else.
+pub fn check_within(scene_path: &Path, root: &Path) -> Result<(), SceneError> {
+    let root =
+        root.canonicalize().map_err(|e| SceneError::Io { path: root.display().to_string(), message: e.to_string() })?;
+    let inside = |p: &Path| is_within(p, &root);
+    let display = |p: &Path| p.strip_prefix(&root).unwrap_or(p).display().to_string();
+    for f in files_where(scene_path, &inside)? {
+        if !inside(&f) {
+            return Err(SceneError::Io {
+                path: display(scene_path),
+                message: format!(
+                    "refers to {}, which is not one of the job's files (a farm's scene may only refer to files \
+                     beside it, by relative paths)",
+                    f.display()
+                ),
+            });
+        }
+    }
+    Ok(())
+}
+
+/// `path` (made absolute against the working folder's root `/` if need be) lies in
+/// `root` (canonical): lexically, after `.` and `..`, and — if it exists — also after
+/// following links.
+fn is_within(path: &Path, root: &Path) -> bool {
+    use std::path::Component;
+    let mut lexical = PathBuf::new();
+    for c in path.components() {
+        match c {
+            Component::ParentDir => {
+                lexical.pop();
+            }
+            Component::CurDir => {}
+            c => lexical.push(c),
+        }
+    }
+    let lexical_root = root;
+    if !lexical.starts_with(lexical_root) {
+        // The job's folder as given may not be canonical: compare canonical forms.
+        match lexical.parent().and_then(|p| p.canonicalize().ok()) {
+            Some(parent) if parent.starts_with(root) => {}
+            _ => return false,
+        }
+    }
+    match path.canonicalize() {
+        Ok(real) => real.starts_with(root),
+        Err(_) => true, // missing: loading reports it, and nothing is read
+    }
+}
+
+fn files_where(scene_path: &Path, readable: &dyn Fn(&Path) -> bool) -> Result<Vec<PathBuf>, SceneError> {
     let mut files = vec![scene_path.to_path_buf()];
     let display = scene_path.display().to_string();
     let objs = if scene_kind(scene_path, &display)? == SceneKind::Obj {
@@ -24,8 +81,8 @@ pub fn scene_files(scene_path: &Path) -> Result<Vec<PathBuf>, SceneError> {
         files.extend(objs.iter().cloned());
         objs
     };
-    for obj in objs.iter().filter(|o| o.is_file()) {
-        files.extend(obj_dependencies(obj)?);
+    for obj in objs.iter().filter(|o| o.is_file() && readable(o)) {
+        files.extend(obj_dependencies_where(obj, readable)?);
     }
     let mut seen = std::collections::HashSet::new();
     files.retain(|f| seen.insert(f.clone()));

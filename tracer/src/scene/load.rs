@@ -103,7 +103,7 @@ pub fn scene_kind(path: &Path, display: &str) -> Result<SceneKind, SceneError> {
 /// A scene file's text; binary content is "not a scene file" rather than a UTF-8 error.
 pub(crate) fn read_scene_text(path: &Path, display: &str) -> Result<String, SceneError> {
     let io = |message: String| SceneError::Io { path: display.to_string(), message };
-    let bytes = std::fs::read(path).map_err(|e| io(e.to_string()))?;
+    let bytes = super::files::read_bounded(path, super::files::MAX_SCENE_BYTES).map_err(|e| io(e.to_string()))?;
     String::from_utf8(bytes).map_err(|_| io("not a scene file: it is not text (a scene is a .toml file)".into()))
 }
 

@@ -3,6 +3,7 @@
 
 pub mod assets;
 pub mod file;
+pub mod files;
 pub mod generate;
 pub mod load;
 pub mod obj;

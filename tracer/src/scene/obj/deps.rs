@@ -11,8 +11,14 @@ use super::scan::scan;
 /// (a missing one is the loader's warning to give, not an error here). Errors are those
 /// of a malformed OBJ or MTL.
 pub fn obj_dependencies(obj_path: &Path) -> Result<Vec<PathBuf>, ObjError> {
+    obj_dependencies_where(obj_path, &|_| true)
+}
+
+/// [`obj_dependencies`], reading only the MTL files `readable` allows (the others are
+/// listed, not read).
+pub fn obj_dependencies_where(obj_path: &Path, readable: &dyn Fn(&Path) -> bool) -> Result<Vec<PathBuf>, ObjError> {
     let display = obj_path.display().to_string();
-    let text = read_text(obj_path, &display)?;
+    let text = read_text(obj_path, &display, crate::scene::files::MAX_OBJ_BYTES)?;
     let scanned = scan(&text, &display)?;
     let base = obj_path.parent().unwrap_or(Path::new(""));
     let mut out = Vec::new();
@@ -23,7 +29,12 @@ pub fn obj_dependencies(obj_path: &Path) -> Result<Vec<PathBuf>, ObjError> {
         for file in files {
             let path = resolve_path(base, file);
             out.push(path.clone());
-            let Ok(bytes) = std::fs::read(&path) else { continue };
+            if !readable(&path) {
+                continue;
+            }
+            let Ok(bytes) = crate::scene::files::read_bounded(&path, crate::scene::files::MAX_MTL_BYTES) else {
+                continue;
+            };
             let mtl_display = path.display().to_string();
             let mtl_text = decode_utf8(bytes, &mtl_display)?;
             let dir = path.parent().unwrap_or(Path::new("")).to_path_buf();

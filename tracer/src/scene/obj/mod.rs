@@ -18,7 +18,7 @@ use std::path::Path;
 
 use glam::{Vec2, Vec3};
 
-pub use self::deps::obj_dependencies;
+pub use self::deps::{obj_dependencies, obj_dependencies_where};
 pub use self::mtl::{MtlLibrary, load_mtl};
 use self::mtl::{RawMaterial, TextureCache};
 use self::scan::{Corner, ObjScan};
@@ -58,7 +58,7 @@ pub fn load_obj(path: &Path) -> Result<ObjModel, ObjError> {
 /// refers to relative to that name), e.g. as the user wrote it rather than where a job's
 /// copy of it lies.
 pub fn load_obj_as(path: &Path, display: &str) -> Result<ObjModel, ObjError> {
-    let text = mtl::read_text(path, display)?;
+    let text = mtl::read_text(path, display, crate::scene::files::MAX_OBJ_BYTES)?;
     load_obj_from_str(&text, path.parent().unwrap_or(Path::new("")), display)
 }
 
@@ -120,7 +120,7 @@ fn load_libraries(
         for file in files {
             let path = mtl::resolve_path(base_dir, file);
             let mtl_display = shown_beside(display, file);
-            let text = match std::fs::read(&path) {
+            let text = match crate::scene::files::read_bounded(&path, crate::scene::files::MAX_MTL_BYTES) {
                 Ok(bytes) => mtl::decode_utf8(bytes, &mtl_display)?,
                 Err(e) => {
                     warnings.push(format!(

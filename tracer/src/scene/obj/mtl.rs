@@ -43,7 +43,7 @@ pub struct MtlLibrary {
 /// an error; a texture that cannot be loaded is a warning (the material keeps its `Kd`).
 pub fn load_mtl(path: &Path) -> Result<MtlLibrary, ObjError> {
     let display = path.display().to_string();
-    let text = read_text(path, &display)?;
+    let text = read_text(path, &display, crate::scene::files::MAX_MTL_BYTES)?;
     let mut warnings = Vec::new();
     let dir = path.parent().unwrap_or(Path::new("")).to_path_buf();
     let raws = parse_mtl_str(&text, &display, &dir, &mut warnings)?;
@@ -65,8 +65,8 @@ pub(super) fn io_reason(e: &std::io::Error) -> String {
 }
 
 /// Reads a text file, errors naming it (with the line of invalid UTF-8).
-pub(super) fn read_text(path: &Path, display: &str) -> Result<String, ObjError> {
-    let bytes = std::fs::read(path).map_err(|e| ObjError::Io {
+pub(super) fn read_text(path: &Path, display: &str, limit: u64) -> Result<String, ObjError> {
+    let bytes = crate::scene::files::read_bounded(path, limit).map_err(|e| ObjError::Io {
         path: display.to_string(),
         message: format!("cannot read file: {}", io_reason(&e)),
     })?;
@@ -394,13 +394,15 @@ fn clean_texel(c: Vec3) -> Vec3 {
 /// Decodes an image into linear RGB (8/16-bit images are sRGB-encoded; float images such
 /// as `.hdr` are already linear). Alpha is ignored.
 pub(super) fn decode_texture(path: &Path) -> Result<Texture, String> {
+    use crate::scene::files::{MAX_TEXTURE_BYTES, check_regular};
     use image::DynamicImage;
-    let img = image::ImageReader::open(path)
-        .map_err(|e| io_reason(&e))?
-        .with_guessed_format()
-        .map_err(|e| e.to_string())?
-        .decode()
-        .map_err(|e| e.to_string())?;
+    check_regular(path, MAX_TEXTURE_BYTES).map_err(|e| io_reason(&e))?;
+    let mut reader =
+        image::ImageReader::open(path).map_err(|e| io_reason(&e))?.with_guessed_format().map_err(|e| e.to_string())?;
+    let mut limits = image::Limits::default();
+    limits.max_alloc = Some(MAX_TEXTURE_BYTES);
+    reader.limits(limits);
+    let img = reader.decode().map_err(|e| e.to_string())?;
     let (width, height) = (img.width(), img.height());
     let texels: Vec<Vec3> = match &img {
         DynamicImage::ImageRgb32F(_) | DynamicImage::ImageRgba32F(_) => {

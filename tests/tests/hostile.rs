@@ -1,0 +1,123 @@
+//! Hostile input against a running farm: requests that once aborted the coordinator or
+//! read files outside a job are refused with an error naming what is wrong, and the
+//! farm carries on with an honest job.
+
+use std::process::Command;
+use std::time::Duration;
+
+use tilefarm_e2e::*;
+
+const LIMIT: Duration = Duration::from_secs(120);
+
+fn runtime() -> tokio::runtime::Runtime {
+    tokio::runtime::Builder::new_current_thread().enable_all().build().unwrap()
+}
+
+/// Uploads `text` as the job's only file, `scene.toml`, submits it with `settings` and
+/// follows it to its end; returns the final status.
+fn submit_scene_text(url: &str, text: &str, settings: proto::RenderSettings) -> proto::JobStatus {
+    runtime().block_on(async {
+        let mut jobs = proto::jobs_client::JobsClient::connect(url.to_string()).await.unwrap();
+        let chunk = proto::AssetChunk { data: text.as_bytes().to_vec() };
+        let stored = jobs.upload_asset(tokio_stream::iter([chunk])).await.unwrap().into_inner();
+        let scene = proto::AssetRef { path: "scene.toml".into(), sha256: stored.sha256, size: stored.size };
+        let request = proto::SubmitJobRequest { scene: Some(scene), settings: Some(settings), ..Default::default() };
+        let job = jobs.submit_job(request).await.unwrap().into_inner().job_id;
+        let mut watch = jobs.watch_job(proto::JobRequest { job_id: job }).await.unwrap().into_inner();
+        let mut last = None;
+        while let Some(s) = tokio::time::timeout(LIMIT, watch.message()).await.expect("progress").unwrap() {
+            last = Some(s);
+        }
+        last.expect("a status")
+    })
+}
+
+const SPHERE: &str = "[camera]\nposition = [0, 0, -5]\nlook_at = [0, 0, 0]\nwidth = 32\nheight = 32\n\
+                      [render]\nspp = 4\n[[sphere]]\ncenter = [0, 0, 0]\nradius = 1\nkd = [0.5, 0.5, 0.5]\n\
+                      [[light]]\ntype = \"point\"\nposition = [0, 3, -3]\nintensity = [5, 5, 5]\n";
+
+#[test]
+fn absurd_job_sizes_are_refused_before_anything_is_allocated() {
+    let dir = TempDir::new("hostile-sizes");
+    let coord = Coordinator::start(&dir.path("store"), &[]);
+    let cases = [
+        // Once: 2^32 units of one sample each, then an abort.
+        (proto::RenderSettings { spp: u32::MAX, batch_spp: 1, ..Default::default() }, "units of work"),
+        // Once: 4 GiB of tiles, 223 GB of sums.
+        (
+            proto::RenderSettings { width: 65_536, height: 65_536, tile_size: 1, ..Default::default() },
+            "--max-job-memory-mb",
+        ),
+        (proto::RenderSettings { tile_size: 100_000, ..Default::default() }, "tile size"),
+    ];
+    for (settings, says) in cases {
+        let s = submit_scene_text(&coord.url, SPHERE, settings.clone());
+        assert_eq!(s.state(), proto::JobState::Failed, "{settings:?}: {s:?}");
+        assert!(s.error.contains(says), "{settings:?}: {}", s.error);
+    }
+    // The farm is still up and renders an honest job.
+    let _w = coord.worker(1, &dir.path("cache"));
+    let s = submit_scene_text(&coord.url, SPHERE, proto::RenderSettings::default());
+    assert_eq!(s.state(), proto::JobState::Done, "{s:?}");
+}
+
+/// A farm's scene may not read the coordinator's (or a worker's) files: references
+/// outside the job's own files are errors naming them, and their content never shows.
+#[test]
+fn scenes_cannot_reach_outside_their_job() {
+    let dir = TempDir::new("hostile-paths");
+    let secret = dir.path("secret.obj");
+    std::fs::write(&secret, "v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n").unwrap();
+    let coord = Coordinator::start(&dir.path("store"), &[]);
+    for reference in [secret.display().to_string(), "../../../../../../../../../../etc/hostname".to_string()] {
+        let text = format!("{SPHERE}[[mesh]]\nobj = \"{reference}\"\n");
+        let s = submit_scene_text(&coord.url, &text, proto::RenderSettings::default());
+        assert_eq!(s.state(), proto::JobState::Failed, "{reference}: {s:?}");
+        assert!(s.error.contains("not one of the job's files"), "{reference}: {}", s.error);
+    }
+}
+
+#[test]
+fn oversized_registrations_are_refused() {
+    let dir = TempDir::new("hostile-register");
+    let coord = Coordinator::start(&dir.path("store"), &[]);
+    let status = runtime().block_on(async {
+        let mut farm = proto::farm_client::FarmClient::connect(coord.url.clone()).await.unwrap();
+        let request = proto::RegisterRequest {
+            protocol_version: proto::PROTOCOL_VERSION,
+            threads: 1,
+            hostname: "h".repeat(1 << 20),
+            version: "1".into(),
+        };
+        farm.register(request).await.unwrap_err()
+    });
+    assert_eq!(status.code(), tonic::Code::InvalidArgument, "{status:?}");
+    assert!(status.message().contains("hostname"), "{status:?}");
+}
+
+#[test]
+fn serve_refuses_a_reachable_address_without_insecure() {
+    let dir = TempDir::new("hostile-listen");
+    let out = run(
+        Command::new(bin("coordinator")).args(["serve", "--listen", "0.0.0.0:0", "--store"]).arg(dir.path("store")),
+        LIMIT,
+    );
+    assert!(!out.status.success());
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(err.contains("--insecure") && err.contains("0.0.0.0:0"), "{err}");
+}
+
+/// A local render whose OBJ names a device as its material library gets a warning and
+/// its image (once it read `/dev/zero` until memory ran out).
+#[cfg(unix)]
+#[test]
+fn a_device_named_by_a_scene_is_not_read() {
+    let dir = TempDir::new("hostile-device");
+    std::fs::write(dir.path("m.obj"), "mtllib /dev/zero\nv 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n").unwrap();
+    let scene = dir.path("scene.toml");
+    std::fs::write(&scene, format!("{SPHERE}[[mesh]]\nobj = \"m.obj\"\n")).unwrap();
+    let out = render(&scene, &dir.path("out.exr"), &["--local-workers", "0"], LIMIT);
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(err.contains("not a regular file"), "{err}");
+    assert!(dir.path("out.exr").is_file());
+}
