@@ -4,6 +4,7 @@
 
 tonic::include_proto!("tilefarm.v1");
 
+pub mod auth;
 pub mod domain;
 pub mod wire;
 

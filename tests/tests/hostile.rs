@@ -121,3 +121,31 @@ fn a_device_named_by_a_scene_is_not_read() {
     assert!(err.contains("not a regular file"), "{err}");
     assert!(dir.path("out.exr").is_file());
 }
+
+/// A farm with an access token serves only calls that bear it: a client or worker
+/// without it is refused (the worker stops, saying why), one with it is served.
+#[test]
+fn a_farm_with_a_token_serves_only_those_who_have_it() {
+    let dir = TempDir::new("hostile-token");
+    let token_file = dir.path("farm.token");
+    std::fs::write(&token_file, "s3cret-token-for-this-test\n").unwrap();
+    let coord = Coordinator::start(&dir.path("store"), &["--token-file", token_file.to_str().unwrap()]);
+    let status = |token: Option<&str>| {
+        let mut cmd = Command::new(bin("coordinator"));
+        cmd.args(["status", "--coordinator", &coord.url]).env_remove("TILEFARM_TOKEN");
+        if let Some(t) = token {
+            cmd.env("TILEFARM_TOKEN", t);
+        }
+        run(&mut cmd, LIMIT)
+    };
+    let refused = status(None);
+    assert!(!refused.status.success());
+    assert!(String::from_utf8_lossy(&refused.stderr).contains("access token"), "{refused:?}");
+    assert!(!status(Some("a-guess")).status.success());
+    assert!(status(Some("s3cret-token-for-this-test")).status.success());
+    let mut outsider = Command::new(bin("worker"));
+    outsider.args(["--coordinator", &coord.url, "--threads", "1", "--cache"]).arg(dir.path("cache"));
+    let out = run(outsider.env_remove("TILEFARM_TOKEN"), LIMIT);
+    assert!(!out.status.success());
+    assert!(String::from_utf8_lossy(&out.stderr).contains("access token"), "{out:?}");
+}

@@ -52,13 +52,18 @@ impl GrpcLink {
 
     /// A link to the coordinator at `url` (`host:port` or a URL; it connects on first
     /// use), keeping scene files in `cache_dir`.
-    pub fn connect(url: &str, cache_dir: &std::path::Path, max_backoff: Duration) -> anyhow::Result<Self> {
-        Ok(Self::new(rpc::connect(url)?, Arc::new(AssetCache::open(cache_dir)?), max_backoff))
+    pub fn connect(
+        url: &str,
+        token: Option<&proto::auth::Token>,
+        cache_dir: &std::path::Path,
+        max_backoff: Duration,
+    ) -> anyhow::Result<Self> {
+        Ok(Self::new(rpc::connect(url, token)?, Arc::new(AssetCache::open(cache_dir)?), max_backoff))
     }
 
     /// A second connection to the coordinator at `url`, sharing this link's cache.
-    pub fn another_connection(&self, url: &str) -> anyhow::Result<Self> {
-        Ok(Self::new(rpc::connect(url)?, self.cache.clone(), self.max_backoff))
+    pub fn another_connection(&self, url: &str, token: Option<&proto::auth::Token>) -> anyhow::Result<Self> {
+        Ok(Self::new(rpc::connect(url, token)?, self.cache.clone(), self.max_backoff))
     }
 }
 

@@ -5,11 +5,13 @@ use std::future::Future;
 use std::time::Duration;
 
 use anyhow::Context;
+use proto::auth::{ClientAuth, Token};
 use proto::farm_client::FarmClient;
+use tonic::service::interceptor::InterceptedService;
 use tonic::transport::{Channel, Endpoint};
 use tonic::{Code, Status};
 
-pub type Client = FarmClient<Channel>;
+pub type Client = FarmClient<InterceptedService<Channel, ClientAuth>>;
 
 /// How a call failed, in the machine's terms.
 pub type RpcFailure = crate::machine::Failure;
@@ -62,7 +64,7 @@ pub async fn call<T>(
 
 /// A lazily connecting client: it (re)connects on demand, so a coordinator that is not
 /// up yet, or restarts, is just a transport failure of the calls in between.
-pub fn connect(url: &str) -> anyhow::Result<Client> {
+pub fn connect(url: &str, token: Option<&Token>) -> anyhow::Result<Client> {
     let url = proto::coordinator_url(url);
     let endpoint = Endpoint::from_shared(url.clone())
         .with_context(|| format!("invalid coordinator address '{url}'"))?
@@ -70,7 +72,7 @@ pub fn connect(url: &str) -> anyhow::Result<Client> {
         .tcp_nodelay(true)
         .http2_keep_alive_interval(Duration::from_secs(20))
         .keep_alive_timeout(Duration::from_secs(20));
-    Ok(FarmClient::new(endpoint.connect_lazy())
+    Ok(FarmClient::with_interceptor(endpoint.connect_lazy(), ClientAuth::new(token))
         .max_decoding_message_size(proto::MAX_MESSAGE_BYTES)
         .max_encoding_message_size(proto::MAX_MESSAGE_BYTES))
 }
@@ -98,9 +100,9 @@ mod tests {
         // connect() is lazy: no network is touched here, but it needs a runtime.
         let rt = tokio::runtime::Builder::new_current_thread().enable_all().build().unwrap();
         rt.block_on(async {
-            assert!(connect("127.0.0.1:1").is_ok());
-            assert!(connect("http://127.0.0.1:1").is_ok());
-            assert!(connect("http://bad host:1").is_err());
+            assert!(connect("127.0.0.1:1", None).is_ok());
+            assert!(connect("http://127.0.0.1:1", None).is_ok());
+            assert!(connect("http://bad host:1", None).is_err());
         });
     }
 }

@@ -50,7 +50,8 @@ impl From<Stop> for &'static str {
 /// or `stop`). An error only for what retrying cannot fix: a bad address, an unusable
 /// cache folder, the coordinator refusing this worker.
 pub async fn run(config: Config, stop: watch::Receiver<Option<Stop>>) -> anyhow::Result<()> {
-    let client = rpc::connect(&config.coordinator)?;
+    let token = proto::auth::Token::from_env().map_err(anyhow::Error::msg)?;
+    let client = rpc::connect(&config.coordinator, token.as_ref())?;
     let cache = AssetCache::open(&config.cache_dir)?;
     let cache = Arc::new(if config.trust_scene_paths { cache.trust_scene_paths() } else { cache });
     let pool = RenderPool::new(config.threads)?;

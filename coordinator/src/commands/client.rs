@@ -20,6 +20,19 @@ pub struct FarmAddress {
     /// (http:// is assumed when no scheme is given).
     #[arg(long = "coordinator", value_name = "ADDRESS", env = "TILEFARM_COORDINATOR")]
     pub address: String,
+    /// The farm's access token, if it has one (`serve --token-file`).
+    #[arg(long, value_name = "TOKEN", env = "TILEFARM_TOKEN", hide_env_values = true)]
+    pub token: Option<String>,
+}
+
+impl FarmAddress {
+    pub async fn connect(&self) -> anyhow::Result<FarmClient> {
+        let token = match &self.token {
+            Some(t) => Some(proto::auth::Token::new(t).map_err(|e| anyhow::anyhow!("--token: {e}"))?),
+            None => None,
+        };
+        FarmClient::connect(&self.address, token.as_ref()).await
+    }
 }
 
 #[derive(Args)]
@@ -110,7 +123,7 @@ pub fn submit(args: SubmitArgs) -> anyhow::Result<()> {
                 list.join("\n")
             );
         }
-        let mut client = FarmClient::connect(&args.coordinator.address).await?;
+        let mut client = args.coordinator.connect().await?;
         let scene = client.upload(&local.scene, local.relative(&local.scene)).await?;
         let mut assets = Vec::new();
         for f in &local.files {
@@ -165,7 +178,7 @@ async fn fetch_and_write(
 pub fn fetch(args: FetchArgs) -> anyhow::Result<()> {
     tracer::output::check_output_paths(&args.image.output, args.image.preview.as_deref())?;
     runtime()?.block_on(async move {
-        let mut client = FarmClient::connect(&args.coordinator.address).await?;
+        let mut client = args.coordinator.connect().await?;
         // A job that finished long ago is no longer listed, but its image is stored.
         let stream = match client.watch(&args.job).await? {
             Watch::Stream(s) => s,
@@ -246,7 +259,7 @@ async fn wait(
 
 pub fn status(args: StatusArgs) -> anyhow::Result<()> {
     runtime()?.block_on(async move {
-        let mut client = FarmClient::connect(&args.coordinator.address).await?;
+        let mut client = args.coordinator.connect().await?;
         let jobs = client.jobs().await?;
         let workers = client.workers().await?;
         println!("jobs:");
@@ -266,7 +279,7 @@ pub fn status(args: StatusArgs) -> anyhow::Result<()> {
 
 pub fn cancel(args: CancelArgs) -> anyhow::Result<()> {
     runtime()?.block_on(async move {
-        let mut client = FarmClient::connect(&args.coordinator.address).await?;
+        let mut client = args.coordinator.connect().await?;
         let s = client.cancel(&args.job).await?;
         println!("{} {}", s.job_id, s.state.name());
         Ok(())

@@ -20,7 +20,15 @@ fn worker_executable() -> anyhow::Result<PathBuf> {
 }
 
 impl LocalWorkers {
-    pub fn spawn(count: usize, threads: usize, url: &str, cache_root: &Path) -> anyhow::Result<Self> {
+    /// `token` reaches them in their environment (not on their command line, which any
+    /// user of the machine can read).
+    pub fn spawn(
+        count: usize,
+        threads: usize,
+        url: &str,
+        cache_root: &Path,
+        token: &proto::auth::Token,
+    ) -> anyhow::Result<Self> {
         let exe = worker_executable()?;
         let mut children = Vec::with_capacity(count);
         for i in 0..count {
@@ -29,6 +37,7 @@ impl LocalWorkers {
             if std::env::var_os("RUST_LOG").is_none() {
                 cmd.env("RUST_LOG", "warn");
             }
+            cmd.env(proto::auth::TOKEN_ENV, token.secret());
             let child = cmd
                 .arg("worker")
                 .arg("--coordinator")

@@ -429,8 +429,10 @@ impl Renderers {
             let task = tokio::spawn(execute_in_process(Arc::clone(shared), job.to_string(), threads, stop_rx));
             return Ok(Self { server: None, children: None, in_process: Some(task), stop });
         }
-        let server = Server::start(Arc::clone(shared), "127.0.0.1:0").await?;
-        let children = LocalWorkers::spawn(workers, threads, &server.url(), cache)?;
+        // A secret for this run alone: another user of this machine cannot reach the farm.
+        let token = proto::auth::Token::random().map_err(anyhow::Error::msg)?;
+        let server = Server::start(Arc::clone(shared), "127.0.0.1:0", Some(token.clone())).await?;
+        let children = LocalWorkers::spawn(workers, threads, &server.url(), cache, &token)?;
         tracing::info!("serving on {}; {workers} local worker(s) × {threads} thread(s)", server.url());
         Ok(Self { server: Some(server), children: Some(children), in_process: None, stop })
     }

@@ -26,6 +26,10 @@ pub struct ServeArgs {
     /// and join as a worker. Only on a network you trust.
     #[arg(long)]
     pub insecure: bool,
+    /// A file whose first line is the farm's access token: only calls bearing it (workers
+    /// and clients with --token or TILEFARM_TOKEN) are served.
+    #[arg(long, value_name = "FILE")]
+    pub token_file: Option<PathBuf>,
     /// Where uploaded scene files are kept (content-addressed).
     #[arg(long)]
     pub store: Option<PathBuf>,
@@ -117,6 +121,10 @@ pub fn run(args: ServeArgs) -> anyhow::Result<()> {
         );
     }
     let config = args.farm.config()?;
+    let token = match &args.token_file {
+        Some(f) => Some(proto::auth::Token::from_file(f).map_err(anyhow::Error::msg)?),
+        None => None,
+    };
     tracer::memory::return_large_buffers_when_freed();
     let store_dir = args
         .checkpoint
@@ -139,7 +147,7 @@ pub fn run(args: ServeArgs) -> anyhow::Result<()> {
     let runtime =
         tokio::runtime::Builder::new_multi_thread().worker_threads(2).enable_all().build().context("async runtime")?;
     runtime.block_on(async move {
-        let server = Server::start(Arc::clone(&shared), &args.listen).await?;
+        let server = Server::start(Arc::clone(&shared), &args.listen, token).await?;
         // The first line of output is the URL, for scripts and tests.
         println!("listening on {}", server.url());
         tracing::info!(store = %store_dir.display(), "coordinator serving");

@@ -5,8 +5,10 @@
 use std::time::Duration;
 
 use anyhow::Context;
+use proto::auth::{ClientAuth, Token};
 use proto::domain::{AssetRef, JobSpec};
 use proto::jobs_client::JobsClient;
+use tonic::service::interceptor::InterceptedService;
 use tonic::transport::Channel;
 
 use super::wire::status_from_proto;
@@ -14,7 +16,7 @@ use crate::farm::assets::sha256_hex;
 use crate::farm::status::JobStatus;
 
 pub struct FarmClient {
-    jobs: JobsClient<Channel>,
+    jobs: JobsClient<InterceptedService<Channel, ClientAuth>>,
 }
 
 /// A job's progress stream, or why there is none.
@@ -52,8 +54,8 @@ fn message(s: tonic::Status) -> anyhow::Error {
 }
 
 impl FarmClient {
-    /// Connects to a coordinator given as `host:port` or a URL.
-    pub async fn connect(address: &str) -> anyhow::Result<Self> {
+    /// Connects to a coordinator given as `host:port` or a URL; every call bears `token`.
+    pub async fn connect(address: &str, token: Option<&Token>) -> anyhow::Result<Self> {
         let url = proto::coordinator_url(address);
         let channel = tonic::transport::Endpoint::from_shared(url.clone())
             .map_err(|e| anyhow::anyhow!("--coordinator {address}: not an address ({e})"))?
@@ -61,7 +63,7 @@ impl FarmClient {
             .connect()
             .await
             .with_context(|| format!("connecting to {url}"))?;
-        let jobs = JobsClient::new(channel)
+        let jobs = JobsClient::with_interceptor(channel, ClientAuth::new(token))
             .max_decoding_message_size(proto::MAX_MESSAGE_BYTES)
             .max_encoding_message_size(proto::MAX_MESSAGE_BYTES);
         Ok(Self { jobs })

@@ -20,8 +20,9 @@ pub struct Server {
 }
 
 impl Server {
-    /// Binds `listen` (port 0 asks the OS for a free port) and serves in the background.
-    pub async fn start(shared: Arc<Shared>, listen: &str) -> anyhow::Result<Self> {
+    /// Binds `listen` (port 0 asks the OS for a free port) and serves in the background;
+    /// with a `token`, only to calls that bear it.
+    pub async fn start(shared: Arc<Shared>, listen: &str, token: Option<proto::auth::Token>) -> anyhow::Result<Self> {
         let listener = tokio::net::TcpListener::bind(listen).await.with_context(|| format!("listening on {listen}"))?;
         let addr = listener.local_addr()?;
         let (stop, stopped) = oneshot::channel::<()>();
@@ -31,6 +32,9 @@ impl Server {
         let jobs = proto::jobs_server::JobsServer::new(JobsService(Arc::clone(&shared)))
             .max_decoding_message_size(proto::MAX_MESSAGE_BYTES)
             .max_encoding_message_size(proto::MAX_MESSAGE_BYTES);
+        let auth = proto::auth::ServerAuth::new(token);
+        let farm = tonic::service::interceptor::InterceptedService::new(farm, auth.clone());
+        let jobs = tonic::service::interceptor::InterceptedService::new(jobs, auth);
         let reaper = Arc::clone(&shared);
         tokio::spawn(async move {
             loop {
