@@ -149,3 +149,28 @@ fn a_farm_with_a_token_serves_only_those_who_have_it() {
     assert!(!out.status.success());
     assert!(String::from_utf8_lossy(&out.stderr).contains("access token"), "{out:?}");
 }
+
+/// Uploads are streamed to disk within a per-file limit: a larger one is refused, naming
+/// the limit, and leaves nothing behind.
+#[test]
+fn uploads_past_the_farms_limit_are_refused() {
+    let dir = TempDir::new("hostile-upload");
+    let store = dir.path("store");
+    let coord = Coordinator::start(&store, &["--max-upload-mb", "1"]);
+    let status = runtime().block_on(async {
+        let mut jobs = proto::jobs_client::JobsClient::connect(coord.url.clone()).await.unwrap();
+        let chunks = (0..3).map(|_| proto::AssetChunk { data: vec![7u8; 512 * 1024] });
+        jobs.upload_asset(tokio_stream::iter(chunks.collect::<Vec<_>>())).await.unwrap_err()
+    });
+    assert_eq!(status.code(), tonic::Code::ResourceExhausted, "{status:?}");
+    assert!(status.message().contains("--max-upload-mb"), "{status:?}");
+    let left: Vec<_> = std::fs::read_dir(store.join("blobs")).unwrap().flatten().map(|e| e.file_name()).collect();
+    assert!(left.is_empty(), "{left:?}");
+    // Still serving: a file within the limit is stored, where its digest says.
+    let stored = runtime().block_on(async {
+        let mut jobs = proto::jobs_client::JobsClient::connect(coord.url.clone()).await.unwrap();
+        let chunk = proto::AssetChunk { data: SPHERE.as_bytes().to_vec() };
+        jobs.upload_asset(tokio_stream::iter([chunk])).await.unwrap().into_inner()
+    });
+    assert_eq!(std::fs::read(store.join("blobs").join(&stored.sha256)).unwrap(), SPHERE.as_bytes());
+}

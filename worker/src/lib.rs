@@ -19,6 +19,7 @@
 
 mod asset_cache;
 mod executor;
+mod failure;
 mod link;
 mod machine;
 mod render_pool;

@@ -14,7 +14,7 @@ use tonic::{Code, Status};
 pub type Client = FarmClient<InterceptedService<Channel, ClientAuth>>;
 
 /// How a call failed, in the machine's terms.
-pub type RpcFailure = crate::machine::Failure;
+pub type RpcFailure = crate::failure::Failure;
 
 /// Does this message say that the worker id is unknown (rather than a job or unit)?
 fn says_unknown_worker(message: &str) -> bool {

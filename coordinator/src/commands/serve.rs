@@ -77,6 +77,12 @@ pub struct FarmArgs {
     /// MiB; a larger job is refused, naming the limit, before anything is allocated.
     #[arg(long, value_name = "MIB", default_value_t = 8192)]
     pub max_job_memory_mb: u64,
+    /// Largest file a user may upload, in MiB (streamed to disk, never held in memory).
+    #[arg(long, value_name = "MIB", default_value_t = 4096)]
+    pub max_upload_mb: u64,
+    /// Most MiB of uploaded scene files the store keeps; an upload past it is refused.
+    #[arg(long, value_name = "MIB", default_value_t = 65_536)]
+    pub max_store_mb: u64,
 }
 
 impl FarmArgs {
@@ -89,6 +95,8 @@ impl FarmArgs {
         anyhow::ensure!(self.max_job_memory_mb > 0, "--max-job-memory-mb must be at least 1");
         Ok(FarmConfig {
             max_job_bytes: self.max_job_memory_mb << 20,
+            max_upload_bytes: self.max_upload_mb << 20,
+            max_store_bytes: self.max_store_mb << 20,
             lease: Duration::from_millis(self.lease_ms),
             heartbeat: Duration::from_millis(self.heartbeat_ms),
             speculate_after: Duration::from_millis(self.speculate_after_ms),

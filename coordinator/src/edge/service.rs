@@ -20,9 +20,6 @@ const MAX_NAME_BYTES: usize = 255;
 /// Most units one heartbeat may renew (a worker leases twice its threads).
 const MAX_HELD_PER_HEARTBEAT: usize = 65_536;
 
-/// Upper bound on one uploaded file.
-const MAX_ASSET_BYTES: usize = 4 << 30;
-
 pub struct FarmService(pub Arc<Shared>);
 
 type BoxStream<T> = Pin<Box<dyn Stream<Item = Result<T, Status>> + Send>>;
@@ -194,18 +191,36 @@ impl proto::jobs_server::Jobs for JobsService {
         req: Request<Streaming<proto::AssetChunk>>,
     ) -> Result<Response<proto::AssetRef>, Status> {
         let mut stream = req.into_inner();
-        let mut data = Vec::new();
+        let (max_file, max_store) = {
+            let farm = self.0.farm();
+            (farm.config.max_upload_bytes, farm.config.max_store_bytes)
+        };
+        let room = max_store.saturating_sub(self.0.store().stored_bytes());
+        let internal = |e: anyhow::Error| Status::internal(format!("storing the upload: {e:#}"));
+        let mut up = self.0.store().begin_upload().map_err(internal)?;
         while let Some(chunk) = stream.message().await? {
-            if data.len() + chunk.data.len() > MAX_ASSET_BYTES {
-                return Err(Status::resource_exhausted("asset larger than 4 GiB"));
+            let total = up.written() + chunk.data.len() as u64;
+            if total > max_file {
+                return Err(Status::resource_exhausted(format!(
+                    "the file is larger than this farm's limit of {} MiB per file (--max-upload-mb)",
+                    max_file >> 20
+                )));
             }
-            data.extend_from_slice(&chunk.data);
+            if total > room {
+                return Err(Status::resource_exhausted(format!(
+                    "this farm's store is full: {} MiB of {} MiB used (--max-store-mb)",
+                    (max_store - room) >> 20,
+                    max_store >> 20
+                )));
+            }
+            // Chunks are at most 1 MiB (and a message at most 64): a short blocking write.
+            tokio::task::block_in_place(|| up.write(&chunk.data)).map_err(internal)?;
         }
         let shared = Arc::clone(&self.0);
-        let (sha256, size) = tokio::task::spawn_blocking(move || shared.store().put(&data))
+        let (sha256, size) = tokio::task::spawn_blocking(move || shared.store().finish_upload(up))
             .await
             .map_err(|e| Status::internal(e.to_string()))?
-            .map_err(|e| Status::internal(format!("storing asset: {e:#}")))?;
+            .map_err(internal)?;
         Ok(Response::new(proto::AssetRef { path: String::new(), sha256, size }))
     }
 

@@ -37,6 +37,37 @@ pub const IMAGES: &str = "images";
 pub struct AssetStore {
     dir: PathBuf,
     sizes: HashMap<String, u64>,
+    /// Uploads begun, for their temporary files' names.
+    uploads: u64,
+}
+
+/// An upload on its way into the store: its bytes go to a temporary file as they arrive,
+/// hashed on the way, so no upload is held in memory.
+pub struct Upload {
+    tmp: PathBuf,
+    file: std::fs::File,
+    hasher: Sha256,
+    written: u64,
+}
+
+impl Upload {
+    pub fn written(&self) -> u64 {
+        self.written
+    }
+
+    pub fn write(&mut self, bytes: &[u8]) -> anyhow::Result<()> {
+        self.file.write_all(bytes).with_context(|| format!("writing {}", self.tmp.display()))?;
+        self.hasher.update(bytes);
+        self.written += bytes.len() as u64;
+        Ok(())
+    }
+}
+
+impl Drop for Upload {
+    /// An upload that did not finish leaves nothing behind.
+    fn drop(&mut self) {
+        let _ = std::fs::remove_file(&self.tmp);
+    }
 }
 
 impl AssetStore {
@@ -46,13 +77,43 @@ impl AssetStore {
         let mut sizes = HashMap::new();
         for e in std::fs::read_dir(&blobs)?.flatten() {
             let name = e.file_name().to_string_lossy().into_owned();
+            if name.ends_with(".upload") {
+                // An upload cut off by a crash.
+                let _ = std::fs::remove_file(e.path());
+                continue;
+            }
             if name.len() == 64
                 && let Ok(m) = e.metadata()
             {
                 sizes.insert(name, m.len());
             }
         }
-        Ok(Self { dir: dir.to_path_buf(), sizes })
+        Ok(Self { dir: dir.to_path_buf(), sizes, uploads: 0 })
+    }
+
+    /// Bytes of all stored blobs.
+    pub fn stored_bytes(&self) -> u64 {
+        self.sizes.values().sum()
+    }
+
+    /// Starts an upload (write its bytes, then [`AssetStore::finish_upload`]).
+    pub fn begin_upload(&mut self) -> anyhow::Result<Upload> {
+        self.uploads += 1;
+        let tmp = self.dir.join("blobs").join(format!("{}-{}.upload", std::process::id(), self.uploads));
+        let file = std::fs::File::create(&tmp).with_context(|| format!("creating {}", tmp.display()))?;
+        Ok(Upload { tmp, file, hasher: Sha256::new(), written: 0 })
+    }
+
+    /// Makes an upload a blob (durably: fsync, rename) and returns its digest and size.
+    pub fn finish_upload(&mut self, mut up: Upload) -> anyhow::Result<(String, u64)> {
+        let sha = hex::encode(std::mem::take(&mut up.hasher).finalize());
+        let size = up.written;
+        if !self.contains(&sha) {
+            up.file.sync_all().with_context(|| format!("writing {}", up.tmp.display()))?;
+            std::fs::rename(&up.tmp, self.blob_path(&sha)).with_context(|| format!("storing {}", up.tmp.display()))?;
+            self.sizes.insert(sha.clone(), size);
+        }
+        Ok((sha, size))
     }
 
     pub fn dir(&self) -> &Path {
@@ -162,6 +223,30 @@ impl LocalScene {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn uploads_become_blobs_by_their_digest_and_unfinished_ones_leave_nothing() {
+        let dir = std::env::temp_dir().join(format!("tilefarm-upload-{}", std::process::id()));
+        let mut store = AssetStore::open(&dir).unwrap();
+        let mut up = store.begin_upload().unwrap();
+        up.write(b"hello ").unwrap();
+        up.write(b"farm").unwrap();
+        assert_eq!(up.written(), 10);
+        let (sha, size) = store.finish_upload(up).unwrap();
+        assert_eq!((sha.as_str(), size), (sha256_hex(b"hello farm").as_str(), 10));
+        assert_eq!(std::fs::read(store.blob_path(&sha)).unwrap(), b"hello farm");
+        assert_eq!(store.stored_bytes(), 10);
+        let mut cut = store.begin_upload().unwrap();
+        cut.write(b"half").unwrap();
+        drop(cut);
+        let names: Vec<String> = std::fs::read_dir(dir.join("blobs"))
+            .unwrap()
+            .flatten()
+            .map(|e| e.file_name().to_string_lossy().into())
+            .collect();
+        assert_eq!(names, [sha]);
+        let _ = std::fs::remove_dir_all(&dir);
+    }
 
     #[test]
     fn unsafe_paths_are_refused() {

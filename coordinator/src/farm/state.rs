@@ -27,6 +27,10 @@ pub struct FarmConfig {
     pub forget_worker_after: Duration,
     /// Most bytes one job's accumulations may take.
     pub max_job_bytes: u64,
+    /// Largest uploaded file.
+    pub max_upload_bytes: u64,
+    /// Most bytes of uploaded files the store keeps.
+    pub max_store_bytes: u64,
 }
 
 impl Default for FarmConfig {
@@ -37,6 +41,8 @@ impl Default for FarmConfig {
             speculate_after: Duration::from_secs(10),
             forget_worker_after: Duration::from_secs(60),
             max_job_bytes: 8 << 30,
+            max_upload_bytes: 4 << 30,
+            max_store_bytes: 64 << 30,
         }
     }
 }
