@@ -1,5 +1,5 @@
 //! Where the machine's units are rendered: [`Executor`] is the seam, the render pool
-//! ([`crate::RenderPool`]) the real one; the load test's executor returns empty results
+//! ([`crate::RenderPool`], which implements it) the real one; the load test's executor returns empty results
 //! at once, to measure the coordinator alone.
 
 use std::sync::Arc;
@@ -8,7 +8,7 @@ use std::sync::atomic::AtomicBool;
 use tracer::film::{SampleRange, Tile};
 
 use crate::asset_cache::LoadedJob;
-use crate::render_pool::{RenderOutcome, RenderPool};
+use crate::render_pool::RenderOutcome;
 
 pub trait Executor: Send + Sync + 'static {
     /// Units rendered at once (the machine leases twice as many).
@@ -24,21 +24,4 @@ pub trait Executor: Send + Sync + 'static {
         cancel: Arc<AtomicBool>,
         done: impl FnOnce(RenderOutcome) + Send + 'static,
     );
-}
-
-impl Executor for RenderPool {
-    fn threads(&self) -> usize {
-        RenderPool::threads(self)
-    }
-
-    fn render(
-        &self,
-        job: Arc<LoadedJob>,
-        tile: Tile,
-        samples: SampleRange,
-        cancel: Arc<AtomicBool>,
-        done: impl FnOnce(RenderOutcome) + Send + 'static,
-    ) {
-        self.spawn(job, tile, samples, cancel, done);
-    }
 }

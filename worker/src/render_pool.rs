@@ -9,6 +9,7 @@ use std::time::{Duration, Instant};
 use tracer::film::{Accumulation, SampleRange, Tile};
 
 use crate::asset_cache::LoadedJob;
+use crate::executor::Executor;
 
 /// How a unit given to the pool ended.
 pub enum RenderOutcome {
@@ -37,14 +38,16 @@ impl RenderPool {
             .map_err(|e| anyhow::anyhow!("cannot start {threads} render threads: {e}"))?;
         Ok(Self { pool, threads })
     }
+}
 
-    pub fn threads(&self) -> usize {
+impl Executor for RenderPool {
+    fn threads(&self) -> usize {
         self.threads
     }
 
     /// Queues a unit. `cancel` set before a thread starts it skips it; `done` is called
     /// exactly once, on the render thread.
-    pub fn spawn(
+    fn render(
         &self,
         job: Arc<LoadedJob>,
         tile: Tile,

@@ -4,7 +4,7 @@
 //! its sums evicted, and after a retention period it is forgotten. The edge and the
 //! commands call these; nothing else changes a job's phase.
 
-use std::path::{Path, PathBuf};
+use std::path::Path;
 use std::sync::{Arc, Mutex, MutexGuard};
 use std::time::{Duration, Instant};
 
@@ -201,7 +201,7 @@ fn finish(e: &mut super::state::JobEntry) {
 fn write_durably(
     image: &tracer::film::Image,
     info: Option<&tracer::output::RenderInfo>,
-    target: &PathBuf,
+    target: &Path,
 ) -> anyhow::Result<()> {
     let tmp = target.with_extension("exr.tmp");
     tracer::output::write_exr_with(image, info, &tmp)?;
@@ -280,8 +280,7 @@ fn load_job(shared: &Arc<Shared>, job: &str, restore: Option<Restored>) -> anyho
     let batch = spec.batch_spp.unwrap_or(shared.defaults.batch_spp);
     let (w, h, spp) = (loaded.camera.width, loaded.camera.height, loaded.settings.spp);
     let max_bytes = shared.farm().config.max_job_bytes;
-    let final_spp = spec.overrides.spp.unwrap_or(spp).max(spp);
-    super::job::Job::check_size(w, h, final_spp, tile, batch, max_bytes).map_err(anyhow::Error::msg)?;
+    super::job::Job::check_size(w, h, spp, tile, batch, max_bytes).map_err(anyhow::Error::msg)?;
     let mut farm = shared.farm();
     let e = farm.entry_mut(job)?;
     if e.job.phase.is_final() {

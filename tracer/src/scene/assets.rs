@@ -19,14 +19,17 @@ pub fn scene_files(scene_path: &Path) -> Result<Vec<PathBuf>, SceneError> {
 /// link out of it is an error naming the reference, and no file outside `root` is read
 /// on the way. A scene loaded after this check reads nothing else.
 pub fn check_within(scene_path: &Path, root: &Path) -> Result<(), SceneError> {
-    let root =
-        root.canonicalize().map_err(|e| SceneError::Io { path: root.display().to_string(), message: e.to_string() })?;
+    let canonical = |p: &Path| {
+        p.canonicalize().map_err(|e| SceneError::Io { path: p.display().to_string(), message: e.to_string() })
+    };
+    // From canonical paths on, every reference resolves to a plain absolute path, so a
+    // lexical check (after `.` and `..`) is exact; links are followed where files exist.
+    let (root, scene_path) = (canonical(root)?, canonical(scene_path)?);
     let inside = |p: &Path| is_within(p, &root);
-    let display = |p: &Path| p.strip_prefix(&root).unwrap_or(p).display().to_string();
-    for f in files_where(scene_path, &inside)? {
+    for f in files_where(&scene_path, &inside)? {
         if !inside(&f) {
             return Err(SceneError::Io {
-                path: display(scene_path),
+                path: scene_path.strip_prefix(&root).unwrap_or(&scene_path).display().to_string(),
                 message: format!(
                     "refers to {}, which is not one of the job's files (a farm's scene may only refer to files \
                      beside it, by relative paths)",
@@ -38,9 +41,8 @@ pub fn check_within(scene_path: &Path, root: &Path) -> Result<(), SceneError> {
     Ok(())
 }
 
-/// `path` (made absolute against the working folder's root `/` if need be) lies in
-/// `root` (canonical): lexically, after `.` and `..`, and — if it exists — also after
-/// following links.
+/// `path` (absolute, built from canonical parts) lies in `root` (canonical): lexically,
+/// after `.` and `..`, and — if it exists — also after following links.
 fn is_within(path: &Path, root: &Path) -> bool {
     use std::path::Component;
     let mut lexical = PathBuf::new();
@@ -53,13 +55,8 @@ fn is_within(path: &Path, root: &Path) -> bool {
             c => lexical.push(c),
         }
     }
-    let lexical_root = root;
-    if !lexical.starts_with(lexical_root) {
-        // The job's folder as given may not be canonical: compare canonical forms.
-        match lexical.parent().and_then(|p| p.canonicalize().ok()) {
-            Some(parent) if parent.starts_with(root) => {}
-            _ => return false,
-        }
+    if !lexical.starts_with(root) {
+        return false;
     }
     match path.canonicalize() {
         Ok(real) => real.starts_with(root),
