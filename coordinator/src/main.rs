@@ -1,7 +1,7 @@
 //! `coordinator`: tilefarm's command line — render locally, serve a farm, submit jobs to
 //! it, inspect it, and benchmark the tracer.
 
-use coordinator::commands::{bench, client, loadtest, render, serve};
+use coordinator::commands::{bench, certs, client, loadtest, render, serve};
 
 use std::io::Write;
 
@@ -31,6 +31,8 @@ enum Command {
     Status(client::StatusArgs),
     /// Cancel a job.
     Cancel(client::CancelArgs),
+    /// Make a farm's CA, certificates and access tokens (`certs init DIR`).
+    Certs(certs::CertsArgs),
     /// Measure kd-tree build time, ray throughput and render speed.
     Bench(bench::BenchArgs),
     /// Measure how many unit results a coordinator merges per second: a `serve` child
@@ -59,6 +61,7 @@ fn main() -> std::process::ExitCode {
         Command::Fetch(args) => client::fetch(args),
         Command::Status(args) => client::status(args),
         Command::Cancel(args) => client::cancel(args),
+        Command::Certs(args) => certs::run(args),
         Command::Bench(args) => bench::run(args),
         Command::Loadtest(args) => loadtest::run(args),
     };

@@ -6,6 +6,7 @@ tonic::include_proto!("tilefarm.v1");
 
 pub mod auth;
 pub mod domain;
+pub mod tls;
 pub mod wire;
 
 /// Protocol version: a worker and a coordinator with different versions refuse each

@@ -31,6 +31,7 @@ pub use executor::Executor;
 pub use link::{GrpcLink, Link};
 pub use machine::{Failure, Grant, Registration, Rendered, Renewal, Settings};
 pub use render_pool::{RenderOutcome, RenderPool};
+pub use rpc::Credentials;
 pub use shell::{Stop, drive};
 
 use std::io::Read;
@@ -84,6 +85,16 @@ pub struct Args {
     /// it lies. A farm's workers never trust a scene's paths.
     #[arg(long, hide = true)]
     trust_scene_paths: bool,
+
+    /// The farm's TLS folder (from `coordinator certs init`, copied to this machine):
+    /// connect over TLS, trusting the farm's CA, and prove this worker with its
+    /// certificate (`worker.pem` and `worker.key`, or those --tls-name gives).
+    #[arg(long, value_name = "DIR", env = "TILEFARM_TLS")]
+    tls: Option<PathBuf>,
+
+    /// Which certificate in the --tls folder is this worker's: NAME.pem and NAME.key.
+    #[arg(long, value_name = "NAME", default_value = proto::tls::WORKER, requires = "tls")]
+    tls_name: String,
 }
 
 /// Runs a worker until it is told to stop, then exits the process.
@@ -112,6 +123,8 @@ pub fn run(args: Args) -> ! {
         max_backoff: Duration::from_millis(args.max_backoff_ms),
         give_up_after: args.give_up_after_ms.map(Duration::from_millis),
         trust_scene_paths: args.trust_scene_paths,
+        tls: args.tls,
+        tls_name: args.tls_name,
     };
     let code = runtime.block_on(async move {
         let (stop_tx, stop_rx) = watch::channel(None);

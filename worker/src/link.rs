@@ -54,16 +54,16 @@ impl GrpcLink {
     /// use), keeping scene files in `cache_dir`.
     pub fn connect(
         url: &str,
-        token: Option<&proto::auth::Token>,
+        credentials: &rpc::Credentials,
         cache_dir: &std::path::Path,
         max_backoff: Duration,
     ) -> anyhow::Result<Self> {
-        Ok(Self::new(rpc::connect(url, token)?, Arc::new(AssetCache::open(cache_dir)?), max_backoff))
+        Ok(Self::new(rpc::connect(url, credentials)?, Arc::new(AssetCache::open(cache_dir)?), max_backoff))
     }
 
     /// A second connection to the coordinator at `url`, sharing this link's cache.
-    pub fn another_connection(&self, url: &str, token: Option<&proto::auth::Token>) -> anyhow::Result<Self> {
-        Ok(Self::new(rpc::connect(url, token)?, self.cache.clone(), self.max_backoff))
+    pub fn another_connection(&self, url: &str, credentials: &rpc::Credentials) -> anyhow::Result<Self> {
+        Ok(Self::new(rpc::connect(url, credentials)?, self.cache.clone(), self.max_backoff))
     }
 }
 

@@ -8,7 +8,7 @@ use anyhow::Context;
 use proto::auth::{ClientAuth, Token};
 use proto::farm_client::FarmClient;
 use tonic::service::interceptor::InterceptedService;
-use tonic::transport::{Channel, Endpoint};
+use tonic::transport::{Channel, ClientTlsConfig, Endpoint};
 use tonic::{Code, Status};
 
 pub type Client = FarmClient<InterceptedService<Channel, ClientAuth>>;
@@ -62,17 +62,41 @@ pub async fn call<T>(
     }
 }
 
+/// How a worker proves itself to a farm: a token, a certificate (over TLS), or nothing
+/// (a loopback farm without access control).
+#[derive(Clone, Debug, Default)]
+pub struct Credentials {
+    pub token: Option<Token>,
+    /// The farm's CA and this worker's certificate, from `--tls DIR`.
+    pub tls: Option<ClientTlsConfig>,
+}
+
+impl Credentials {
+    /// `TILEFARM_TOKEN` from the environment, and `<name>.pem`/`.key` from `tls_dir`.
+    pub fn from_env_and(tls_dir: Option<&std::path::Path>, name: &str) -> anyhow::Result<Self> {
+        let token = Token::from_env().map_err(anyhow::Error::msg)?;
+        let tls = match tls_dir {
+            Some(d) => Some(proto::tls::TlsDir::new(d).worker(name).map_err(anyhow::Error::msg)?),
+            None => None,
+        };
+        Ok(Self { token, tls })
+    }
+}
+
 /// A lazily connecting client: it (re)connects on demand, so a coordinator that is not
 /// up yet, or restarts, is just a transport failure of the calls in between.
-pub fn connect(url: &str, token: Option<&Token>) -> anyhow::Result<Client> {
-    let url = proto::coordinator_url(url);
-    let endpoint = Endpoint::from_shared(url.clone())
+pub fn connect(url: &str, credentials: &Credentials) -> anyhow::Result<Client> {
+    let url = proto::tls::url(url, credentials.tls.is_some()).map_err(anyhow::Error::msg)?;
+    let mut endpoint = Endpoint::from_shared(url.clone())
         .with_context(|| format!("invalid coordinator address '{url}'"))?
         .connect_timeout(Duration::from_secs(3))
         .tcp_nodelay(true)
         .http2_keep_alive_interval(Duration::from_secs(20))
         .keep_alive_timeout(Duration::from_secs(20));
-    Ok(FarmClient::with_interceptor(endpoint.connect_lazy(), ClientAuth::new(token))
+    if let Some(tls) = &credentials.tls {
+        endpoint = endpoint.tls_config(tls.clone()).context("--tls")?;
+    }
+    Ok(FarmClient::with_interceptor(endpoint.connect_lazy(), ClientAuth::new(credentials.token.as_ref()))
         .max_decoding_message_size(proto::MAX_MESSAGE_BYTES)
         .max_encoding_message_size(proto::MAX_MESSAGE_BYTES))
 }
@@ -100,9 +124,10 @@ mod tests {
         // connect() is lazy: no network is touched here, but it needs a runtime.
         let rt = tokio::runtime::Builder::new_current_thread().enable_all().build().unwrap();
         rt.block_on(async {
-            assert!(connect("127.0.0.1:1", None).is_ok());
-            assert!(connect("http://127.0.0.1:1", None).is_ok());
-            assert!(connect("http://bad host:1", None).is_err());
+            let none = Credentials::default();
+            assert!(connect("127.0.0.1:1", &none).is_ok());
+            assert!(connect("http://127.0.0.1:1", &none).is_ok());
+            assert!(connect("http://bad host:1", &none).is_err());
         });
     }
 }

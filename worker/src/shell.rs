@@ -28,6 +28,9 @@ pub struct Config {
     pub give_up_after: Option<Duration>,
     /// Let scenes refer to files outside their job ([`AssetCache::trust_scene_paths`]).
     pub trust_scene_paths: bool,
+    /// The farm's TLS folder: connect over TLS with the certificate `tls_name`.
+    pub tls: Option<std::path::PathBuf>,
+    pub tls_name: String,
 }
 
 /// Why the worker was asked to stop from outside.
@@ -50,8 +53,8 @@ impl From<Stop> for &'static str {
 /// or `stop`). An error only for what retrying cannot fix: a bad address, an unusable
 /// cache folder, the coordinator refusing this worker.
 pub async fn run(config: Config, stop: watch::Receiver<Option<Stop>>) -> anyhow::Result<()> {
-    let token = proto::auth::Token::from_env().map_err(anyhow::Error::msg)?;
-    let client = rpc::connect(&config.coordinator, token.as_ref())?;
+    let credentials = rpc::Credentials::from_env_and(config.tls.as_deref(), &config.tls_name)?;
+    let client = rpc::connect(&config.coordinator, &credentials)?;
     let cache = AssetCache::open(&config.cache_dir)?;
     let cache = Arc::new(if config.trust_scene_paths { cache.trust_scene_paths() } else { cache });
     let pool = RenderPool::new(config.threads)?;

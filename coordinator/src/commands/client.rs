@@ -20,9 +20,14 @@ pub struct FarmAddress {
     /// (http:// is assumed when no scheme is given).
     #[arg(long = "coordinator", value_name = "ADDRESS", env = "TILEFARM_COORDINATOR")]
     pub address: String,
-    /// The farm's access token, if it has one (`serve --token-file`).
+    /// Your access token on the farm (a `NAME.token` or `admin.token` file's contents
+    /// from `coordinator certs init`, or `serve --token-file`'s).
     #[arg(long, value_name = "TOKEN", env = "TILEFARM_TOKEN", hide_env_values = true)]
     pub token: Option<String>,
+    /// The farm's TLS folder, or a copy of its ca.pem's folder: connect over TLS,
+    /// trusting only the farm's CA.
+    #[arg(long, value_name = "DIR", env = "TILEFARM_TLS")]
+    pub tls: Option<PathBuf>,
 }
 
 impl FarmAddress {
@@ -31,7 +36,8 @@ impl FarmAddress {
             Some(t) => Some(proto::auth::Token::new(t).map_err(|e| anyhow::anyhow!("--token: {e}"))?),
             None => None,
         };
-        FarmClient::connect(&self.address, token.as_ref()).await
+        let tls = self.tls.as_ref().map(proto::tls::TlsDir::new);
+        FarmClient::connect(&self.address, token.as_ref(), tls.as_ref()).await
     }
 }
 

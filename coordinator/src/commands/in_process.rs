@@ -118,7 +118,7 @@ mod tests {
             tile_size: None,
             batch_spp: None,
         };
-        let job = shared.farm().add_job("j".into(), spec);
+        let job = shared.farm().add_job("j".into(), None, spec);
         let executor = FailOnPanic { pool: Panicking, shared: Arc::clone(&shared), job: job.clone() };
         let scene = tracer::scene::scene_from_toml(
             "[camera]\nposition = [0, 0, -5]\nlook_at = [0, 0, 0]\nwidth = 8\nheight = 8\n",

@@ -168,12 +168,12 @@ fn start_workers(
     stop: &tokio::sync::watch::Receiver<Option<worker::Stop>>,
 ) -> anyhow::Result<Vec<tokio::task::JoinHandle<anyhow::Result<u64>>>> {
     let cache = server.store.with_extension("worker-cache");
-    let base = GrpcLink::connect(&server.url, None, &cache, Duration::from_millis(500))?;
+    let base = GrpcLink::connect(&server.url, &Default::default(), &cache, Duration::from_millis(500))?;
     let scene = Arc::new(tokio::sync::OnceCell::new());
     let mut workers = Vec::new();
     for _ in 0..args.connections {
         let link = SimulatedLink {
-            link: base.another_connection(&server.url, None)?,
+            link: base.another_connection(&server.url, &Default::default())?,
             scene: Arc::clone(&scene),
             flow: Arc::clone(flow),
         };
@@ -190,7 +190,7 @@ fn start_workers(
 }
 
 async fn drive(server: &Server, args: &LoadtestArgs) -> anyhow::Result<()> {
-    let mut jobs = FarmClient::connect(&server.url, None).await?;
+    let mut jobs = FarmClient::connect(&server.url, None, None).await?;
     let (spec, job) = submit_job(&mut jobs, args).await?;
     let tiles = args.size.div_ceil(args.tile) as u64;
     let units = tiles * tiles * args.spp as u64;

@@ -3,6 +3,7 @@
 
 pub mod bench;
 pub(crate) mod builtin;
+pub mod certs;
 pub mod client;
 pub(crate) mod follow;
 pub(crate) mod in_process;

@@ -362,7 +362,7 @@ async fn execute(plan: Plan, args: &RunArgs) -> anyhow::Result<()> {
         eprintln!("resuming from {}: {} of {} units done", dir.display(), s.units_done(), s.job.units.len());
     }
     let name = spec.scene.path.clone();
-    let job = submit_job(&shared, name, spec, restore.map(|s| s.job))?;
+    let job = submit_job(&shared, name, None, spec, restore.map(|s| s.job))?;
 
     let mut renderers = Renderers::start(&shared, &job, workers, threads, &cache).await?;
     let mut bar = JobBar::new(args.quiet);
@@ -431,7 +431,13 @@ impl Renderers {
         }
         // A secret for this run alone: another user of this machine cannot reach the farm.
         let token = proto::auth::Token::random().map_err(anyhow::Error::msg)?;
-        let server = Server::start(Arc::clone(shared), "127.0.0.1:0", Some(token.clone())).await?;
+        let server = Server::start(
+            Arc::clone(shared),
+            "127.0.0.1:0",
+            proto::auth::Access::default().with_token(token.clone(), proto::auth::Caller::admin()),
+            None,
+        )
+        .await?;
         let children = LocalWorkers::spawn(workers, threads, &server.url(), cache, &token)?;
         tracing::info!("serving on {}; {workers} local worker(s) × {threads} thread(s)", server.url());
         Ok(Self { server: Some(server), children: Some(children), in_process: None, stop })

@@ -8,6 +8,10 @@ use std::time::Duration;
 use anyhow::Context;
 use clap::Args;
 
+use proto::auth::{Access, Caller, Token};
+use proto::tls::TlsDir;
+use tonic::transport::ServerTlsConfig;
+
 use crate::edge::server::Server;
 use crate::farm::Shared;
 use crate::farm::assets::AssetStore;
@@ -21,13 +25,18 @@ pub struct ServeArgs {
     /// (the address is printed).
     #[arg(long, default_value = "127.0.0.1:7878")]
     pub listen: String,
-    /// Serve on an address other machines can reach although the farm has no TLS or
-    /// access tokens yet: anyone who reaches the port can submit, cancel and fetch jobs
-    /// and join as a worker. Only on a network you trust.
+    /// The farm's TLS folder (`coordinator certs init DIR`): serve over TLS, admit
+    /// workers by their certificates, and clients by the tokens in DIR (`admin.token`
+    /// may do everything; `NAME.token` is user NAME, who sees only its own jobs).
+    #[arg(long, value_name = "DIR")]
+    pub tls: Option<PathBuf>,
+    /// Serve on an address other machines can reach without TLS and tokens: anyone who
+    /// reaches the port can submit, cancel and fetch jobs and join as a worker. Only on a
+    /// network you trust.
     #[arg(long)]
     pub insecure: bool,
-    /// A file whose first line is the farm's access token: only calls bearing it (workers
-    /// and clients with --token or TILEFARM_TOKEN) are served.
+    /// A file whose first line is an admin access token: calls bearing it (workers and
+    /// clients with --token or TILEFARM_TOKEN) may do everything.
     #[arg(long, value_name = "FILE")]
     pub token_file: Option<PathBuf>,
     /// Where uploaded scene files are kept (content-addressed).
@@ -105,6 +114,36 @@ impl FarmArgs {
     }
 }
 
+/// Who may call this farm, and its TLS configuration. Off loopback, a farm needs TLS and
+/// at least one token, unless `--insecure` says otherwise (loudly).
+fn access_of(args: &ServeArgs) -> anyhow::Result<(Access, Option<ServerTlsConfig>)> {
+    let (mut access, tls) = match &args.tls {
+        Some(dir) => {
+            let dir = TlsDir::new(dir);
+            (dir.access().map_err(anyhow::Error::msg)?, Some(dir.server().map_err(anyhow::Error::msg)?))
+        }
+        None => (Access::open(), None),
+    };
+    if let Some(f) = &args.token_file {
+        access = access.with_token(Token::from_file(f).map_err(anyhow::Error::msg)?, Caller::admin());
+    }
+    if !loopback_only(&args.listen)? && (tls.is_none() || !access.has_tokens()) {
+        anyhow::ensure!(
+            args.insecure,
+            "--listen {}: other machines could reach this farm, so it needs TLS and access tokens: make them with \
+             `coordinator certs init DIR` and add --tls DIR (or listen on 127.0.0.1; --insecure serves it \
+             unprotected on a network you trust)",
+            args.listen
+        );
+        eprintln!(
+            "\n!!! WARNING: serving on {} without TLS and access tokens (--insecure): anyone who can reach this \
+             port can submit, cancel and fetch jobs, join as a worker and poison images !!!\n",
+            args.listen
+        );
+    }
+    Ok((access, tls))
+}
+
 /// Whether every address `listen` names is a loopback one.
 fn loopback_only(listen: &str) -> anyhow::Result<bool> {
     use std::net::ToSocketAddrs;
@@ -114,25 +153,8 @@ fn loopback_only(listen: &str) -> anyhow::Result<bool> {
 }
 
 pub fn run(args: ServeArgs) -> anyhow::Result<()> {
-    if !loopback_only(&args.listen)? {
-        anyhow::ensure!(
-            args.insecure,
-            "--listen {}: other machines could reach this farm, and it has no TLS or access tokens yet, so anyone \
-             who reaches the port could submit, cancel or fetch jobs and join as a worker; listen on 127.0.0.1, or \
-             add --insecure to serve it anyway on a network you trust",
-            args.listen
-        );
-        eprintln!(
-            "WARNING: serving on {} without TLS or access tokens (--insecure): anyone who can reach this port \
-             controls the farm and its images",
-            args.listen
-        );
-    }
+    let (access, tls) = access_of(&args)?;
     let config = args.farm.config()?;
-    let token = match &args.token_file {
-        Some(f) => Some(proto::auth::Token::from_file(f).map_err(anyhow::Error::msg)?),
-        None => None,
-    };
     tracer::memory::return_large_buffers_when_freed();
     let store_dir = args
         .checkpoint
@@ -155,7 +177,7 @@ pub fn run(args: ServeArgs) -> anyhow::Result<()> {
     let runtime =
         tokio::runtime::Builder::new_multi_thread().worker_threads(2).enable_all().build().context("async runtime")?;
     runtime.block_on(async move {
-        let server = Server::start(Arc::clone(&shared), &args.listen, token).await?;
+        let server = Server::start(Arc::clone(&shared), &args.listen, access, tls).await?;
         // The first line of output is the URL, for scripts and tests.
         println!("listening on {}", server.url());
         tracing::info!(store = %store_dir.display(), "coordinator serving");
@@ -304,7 +326,7 @@ fn restore_jobs(shared: &Arc<Shared>, root: &Path) -> anyhow::Result<()> {
         let mut spec = snap.spec;
         spec.overrides.spp = None;
         let (done, total) = (snap.job.units.iter().filter(|u| u.done).count(), snap.job.units.len());
-        let id = submit_job(shared, snap.name, spec, Some(snap.job))
+        let id = submit_job(shared, snap.name, snap.owner, spec, Some(snap.job))
             .with_context(|| format!("restoring {}", dir.display()))?;
         tracing::info!(job = %id, done, total, "job restored from its checkpoint");
     }

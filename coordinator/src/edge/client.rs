@@ -8,6 +8,7 @@ use anyhow::Context;
 use proto::auth::{ClientAuth, Token};
 use proto::domain::{AssetRef, JobSpec};
 use proto::jobs_client::JobsClient;
+use proto::tls::TlsDir;
 use tonic::service::interceptor::InterceptedService;
 use tonic::transport::Channel;
 
@@ -50,19 +51,29 @@ pub struct WorkerRow {
 }
 
 fn message(s: tonic::Status) -> anyhow::Error {
-    anyhow::anyhow!("{}", s.message())
+    use tonic::Code;
+    match s.code() {
+        // What a plain-text client sees of a TLS farm (and the reverse): say what to try.
+        Code::Unavailable | Code::Cancelled | Code::Unknown => anyhow::anyhow!(
+            "{} (the connection failed: is the address right, and does the farm use TLS? then give --tls DIR)",
+            s.message()
+        ),
+        _ => anyhow::anyhow!("{}", s.message()),
+    }
 }
 
 impl FarmClient {
     /// Connects to a coordinator given as `host:port` or a URL; every call bears `token`.
-    pub async fn connect(address: &str, token: Option<&Token>) -> anyhow::Result<Self> {
-        let url = proto::coordinator_url(address);
-        let channel = tonic::transport::Endpoint::from_shared(url.clone())
+    /// With `tls`, over TLS, trusting only the farm's CA.
+    pub async fn connect(address: &str, token: Option<&Token>, tls: Option<&TlsDir>) -> anyhow::Result<Self> {
+        let url = proto::tls::url(address, tls.is_some()).map_err(|e| anyhow::anyhow!("--coordinator {e}"))?;
+        let mut endpoint = tonic::transport::Endpoint::from_shared(url.clone())
             .map_err(|e| anyhow::anyhow!("--coordinator {address}: not an address ({e})"))?
-            .connect_timeout(Duration::from_secs(10))
-            .connect()
-            .await
-            .with_context(|| format!("connecting to {url}"))?;
+            .connect_timeout(Duration::from_secs(10));
+        if let Some(tls) = tls {
+            endpoint = endpoint.tls_config(tls.client().map_err(anyhow::Error::msg)?).context("--tls")?;
+        }
+        let channel = endpoint.connect().await.with_context(|| format!("connecting to {url}"))?;
         let jobs = JobsClient::with_interceptor(channel, ClientAuth::new(token))
             .max_decoding_message_size(proto::MAX_MESSAGE_BYTES)
             .max_encoding_message_size(proto::MAX_MESSAGE_BYTES);

@@ -6,23 +6,32 @@ use std::sync::Arc;
 use std::time::{Duration, Instant};
 
 use anyhow::Context;
+use proto::auth::{Access, ServerAuth, Service};
 use tokio::sync::oneshot;
 use tokio_stream::StreamExt;
 use tokio_stream::wrappers::TcpListenerStream;
+use tonic::service::interceptor::InterceptedService;
+use tonic::transport::ServerTlsConfig;
 
 use crate::edge::service::{FarmService, JobsService};
 use crate::farm::Shared;
 
 pub struct Server {
     pub addr: SocketAddr,
+    scheme: &'static str,
     stop: Option<oneshot::Sender<()>>,
     task: tokio::task::JoinHandle<Result<(), tonic::transport::Error>>,
 }
 
 impl Server {
-    /// Binds `listen` (port 0 asks the OS for a free port) and serves in the background;
-    /// with a `token`, only to calls that bear it.
-    pub async fn start(shared: Arc<Shared>, listen: &str, token: Option<proto::auth::Token>) -> anyhow::Result<Self> {
+    /// Binds `listen` (port 0 asks the OS for a free port) and serves in the background,
+    /// to the callers `access` admits, over TLS when `tls` is given.
+    pub async fn start(
+        shared: Arc<Shared>,
+        listen: &str,
+        access: Access,
+        tls: Option<ServerTlsConfig>,
+    ) -> anyhow::Result<Self> {
         let listener = tokio::net::TcpListener::bind(listen).await.with_context(|| format!("listening on {listen}"))?;
         let addr = listener.local_addr()?;
         let (stop, stopped) = oneshot::channel::<()>();
@@ -32,9 +41,16 @@ impl Server {
         let jobs = proto::jobs_server::JobsServer::new(JobsService(Arc::clone(&shared)))
             .max_decoding_message_size(proto::MAX_MESSAGE_BYTES)
             .max_encoding_message_size(proto::MAX_MESSAGE_BYTES);
-        let auth = proto::auth::ServerAuth::new(token);
-        let farm = tonic::service::interceptor::InterceptedService::new(farm, auth.clone());
-        let jobs = tonic::service::interceptor::InterceptedService::new(jobs, auth);
+        let access = Arc::new(access);
+        let farm = InterceptedService::new(farm, ServerAuth::new(Arc::clone(&access), Service::Workers));
+        let jobs = InterceptedService::new(jobs, ServerAuth::new(access, Service::Jobs));
+        let mut builder = tonic::transport::Server::builder();
+        let scheme = if let Some(tls) = tls {
+            builder = builder.tls_config(tls).context("the TLS configuration")?;
+            "https"
+        } else {
+            "http"
+        };
         let reaper = Arc::clone(&shared);
         tokio::spawn(async move {
             loop {
@@ -45,19 +61,17 @@ impl Server {
                 }
             }
         });
-        let task = tokio::spawn(
-            tonic::transport::Server::builder().add_service(farm).add_service(jobs).serve_with_incoming_shutdown(
-                TcpListenerStream::new(listener).map(no_delay),
-                async {
-                    let _ = stopped.await;
-                },
-            ),
-        );
-        Ok(Self { addr, stop: Some(stop), task })
+        let task = tokio::spawn(builder.add_service(farm).add_service(jobs).serve_with_incoming_shutdown(
+            TcpListenerStream::new(listener).map(no_delay),
+            async {
+                let _ = stopped.await;
+            },
+        ));
+        Ok(Self { addr, scheme, stop: Some(stop), task })
     }
 
     pub fn url(&self) -> String {
-        format!("http://{}", self.addr)
+        format!("{}://{}", self.scheme, self.addr)
     }
 
     /// Stops accepting requests and waits (briefly) for the server to wind down.

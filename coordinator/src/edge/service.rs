@@ -11,6 +11,8 @@ use tokio_stream::Stream;
 use tokio_stream::wrappers::ReceiverStream;
 use tonic::{Request, Response, Status, Streaming};
 
+use proto::auth::{Caller, Role};
+
 use super::wire::{error_to_status, status_to_proto};
 use crate::farm::Shared;
 use crate::farm::job::{Applied, UnitResult};
@@ -27,6 +29,7 @@ type BoxStream<T> = Pin<Box<dyn Stream<Item = Result<T, Status>> + Send>>;
 #[tonic::async_trait]
 impl proto::farm_server::Farm for FarmService {
     async fn register(&self, req: Request<proto::RegisterRequest>) -> Result<Response<proto::RegisterReply>, Status> {
+        let caller = proto::auth::caller(&req);
         let r = req.into_inner();
         if r.protocol_version != proto::PROTOCOL_VERSION {
             return Err(Status::failed_precondition(format!(
@@ -43,8 +46,9 @@ impl proto::farm_server::Farm for FarmService {
             )));
         }
         let mut farm = self.0.farm();
-        let id = farm.register(r.hostname.clone(), r.threads, Instant::now());
-        tracing::info!(worker = id, host = %r.hostname, threads = r.threads, version = %r.version, "worker registered");
+        let id =
+            farm.register_as(&caller.name, r.hostname.clone(), r.threads, Instant::now()).map_err(error_to_status)?;
+        tracing::info!(worker = id, host = %r.hostname.escape_debug(), threads = r.threads, version = %r.version.escape_debug(), identity = %caller.name, "worker registered");
         Ok(Response::new(proto::RegisterReply {
             worker_id: id,
             lease_ms: farm.config.lease.as_millis() as u32,
@@ -53,8 +57,10 @@ impl proto::farm_server::Farm for FarmService {
     }
 
     async fn lease(&self, req: Request<proto::LeaseRequest>) -> Result<Response<proto::LeaseReply>, Status> {
+        let caller = proto::auth::caller(&req);
         let r = req.into_inner();
         let mut farm = self.0.farm();
+        farm.check_identity(r.worker_id, &caller.name).map_err(error_to_status)?;
         if farm.shutting_down {
             return Ok(Response::new(proto::LeaseReply { shutdown: true, ..Default::default() }));
         }
@@ -70,6 +76,7 @@ impl proto::farm_server::Farm for FarmService {
         &self,
         req: Request<proto::HeartbeatRequest>,
     ) -> Result<Response<proto::HeartbeatReply>, Status> {
+        let caller = proto::auth::caller(&req);
         let r = req.into_inner();
         if r.held.len() > MAX_HELD_PER_HEARTBEAT {
             return Err(Status::invalid_argument(format!(
@@ -79,6 +86,7 @@ impl proto::farm_server::Farm for FarmService {
         }
         let held: Vec<(String, u64)> = r.held.into_iter().map(|k| (k.job_id, k.unit_id)).collect();
         let mut farm = self.0.farm();
+        farm.check_identity(r.worker_id, &caller.name).map_err(error_to_status)?;
         let abandon = farm.heartbeat(r.worker_id, &held, Instant::now()).map_err(error_to_status)?;
         Ok(Response::new(proto::HeartbeatReply {
             abandon: abandon.into_iter().map(|(job_id, unit_id)| proto::UnitKey { job_id, unit_id }).collect(),
@@ -87,8 +95,10 @@ impl proto::farm_server::Farm for FarmService {
     }
 
     async fn submit_result(&self, req: Request<proto::UnitResult>) -> Result<Response<proto::SubmitReply>, Status> {
+        let caller = proto::auth::caller(&req);
         let proto::wire::ReceivedResult { worker_id, job_id, result } =
             proto::wire::result_from_proto(req.into_inner()).map_err(Status::invalid_argument)?;
+        self.0.farm().check_identity(worker_id, &caller.name).map_err(error_to_status)?;
         let key = format!("{job_id}/{}", result.unit);
         match self.0.submit_result(worker_id, &job_id, &result) {
             Ok(a) => Ok(Response::new(proto::SubmitReply { accepted: a == Applied::Merged })),
@@ -103,7 +113,9 @@ impl proto::farm_server::Farm for FarmService {
         &self,
         req: Request<proto::SubmitResultsRequest>,
     ) -> Result<Response<proto::SubmitResultsReply>, Status> {
+        let caller = proto::auth::caller(&req);
         let r = req.into_inner();
+        self.0.farm().check_identity(r.worker_id, &caller.name).map_err(error_to_status)?;
         if r.results.len() > proto::MAX_RESULTS_PER_CALL {
             return Err(Status::invalid_argument(format!(
                 "{} results in one call; at most {} are taken",
@@ -184,6 +196,26 @@ impl proto::farm_server::Farm for FarmService {
 
 pub struct JobsService(pub Arc<Shared>);
 
+impl JobsService {
+    /// May `caller` watch, fetch or cancel `job`? Users only their own; a job not
+    /// listed any more is judged by its stored image's owner.
+    fn may_touch(&self, caller: &Caller, job: &str) -> Result<(), Status> {
+        if caller.role == Role::Admin {
+            return Ok(());
+        }
+        let listed = self.0.farm().entry(job).ok().map(|e| e.job.owner.clone());
+        let owner = match listed {
+            Some(owner) => owner,
+            None => self.0.store().stored_image(job).and_then(|p| crate::farm::lifecycle::stored_owner(&p)),
+        };
+        if caller.may_touch(owner.as_deref()) {
+            Ok(())
+        } else {
+            Err(Status::permission_denied(format!("{job} is not one of your jobs")))
+        }
+    }
+}
+
 #[tonic::async_trait]
 impl proto::jobs_server::Jobs for JobsService {
     async fn upload_asset(
@@ -228,17 +260,21 @@ impl proto::jobs_server::Jobs for JobsService {
         &self,
         req: Request<proto::SubmitJobRequest>,
     ) -> Result<Response<proto::SubmitJobReply>, Status> {
+        let caller = proto::auth::caller(&req);
+        let owner = (caller.role == Role::User).then(|| caller.name.clone());
         let r = req.into_inner();
         let spec = proto::wire::submission_from_proto(r.scene, r.assets, r.settings.as_ref())
             .map_err(Status::invalid_argument)?;
-        let job_id = crate::farm::lifecycle::submit_job(&self.0, r.name, spec, None).map_err(error_to_status)?;
+        let job_id = crate::farm::lifecycle::submit_job(&self.0, r.name, owner, spec, None).map_err(error_to_status)?;
         Ok(Response::new(proto::SubmitJobReply { job_id }))
     }
 
     type WatchJobStream = BoxStream<proto::JobStatus>;
 
     async fn watch_job(&self, req: Request<proto::JobRequest>) -> Result<Response<Self::WatchJobStream>, Status> {
+        let caller = proto::auth::caller(&req);
         let job = req.into_inner().job_id;
+        self.may_touch(&caller, &job)?;
         self.0.farm().status(&job, Instant::now()).map_err(error_to_status)?;
         let (tx, rx) = mpsc::channel(4);
         let shared = Arc::clone(&self.0);
@@ -267,7 +303,9 @@ impl proto::jobs_server::Jobs for JobsService {
     type FetchImageStream = BoxStream<proto::ImageChunk>;
 
     async fn fetch_image(&self, req: Request<proto::JobRequest>) -> Result<Response<Self::FetchImageStream>, Status> {
+        let caller = proto::auth::caller(&req);
         let job = req.into_inner().job_id;
+        self.may_touch(&caller, &job)?;
         // A finished job's image lives in the store (also once the job is forgotten).
         let known = self.0.farm().entry(&job).ok().map(|e| e.stored.clone());
         let stored = match known {
@@ -299,12 +337,15 @@ impl proto::jobs_server::Jobs for JobsService {
     }
 
     async fn cancel_job(&self, req: Request<proto::JobRequest>) -> Result<Response<proto::JobStatus>, Status> {
+        let caller = proto::auth::caller(&req);
         let job = req.into_inner().job_id;
+        self.may_touch(&caller, &job)?;
         Ok(Response::new(status_to_proto(self.0.cancel(&job).map_err(error_to_status)?)))
     }
 
-    async fn list_jobs(&self, _: Request<proto::ListRequest>) -> Result<Response<proto::ListJobsReply>, Status> {
-        let statuses = self.0.farm().statuses(Instant::now());
+    async fn list_jobs(&self, req: Request<proto::ListRequest>) -> Result<Response<proto::ListJobsReply>, Status> {
+        let caller = proto::auth::caller(&req);
+        let statuses = self.0.farm().statuses_of(Instant::now(), |owner| caller.may_touch(owner));
         let jobs = statuses.into_iter().map(status_to_proto).collect();
         Ok(Response::new(proto::ListJobsReply { jobs }))
     }

@@ -83,6 +83,8 @@ pub fn error_to_status(e: FarmError) -> Status {
         FarmError::NotUploaded(_) | FarmError::Rejected(Rejection::NotHolder(..) | Rejection::NotRunning(_)) => {
             Status::failed_precondition(e.to_string())
         }
+        FarmError::Forbidden(_) => Status::permission_denied(e.to_string()),
+        FarmError::Exhausted(_) => Status::resource_exhausted(e.to_string()),
     }
 }
 

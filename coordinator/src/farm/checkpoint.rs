@@ -21,7 +21,10 @@ use tracer::film::{Accumulation, SampleRange, Tile};
 
 use super::job::{Job, Restored, UnitRecord};
 
-const MAGIC: &[u8; 16] = b"tilefarm-ckpt-1\n";
+/// Version 2 records the job's owner after its name; version 1 files (no owner) are
+/// still read.
+const MAGIC: &[u8; 16] = b"tilefarm-ckpt-2\n";
+const MAGIC_1: &[u8; 16] = b"tilefarm-ckpt-1\n";
 const FILE: &str = "checkpoint.tfck";
 /// Beside a checkpoint: its job was cancelled, and must come back cancelled.
 const CANCELLED: &str = "cancelled";
@@ -31,6 +34,7 @@ const CANCELLED: &str = "cancelled";
 pub struct Snapshot {
     pub spec: JobSpec,
     pub name: String,
+    pub owner: Option<String>,
     pub job: Restored,
 }
 
@@ -39,6 +43,7 @@ impl Snapshot {
         Self {
             spec: spec.clone(),
             name: job.name.clone(),
+            owner: job.owner.clone(),
             job: Restored {
                 width: job.width,
                 height: job.height,
@@ -123,6 +128,7 @@ pub fn encode(s: &Snapshot) -> Vec<u8> {
     out.extend_from_slice(MAGIC);
     put_bytes(&mut out, &proto::wire::job_to_bytes(&s.spec));
     put_bytes(&mut out, s.name.as_bytes());
+    put_bytes(&mut out, s.owner.as_deref().unwrap_or("").as_bytes());
     for v in [j.width, j.height, j.spp, j.tile_size, j.batch_spp, j.non_negative as u32] {
         put_varint(&mut out, v as u128);
     }
@@ -194,7 +200,7 @@ impl Reader<'_> {
 }
 
 pub fn decode(bytes: &[u8]) -> anyhow::Result<Snapshot> {
-    if bytes.len() < MAGIC.len() + 32 || &bytes[..MAGIC.len()] != MAGIC {
+    if bytes.len() < MAGIC.len() + 32 || (&bytes[..MAGIC.len()] != MAGIC && &bytes[..MAGIC.len()] != MAGIC_1) {
         bail!("not a tilefarm checkpoint (or truncated)");
     }
     let (body, digest) = bytes.split_at(bytes.len() - 32);
@@ -204,6 +210,11 @@ pub fn decode(bytes: &[u8]) -> anyhow::Result<Snapshot> {
     let mut r = Reader { b: body, pos: MAGIC.len() };
     let spec = proto::wire::job_from_bytes(r.bytes()?).map_err(anyhow::Error::msg).context("job spec")?;
     let name = String::from_utf8(r.bytes()?.to_vec()).context("job name")?;
+    let owner = if &bytes[..MAGIC.len()] == MAGIC {
+        Some(String::from_utf8(r.bytes()?.to_vec()).context("job owner")?).filter(|o| !o.is_empty())
+    } else {
+        None
+    };
     let (width, height, spp, tile_size, batch_spp) = (r.u32()?, r.u32()?, r.u32()?, r.u32()?, r.u32()?);
     let non_negative = r.u32()? != 0;
     let (rays, nonfinite) = (r.u64()?, r.u64()?);
@@ -232,6 +243,7 @@ pub fn decode(bytes: &[u8]) -> anyhow::Result<Snapshot> {
     Ok(Snapshot {
         spec,
         name,
+        owner,
         // A cancel is kept beside the checkpoint, by `serve` (see `mark_cancelled`).
         job: Restored {
             width,

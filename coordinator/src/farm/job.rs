@@ -52,6 +52,9 @@ pub struct Restored {
 pub struct Job {
     pub id: String,
     pub name: String,
+    /// The user who submitted the job (None: an admin, or a farm without users); only
+    /// they and admins may watch, fetch or cancel it.
+    pub owner: Option<String>,
     pub phase: JobPhase,
     pub width: u32,
     pub height: u32,
@@ -110,6 +113,7 @@ impl Job {
         Self {
             id,
             name,
+            owner: None,
             phase: JobPhase::Loading,
             width: 0,
             height: 0,

@@ -134,13 +134,15 @@ impl Shared {
                 .iter()
                 .filter(|e| e.job.phase == JobPhase::Done && !e.job.is_evicted())
                 .filter(|e| retry.get(&e.job.id).is_none_or(|&at| now >= at))
-                .map(|e| (e.job.id.clone(), e.job.image(), e.render_info()))
+                .map(|e| (e.job.id.clone(), e.job.image(), e.render_info(), e.job.owner.clone()))
                 .collect()
         };
         let mut stored = Vec::new();
-        for (id, image, info) in done {
+        for (id, image, info, owner) in done {
             let path = images.join(format!("{id}.exr"));
-            if let Err(e) = write_durably(&image, info.as_ref(), &path) {
+            let written =
+                write_owner(images, &id, owner.as_deref()).and_then(|()| write_durably(&image, info.as_ref(), &path));
+            if let Err(e) = written {
                 tracing::warn!(job = %id, "the finished image was not stored; trying again in 5 s: {e:#}");
                 retry.insert(id, now + Duration::from_secs(5));
                 continue;
@@ -198,6 +200,21 @@ fn finish(e: &mut super::state::JobEntry) {
 }
 
 /// Writes an EXR so that a crash leaves the old file or the whole new one.
+/// Beside a stored image, `<job>.owner` names the user who may fetch it (none: admins).
+pub const OWNER_SUFFIX: &str = "owner";
+
+fn write_owner(images: &Path, job: &str, owner: Option<&str>) -> anyhow::Result<()> {
+    let Some(owner) = owner else { return Ok(()) };
+    let path = images.join(format!("{job}.{OWNER_SUFFIX}"));
+    std::fs::write(&path, owner).with_context(|| format!("writing {}", path.display()))
+}
+
+/// Who owns the stored image of a job no longer listed (None: an admin's).
+pub fn stored_owner(image: &Path) -> Option<String> {
+    let text = std::fs::read_to_string(image.with_extension(OWNER_SUFFIX)).ok()?;
+    Some(text.chars().take(64).collect())
+}
+
 fn write_durably(
     image: &tracer::film::Image,
     info: Option<&tracer::output::RenderInfo>,
@@ -216,6 +233,7 @@ fn write_durably(
 pub fn submit_job(
     shared: &Arc<Shared>,
     name: String,
+    owner: Option<String>,
     spec: JobSpec,
     restore: Option<Restored>,
 ) -> Result<String, FarmError> {
@@ -241,8 +259,9 @@ pub fn submit_job(
     }
     let name = if name.trim().is_empty() { spec.scene.path.clone() } else { name.chars().take(200).collect() };
     let (scene, files) = (spec.scene.path.clone(), spec.assets.len() + 1);
-    let id = shared.farm().add_job(name.clone(), spec);
-    tracing::info!(job = %id, name = %name, scene = %scene, files, "job submitted");
+    let who = owner.clone().unwrap_or_else(|| "admin".into());
+    let id = shared.farm().add_job(name.clone(), owner, spec);
+    tracing::info!(job = %id, name = %name, scene = %scene, files, owner = %who, "job submitted");
     let shared = Arc::clone(shared);
     let job = id.clone();
     std::thread::spawn(move || {

@@ -50,6 +50,9 @@ impl Default for FarmConfig {
 #[derive(Clone, Debug)]
 pub struct Worker {
     pub id: WorkerId,
+    /// Who registered it (a certificate's fingerprint, or the token's caller): only they
+    /// may act as this worker.
+    pub identity: String,
     pub hostname: String,
     pub threads: u32,
     pub last_seen: Instant,
@@ -92,7 +95,16 @@ pub enum FarmError {
     NotUploaded(String),
     #[error(transparent)]
     Rejected(#[from] Rejection),
+    /// The caller may not do this (another's worker id or job).
+    #[error("{0}")]
+    Forbidden(String),
+    /// A limit was reached (registrations of one identity).
+    #[error("{0}")]
+    Exhausted(String),
 }
+
+/// Most live registrations one identity (a worker certificate, a token) may hold.
+pub const MAX_REGISTRATIONS_PER_IDENTITY: usize = 1024;
 
 #[derive(Default)]
 pub struct Farm {
@@ -122,11 +134,47 @@ impl Farm {
         Self { config, next_worker: first_worker_id(), next_job: 1, ..Default::default() }
     }
 
+    /// Registers a worker of the farm's own (in-process, tests).
     pub fn register(&mut self, hostname: String, threads: u32, now: Instant) -> WorkerId {
         let id = self.next_worker;
         self.next_worker += 1;
-        self.workers.insert(id, Worker { id, hostname, threads, last_seen: now, units_done: 0 });
+        let identity = "admin".to_string();
+        self.workers.insert(id, Worker { id, identity, hostname, threads, last_seen: now, units_done: 0 });
         id
+    }
+
+    /// Registers a worker for `identity`, which may hold at most
+    /// [`MAX_REGISTRATIONS_PER_IDENTITY`] live registrations.
+    pub fn register_as(
+        &mut self,
+        identity: &str,
+        hostname: String,
+        threads: u32,
+        now: Instant,
+    ) -> Result<WorkerId, FarmError> {
+        self.reap(now);
+        let held = self.workers.values().filter(|w| w.identity == identity).count();
+        if held >= MAX_REGISTRATIONS_PER_IDENTITY {
+            return Err(FarmError::Exhausted(format!(
+                "this identity already has {held} workers registered, the most one may have"
+            )));
+        }
+        let id = self.register(hostname, threads, now);
+        if let Some(w) = self.workers.get_mut(&id) {
+            w.identity = identity.to_string();
+        }
+        Ok(id)
+    }
+
+    /// Is `identity` the one that registered `worker`? (An unknown worker is left to
+    /// the call itself, which tells it to register again.)
+    pub fn check_identity(&self, worker: WorkerId, identity: &str) -> Result<(), FarmError> {
+        match self.workers.get(&worker) {
+            Some(w) if w.identity != identity => {
+                Err(FarmError::Forbidden(format!("worker {worker} was registered by another identity")))
+            }
+            _ => Ok(()),
+        }
     }
 
     fn touch(&mut self, worker: WorkerId, now: Instant) -> Result<&mut Worker, FarmError> {
@@ -142,7 +190,7 @@ impl Farm {
 
     /// Creates a job in the loading phase; returns its id. A job restored from a
     /// checkpoint keeps its id (`spec.job_id`) when it is free.
-    pub fn add_job(&mut self, name: String, mut spec: JobSpec) -> String {
+    pub fn add_job(&mut self, name: String, owner: Option<String>, mut spec: JobSpec) -> String {
         let wanted = spec.job_id.strip_prefix("job-").and_then(|n| n.parse::<u64>().ok());
         let id = match wanted {
             Some(n) if !self.index.contains_key(&spec.job_id) => {
@@ -157,13 +205,9 @@ impl Farm {
         };
         spec.job_id = id.clone();
         self.index.insert(id.clone(), self.jobs.len());
-        let entry = JobEntry {
-            job: Job::loading(id.clone(), name),
-            spec: Arc::new(spec),
-            scene: None,
-            info: None,
-            stored: None,
-        };
+        let mut job = Job::loading(id.clone(), name);
+        job.owner = owner;
+        let entry = JobEntry { job, spec: Arc::new(spec), scene: None, info: None, stored: None };
         self.jobs.push(entry);
         id
     }
@@ -280,8 +324,13 @@ impl Farm {
 
     /// Every listed job's status, in submission order.
     pub fn statuses(&self, now: Instant) -> Vec<JobStatus> {
+        self.statuses_of(now, |_| true)
+    }
+
+    /// The statuses of the jobs whose owner `visible` accepts.
+    pub fn statuses_of(&self, now: Instant, visible: impl Fn(Option<&str>) -> bool) -> Vec<JobStatus> {
         let workers = self.live_workers(now);
-        self.jobs.iter().map(|e| status_of(&e.job, workers)).collect()
+        self.jobs.iter().filter(|e| visible(e.job.owner.as_deref())).map(|e| status_of(&e.job, workers)).collect()
     }
 }
 
@@ -354,8 +403,8 @@ mod tests {
         let mut f = Farm::new(FarmConfig::default());
         let now = Instant::now();
         let w = f.register("h".into(), 2, now);
-        let a = f.add_job("a".into(), spec());
-        let b = f.add_job("b".into(), spec());
+        let a = f.add_job("a".into(), None, spec());
+        let b = f.add_job("b".into(), None, spec());
         f.entry_mut(&b).unwrap().job.start(4, 4, 2, 4, 2, true);
         f.entry_mut(&a).unwrap().job.start(8, 4, 2, 4, 2, true);
         let got = f.lease(w, 3, now).unwrap();
