@@ -269,14 +269,26 @@ pub fn status(args: StatusArgs) -> anyhow::Result<()> {
         let jobs = client.jobs().await?;
         let workers = client.workers().await?;
         println!("jobs:");
+        if jobs.is_empty() {
+            println!("  (none)");
+        }
         for j in jobs {
             println!("  {}", crate::commands::progress::status_line(&j));
+            for w in &j.warnings {
+                println!("      ! {w}");
+            }
         }
         println!("workers:");
         for w in workers {
             println!(
-                "  {:<4} {:<20} {:>3} threads  {:>3} held  {:>6} done  seen {:.1}s ago",
-                w.id, w.hostname, w.threads, w.units_held, w.units_done, w.last_seen_s
+                "  {:<4} {:<20} {:>3} threads  {:>3} held  {:>6} done  seen {:.1}s ago{}",
+                w.id,
+                w.hostname,
+                w.threads,
+                w.units_held,
+                w.units_done,
+                w.last_seen_s,
+                if w.quarantined { "  QUARANTINED (returned a wrong result)" } else { "" }
             );
         }
         Ok(())

@@ -18,6 +18,10 @@ use crate::farm::assets::AssetStore;
 use crate::farm::checkpoint;
 use crate::farm::lifecycle::submit_job;
 use crate::farm::state::{Farm, FarmConfig};
+use crate::farm::verify::Policy;
+
+/// Every result of a worker's first this-many is checked.
+const FIRST_RESULTS_CHECKED: u64 = 4;
 
 #[derive(Args)]
 pub struct ServeArgs {
@@ -55,6 +59,12 @@ pub struct ServeArgs {
     /// `fetch` reads it from there also after the job is no longer listed.
     #[arg(long, value_name = "MS", default_value_t = 86_400_000)]
     pub retain_finished_ms: u64,
+    /// The fraction of units rendered again by a second worker and compared bit for bit
+    /// (every unit of a worker's first 4 results, too). A worker whose result differs
+    /// from two others' is quarantined and what it returned is rendered again. 0 turns
+    /// checking off.
+    #[arg(long, value_name = "FRACTION", default_value_t = 0.02)]
+    pub verify: f64,
     /// Stop (as on Ctrl-C) when standard input reaches end of file: a parent process
     /// that spawns `serve` and holds its stdin takes it down even when killed itself.
     #[arg(long, hide = true)]
@@ -106,6 +116,7 @@ impl FarmArgs {
             max_job_bytes: self.max_job_memory_mb << 20,
             max_upload_bytes: self.max_upload_mb << 20,
             max_store_bytes: self.max_store_mb << 20,
+            verify: Default::default(),
             lease: Duration::from_millis(self.lease_ms),
             heartbeat: Duration::from_millis(self.heartbeat_ms),
             speculate_after: Duration::from_millis(self.speculate_after_ms),
@@ -154,7 +165,8 @@ fn loopback_only(listen: &str) -> anyhow::Result<bool> {
 
 pub fn run(args: ServeArgs) -> anyhow::Result<()> {
     let (access, tls) = access_of(&args)?;
-    let config = args.farm.config()?;
+    let mut config = args.farm.config()?;
+    config.verify = Policy::new(args.verify, FIRST_RESULTS_CHECKED).map_err(anyhow::Error::msg)?;
     tracer::memory::return_large_buffers_when_freed();
     let store_dir = args
         .checkpoint

@@ -48,6 +48,7 @@ pub struct WorkerRow {
     pub units_held: u32,
     pub units_done: u64,
     pub last_seen_s: f64,
+    pub quarantined: bool,
 }
 
 fn message(s: tonic::Status) -> anyhow::Error {
@@ -140,6 +141,7 @@ impl FarmClient {
                 units_held: w.units_held,
                 units_done: w.units_done,
                 last_seen_s: w.last_seen_s,
+                quarantined: w.quarantined,
             })
             .collect())
     }

@@ -9,7 +9,7 @@ use std::time::Instant;
 use proto::domain::{JobSpec, UnitKey, WorkUnit};
 use worker::{Failure, Grant, LoadedJob, Registration, Rendered, Renewal};
 
-use crate::farm::job::{Applied, UnitResult};
+use crate::farm::job::UnitResult;
 use crate::farm::{FarmError, Shared};
 
 /// How long an idle in-process worker waits before asking again.
@@ -73,7 +73,7 @@ impl worker::Link for InProcessLink {
             .collect();
         let pairs = units.iter().zip(&results).map(|(u, r)| (u.key.job_id.as_str(), r));
         let outcomes = self.0.submit_results(worker_id, pairs).map_err(failure)?;
-        Ok(outcomes.into_iter().map(|o| o.map(|a| a == Applied::Merged).map_err(|e| e.to_string())).collect())
+        Ok(outcomes.into_iter().map(|o| o.map(|a| a.accepted()).map_err(|e| e.to_string())).collect())
     }
 
     /// The scene the farm loaded for the job: no copy, no second load.

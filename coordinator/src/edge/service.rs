@@ -15,7 +15,7 @@ use proto::auth::{Caller, Role};
 
 use super::wire::{error_to_status, status_to_proto};
 use crate::farm::Shared;
-use crate::farm::job::{Applied, UnitResult};
+use crate::farm::job::UnitResult;
 
 /// Longest hostname or version a worker may register with.
 const MAX_NAME_BYTES: usize = 255;
@@ -101,7 +101,7 @@ impl proto::farm_server::Farm for FarmService {
         self.0.farm().check_identity(worker_id, &caller.name).map_err(error_to_status)?;
         let key = format!("{job_id}/{}", result.unit);
         match self.0.submit_result(worker_id, &job_id, &result) {
-            Ok(a) => Ok(Response::new(proto::SubmitReply { accepted: a == Applied::Merged })),
+            Ok(a) => Ok(Response::new(proto::SubmitReply { accepted: a.accepted() })),
             Err(e) => {
                 tracing::warn!(worker = worker_id, unit = %key, "result rejected: {e}");
                 Err(error_to_status(e))
@@ -140,7 +140,7 @@ impl proto::farm_server::Farm for FarmService {
                 let outcome = match d {
                     Err(why) => Err(why.clone()),
                     Ok((job, r)) => match merged.next().expect("one outcome per merged result") {
-                        Ok(applied) => Ok(applied == Applied::Merged),
+                        Ok(applied) => Ok(applied.accepted()),
                         Err(e) => {
                             tracing::warn!(unit = %format!("{job}/{}", r.unit), "result rejected: {e}");
                             Err(e.to_string())
@@ -363,6 +363,7 @@ impl proto::jobs_server::Jobs for JobsService {
                 units_held: farm.jobs.iter().map(|e| e.job.held_by(w.id) as u32).sum(),
                 units_done: w.units_done,
                 last_seen_s: now.duration_since(w.last_seen).as_secs_f64(),
+                quarantined: w.quarantined,
             })
             .collect();
         Ok(Response::new(proto::ListWorkersReply { workers }))

@@ -39,6 +39,8 @@ pub fn status_to_proto(s: JobStatus) -> proto::JobStatus {
         rays: s.rays,
         samples_per_s: s.samples_per_s,
         warnings: s.warnings,
+        units_checked: s.units_checked,
+        units_discarded: s.units_discarded,
     }
 }
 
@@ -70,6 +72,8 @@ pub fn status_from_proto(s: proto::JobStatus) -> Result<JobStatus, String> {
         rays: s.rays,
         samples_per_s: if s.samples_per_s.is_finite() { s.samples_per_s.max(0.0) } else { 0.0 },
         warnings: warnings.collect(),
+        units_checked: s.units_checked,
+        units_discarded: s.units_discarded,
     })
 }
 
@@ -109,6 +113,8 @@ mod tests {
             rays: 1234,
             samples_per_s: 266.0,
             warnings: vec!["quad.mtl: 1 face skipped".into()],
+            units_checked: 3,
+            units_discarded: 1,
         }
     }
 

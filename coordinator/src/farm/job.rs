@@ -84,6 +84,16 @@ pub struct Job {
     unit_times: VecDeque<Duration>,
     /// The leases' deadlines and ages, in order.
     clock: LeaseClock<UnitId>,
+    /// Units under check that wait for another worker's answer (not leased, and not in
+    /// `pending`): any worker that has not answered yet may take one.
+    checking: BTreeSet<UnitId>,
+    /// Workers a check caught answering wrongly, for the farm to quarantine.
+    caught: Vec<WorkerId>,
+    /// Units merged once two workers agreed on them.
+    pub units_checked: u64,
+    /// Units thrown away (with the rest of their tiles) because their worker was caught
+    /// lying; they render again.
+    pub units_discarded: u64,
 }
 
 /// Unit times a job keeps for its median.
@@ -135,6 +145,10 @@ impl Job {
             evicted_units: None,
             unit_times: VecDeque::new(),
             clock: LeaseClock::default(),
+            checking: BTreeSet::new(),
+            caught: Vec::new(),
+            units_checked: 0,
+            units_discarded: 0,
         }
     }
 
@@ -174,14 +188,7 @@ impl Job {
         let tiles = Tile::grid(width, height, tile_size);
         self.units = schedule::progressive_units(&tiles, spp, batch_spp)
             .into_iter()
-            .map(|(tile_index, samples)| Unit {
-                tile_index,
-                tile: tiles[tile_index],
-                samples,
-                state: UnitState::Pending,
-                spare: None,
-                holders: Vec::new(),
-            })
+            .map(|(tile_index, samples)| Unit::new(tile_index, tiles[tile_index], samples, UnitState::Pending))
             .collect();
         self.pending = (0..self.units.len() as UnitId).collect();
         self.clock.clear();
@@ -213,14 +220,8 @@ impl Job {
             if u.done {
                 per_tile[t] += u.samples.len() as u64;
             }
-            units.push(Unit {
-                tile_index: t,
-                tile: tiles[t],
-                samples: u.samples,
-                state: if u.done { UnitState::Done } else { UnitState::Pending },
-                spare: None,
-                holders: Vec::new(),
-            });
+            let state = if u.done { UnitState::Done } else { UnitState::Pending };
+            units.push(Unit::new(t, tiles[t], u.samples, state));
         }
         for (t, acc) in r.tiles.iter().enumerate() {
             if acc.counts.len() != acc.tile.pixel_count() || acc.sums.len() != acc.tile.pixel_count() {
@@ -273,14 +274,7 @@ impl Job {
             // Realign to the batch grid so that extensions look like a fresh job's units.
             let end = ((start / batch + 1) * batch).min(spp);
             for (t, tile) in tiles.iter().enumerate() {
-                self.units.push(Unit {
-                    tile_index: t,
-                    tile: *tile,
-                    samples: SampleRange::new(start, end),
-                    state: UnitState::Pending,
-                    spare: None,
-                    holders: Vec::new(),
-                });
+                self.units.push(Unit::new(t, *tile, SampleRange::new(start, end), UnitState::Pending));
                 self.pending.insert(base + added);
                 added += 1;
             }
@@ -377,7 +371,8 @@ impl Job {
         if self.phase != JobPhase::Running {
             return None;
         }
-        if let Some(id) = self.pending.pop_first() {
+        // Units under check first: the job cannot end before they are settled.
+        if let Some(id) = self.next_to_check(worker).or_else(|| self.pending.pop_first()) {
             let unit = &mut self.units[id as usize];
             unit.state = UnitState::Leased { worker, deadline, since: now };
             unit.spare = None;
@@ -459,7 +454,11 @@ impl Job {
                             UnitState::Leased { worker: s.worker, deadline: s.deadline, since: now }
                         }
                         None => {
-                            self.pending.insert(id);
+                            if unit.check.is_some() {
+                                self.checking.insert(id);
+                            } else {
+                                self.pending.insert(id);
+                            }
                             n += 1;
                             UnitState::Pending
                         }
@@ -470,10 +469,10 @@ impl Job {
         n
     }
 
-    /// [`Job::apply_at`] now (the tests' shorthand).
+    /// [`Job::apply_at`] now, unchecked (the tests' shorthand).
     #[cfg(test)]
     pub fn apply(&mut self, worker: WorkerId, r: &UnitResult) -> Result<Applied, Rejection> {
-        self.apply_at(worker, r, Instant::now())
+        self.apply_at(worker, r, Instant::now(), false)
     }
 
     /// After how long a leased unit counts as a straggler, to be leased again to an idle
@@ -490,10 +489,17 @@ impl Job {
         (*median * STRAGGLER_FACTOR).max(STRAGGLER_FLOOR)
     }
 
-    /// Checks a result received at `now` and, if valid and new, merges it. Merging is
-    /// exact integer addition, so the final image does not depend on the order results
-    /// arrive in.
-    pub fn apply_at(&mut self, worker: WorkerId, r: &UnitResult, now: Instant) -> Result<Applied, Rejection> {
+    /// Checks a result received at `now` and, if valid and new, merges it; with `check`
+    /// (or when the unit is already under check) it is held until a second worker's
+    /// answer agrees. Merging is exact integer addition, so the final image does not
+    /// depend on the order results arrive in.
+    pub fn apply_at(
+        &mut self,
+        worker: WorkerId,
+        r: &UnitResult,
+        now: Instant,
+        check: bool,
+    ) -> Result<Applied, Rejection> {
         match &self.phase {
             JobPhase::Running => {}
             JobPhase::Done => {
@@ -540,6 +546,18 @@ impl Job {
         if unit.state == UnitState::Done {
             return Ok(Applied::Duplicate);
         }
+        if check || unit.check.is_some() {
+            return self.answer(worker, r, now);
+        }
+        self.merge(r, now, Some(worker))?;
+        Ok(Applied::Merged)
+    }
+
+    /// Merges a checked (`from` None) or unchecked result into its tile; the unit is done.
+    fn merge(&mut self, r: &UnitResult, now: Instant, from: Option<WorkerId>) -> Result<(), Rejection> {
+        let unit = &self.units[r.unit as usize];
+        let (n, expected) = (unit.tile.pixel_count(), unit.samples.len());
+        let malformed = |what: String| Rejection::Malformed { unit: r.unit, what };
         let tile_index = unit.tile_index;
         if let UnitState::Leased { since, .. } = unit.state {
             self.clock.ended(r.unit, since);
@@ -551,8 +569,10 @@ impl Job {
         let acc =
             Accumulation { tile: unit.tile, sums: r.sums.clone(), counts: r.counts.clone(), nonfinite: r.nonfinite };
         self.tiles[tile_index].merge(&acc).map_err(|e| malformed(e.to_string()))?;
-        self.units[r.unit as usize].state = UnitState::Done;
-        self.units[r.unit as usize].spare = None;
+        let unit = &mut self.units[r.unit as usize];
+        unit.state = UnitState::Done;
+        unit.spare = None;
+        unit.unchecked_from = from;
         self.pending.remove(&r.unit);
         self.units_done += 1;
         self.samples_done += n as u64 * expected as u64;
@@ -561,7 +581,7 @@ impl Job {
         if self.units_done == self.units.len() as u64 {
             self.finish();
         }
-        Ok(Applied::Merged)
+        Ok(())
     }
 
     fn finish(&mut self) {
@@ -601,5 +621,6 @@ impl Job {
     }
 }
 
+mod checks;
 #[cfg(test)]
 mod tests;

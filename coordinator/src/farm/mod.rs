@@ -13,6 +13,7 @@ pub mod schedule;
 pub mod state;
 pub mod status;
 pub mod unit;
+pub mod verify;
 
 pub use lifecycle::Shared;
 pub use state::{Farm, FarmConfig, FarmError};

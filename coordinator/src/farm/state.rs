@@ -12,6 +12,10 @@ use tracer::scene::Scene;
 
 use super::job::{Applied, Job, JobPhase, Rejection, UnitId, UnitResult, WorkerId};
 use super::status::{JobStatus, status_of};
+use super::verify::Policy;
+
+/// Most warnings a job keeps (its scene's, then events such as a quarantine).
+const MAX_EVENTS: usize = 40;
 
 #[derive(Clone, Debug)]
 pub struct FarmConfig {
@@ -31,6 +35,8 @@ pub struct FarmConfig {
     pub max_upload_bytes: u64,
     /// Most bytes of uploaded files the store keeps.
     pub max_store_bytes: u64,
+    /// Which results a second worker renders again (none by default).
+    pub verify: Policy,
 }
 
 impl Default for FarmConfig {
@@ -43,6 +49,7 @@ impl Default for FarmConfig {
             max_job_bytes: 8 << 30,
             max_upload_bytes: 4 << 30,
             max_store_bytes: 64 << 30,
+            verify: Policy::default(),
         }
     }
 }
@@ -57,6 +64,11 @@ pub struct Worker {
     pub threads: u32,
     pub last_seen: Instant,
     pub units_done: u64,
+    /// Results it returned that were taken (merged or held for a check).
+    pub answers: u64,
+    /// A check caught it answering wrongly: it gets no more work, and what it returned
+    /// was thrown away.
+    pub quarantined: bool,
 }
 
 /// A job's spec as the workers receive it, plus its loaded scene (for the in-process
@@ -139,7 +151,9 @@ impl Farm {
         let id = self.next_worker;
         self.next_worker += 1;
         let identity = "admin".to_string();
-        self.workers.insert(id, Worker { id, identity, hostname, threads, last_seen: now, units_done: 0 });
+        let w =
+            Worker { id, identity, hostname, threads, last_seen: now, units_done: 0, answers: 0, quarantined: false };
+        self.workers.insert(id, w);
         id
     }
 
@@ -180,12 +194,21 @@ impl Farm {
     fn touch(&mut self, worker: WorkerId, now: Instant) -> Result<&mut Worker, FarmError> {
         let w = self.workers.get_mut(&worker).ok_or(FarmError::UnknownWorker(worker))?;
         w.last_seen = now;
+        if w.quarantined {
+            return Err(FarmError::Forbidden(format!(
+                "worker {worker} is quarantined: a result it returned differed from other workers' renders of the \
+                 same unit"
+            )));
+        }
         Ok(w)
     }
 
     /// Workers seen within three lease periods.
     pub fn live_workers(&self, now: Instant) -> usize {
-        self.workers.values().filter(|w| now.duration_since(w.last_seen) < 3 * self.config.lease).count()
+        self.workers
+            .values()
+            .filter(|w| !w.quarantined && now.duration_since(w.last_seen) < 3 * self.config.lease)
+            .count()
     }
 
     /// Creates a job in the loading phase; returns its id. A job restored from a
@@ -242,6 +265,15 @@ impl Farm {
     pub fn lease(&mut self, worker: WorkerId, max: usize, now: Instant) -> Result<Vec<Leased>, FarmError> {
         self.touch(worker, now)?;
         self.reap(now);
+        // With one worker left, nobody can check its answers: take them as they are.
+        if self.config.verify.enabled() && self.live_workers(now) < 2 {
+            for e in &mut self.jobs {
+                let n = e.job.settle_unchecked(now);
+                if n > 0 {
+                    tracing::warn!(job = %e.job.id, units = n, "one worker left: results merged without a check");
+                }
+            }
+        }
         let deadline = now + self.config.lease;
         let mut out = Vec::new();
         for e in &mut self.jobs {
@@ -285,17 +317,42 @@ impl Farm {
         result: &UnitResult,
         now: Instant,
     ) -> Result<(Applied, bool), FarmError> {
-        self.touch(worker, now)?;
+        let answers_before = self.touch(worker, now)?.answers;
+        let check = self.config.verify.must_check(answers_before, job, result.unit);
         let entry = self.entry_mut(job)?;
         let was_running = entry.job.phase == JobPhase::Running;
-        let applied = entry.job.apply_at(worker, result, now)?;
-        let finished = was_running && entry.job.phase == JobPhase::Done;
-        if applied == Applied::Merged
-            && let Some(w) = self.workers.get_mut(&worker)
-        {
-            w.units_done += 1;
+        let applied = entry.job.apply_at(worker, result, now, check)?;
+        let caught = entry.job.take_caught();
+        if let Some(w) = self.workers.get_mut(&worker) {
+            w.units_done += u64::from(applied == Applied::Merged);
+            w.answers += u64::from(applied.accepted());
         }
+        for liar in caught {
+            self.quarantine(liar, job, result.unit);
+        }
+        let finished = was_running && self.entry(job)?.job.phase == JobPhase::Done;
         Ok((applied, finished))
+    }
+
+    /// `liar`'s answer for `unit` of `job` differed from two others that agreed: it gets
+    /// no more work, and every job throws away what it contributed.
+    pub fn quarantine(&mut self, liar: WorkerId, job: &str, unit: UnitId) {
+        let Some(w) = self.workers.get_mut(&liar) else { return };
+        if w.quarantined {
+            return;
+        }
+        w.quarantined = true;
+        let who = format!("worker {liar} ({})", w.hostname.escape_debug());
+        tracing::warn!(worker = liar, %job, unit, "{who} returned a wrong result; quarantined");
+        for e in &mut self.jobs {
+            let n = e.job.discard_from(liar);
+            if (n > 0 || e.job.id == job) && e.job.warnings.len() < MAX_EVENTS {
+                e.job.warnings.push(format!(
+                    "{who} returned a wrong result for unit {unit} of {job} and was quarantined; {n} of its units \
+                     here were thrown away and render again"
+                ));
+            }
+        }
     }
 
     /// Returns lapsed leases of every job to its queue, and (at most once a second)

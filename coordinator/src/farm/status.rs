@@ -49,8 +49,12 @@ pub struct JobStatus {
     pub rays: u64,
     /// Over the last few seconds, while the job runs (0 otherwise).
     pub samples_per_s: f64,
-    /// The scene's warnings, bounded.
+    /// The scene's warnings, bounded, and events such as a quarantine.
     pub warnings: Vec<String>,
+    /// Units merged once a second worker agreed bit for bit.
+    pub units_checked: u64,
+    /// Units thrown away because their worker was caught lying.
+    pub units_discarded: u64,
 }
 
 pub fn status_of(j: &Job, workers: usize) -> JobStatus {
@@ -77,5 +81,7 @@ pub fn status_of(j: &Job, workers: usize) -> JobStatus {
         rays: j.rays,
         samples_per_s: if j.phase == JobPhase::Running { j.samples_per_second() } else { 0.0 },
         warnings: j.warnings.clone(),
+        units_checked: j.units_checked,
+        units_discarded: j.units_discarded,
     }
 }

@@ -6,6 +6,8 @@ use std::time::Instant;
 
 use tracer::film::{SampleRange, Tile};
 
+use super::verify::Check;
+
 pub type WorkerId = u64;
 pub type UnitId = u64;
 
@@ -38,6 +40,17 @@ pub struct Unit {
     /// Every worker that ever held a lease on this unit: a late result from any of them is
     /// the same deterministic work, so it is accepted while the unit is not done.
     pub holders: Vec<WorkerId>,
+    /// The answers of a unit under check (see [`crate::farm::verify`]).
+    pub check: Option<Box<Check>>,
+    /// Whose result was merged, unchecked (None: checked, or restored from a
+    /// checkpoint): what to discard if that worker is caught lying.
+    pub unchecked_from: Option<WorkerId>,
+}
+
+impl Unit {
+    pub fn new(tile_index: usize, tile: Tile, samples: SampleRange, state: UnitState) -> Self {
+        Self { tile_index, tile, samples, state, spare: None, holders: Vec::new(), check: None, unchecked_from: None }
+    }
 }
 
 /// Why a result was refused. The job's state is untouched in every case.
@@ -62,6 +75,16 @@ pub enum Applied {
     /// The job was cancelled or failed while the unit was out: acknowledged and dropped
     /// (the worker did nothing wrong, so this is no error).
     Discarded,
+    /// The unit is under check: kept until another worker's answer agrees.
+    Held,
+}
+
+impl Applied {
+    /// What the worker is told: its result was taken (a held one too, so that a worker
+    /// cannot tell which units are checked).
+    pub fn accepted(self) -> bool {
+        matches!(self, Applied::Merged | Applied::Held)
+    }
 }
 
 /// The contents of one unit's result, as received (the type the wire mapping checks).

@@ -231,7 +231,7 @@ fn stragglers_are_units_out_for_a_few_times_the_median() {
             break; // worker 1 got the straggler as a spare
         }
         t += Duration::from_millis(200);
-        j.apply_at(1, &result_for(&j, id, 1), t).unwrap();
+        j.apply_at(1, &result_for(&j, id, 1), t, false).unwrap();
     }
     assert_eq!(j.straggler_after(fallback), Duration::from_millis(600));
     assert!(j.units[stalled as usize].spare.is_some_and(|s| s.worker == 1));
@@ -251,4 +251,106 @@ fn cancelled_jobs_lease_nothing_and_refuse_results() {
     assert_eq!(j.lease_next(1, Instant::now(), Instant::now(), NEVER), None);
     assert_eq!(j.apply(1, &result_for(&j, id, 1)), Ok(Applied::Discarded), "acknowledged, no error");
     assert_eq!(j.units_done, 0);
+}
+
+/// Leases the next unit to `worker` and answers it with its true value (`1000 + id`),
+/// or a wrong one when `lie`.
+fn render(j: &mut Job, worker: WorkerId, check: bool, lie: bool, t: Instant) -> (UnitId, Applied) {
+    let id = j.lease_next(worker, t, t + NEVER, NEVER).expect("a unit to lease");
+    let value = 1000 + id as i128 + if lie { 1 } else { 0 };
+    let r = result_for(j, id, value);
+    (id, j.apply_at(worker, &r, t, check).unwrap())
+}
+
+fn honest_image() -> Image {
+    let mut j = job();
+    let t = Instant::now();
+    while j.phase == JobPhase::Running {
+        render(&mut j, 1, false, false, t);
+    }
+    j.image()
+}
+
+#[test]
+fn a_checked_unit_waits_for_a_second_worker_and_merges_once_they_agree() {
+    let t = Instant::now();
+    let mut j = job();
+    let (id, a) = render(&mut j, 1, true, false, t);
+    assert_eq!(a, Applied::Held);
+    assert_eq!((j.units_done, j.units_in_check()), (0, 1));
+    // The worker that answered is not given its own unit to check.
+    let next = j.lease_next(1, t, t + NEVER, NEVER).unwrap();
+    assert_ne!(next, id);
+    // Another worker is, before any other unit.
+    assert_eq!(j.lease_next(2, t, t + NEVER, NEVER), Some(id));
+    assert_eq!(j.apply_at(2, &result_for(&j, id, 1000 + id as i128), t, false), Ok(Applied::Merged));
+    assert_eq!((j.units_done, j.units_checked, j.units_in_check()), (1, 1, 0));
+    assert!(j.take_caught().is_empty());
+}
+
+#[test]
+fn a_liar_is_caught_by_the_third_answer_and_its_tiles_render_again() {
+    let t = Instant::now();
+    let mut j = job();
+    // The liar (9) returns wrong sums, unchecked, for the first three units…
+    let lied: Vec<UnitId> = (0..3).map(|_| render(&mut j, 9, false, true, t).0).collect();
+    assert_eq!(j.units_done, 3);
+    // …and for a checked one, which an honest worker then disagrees with.
+    let (checked, _) = render(&mut j, 9, true, true, t);
+    assert_eq!(j.lease_next(1, t, t + NEVER, NEVER), Some(checked));
+    let honest = result_for(&j, checked, 1000 + checked as i128);
+    assert_eq!(j.apply_at(1, &honest, t, false), Ok(Applied::Held), "two answers that differ need a third");
+    assert_eq!(j.lease_next(2, t, t + NEVER, NEVER), Some(checked));
+    assert_eq!(j.apply_at(2, &honest, t, false), Ok(Applied::Merged));
+    assert_eq!(j.take_caught(), [9]);
+    // Everything the liar merged goes, with the rest of its tiles.
+    assert_eq!(j.discard_from(9), 3);
+    assert_eq!(j.units_discarded, 3);
+    assert!(lied.iter().all(|&u| j.units[u as usize].state == UnitState::Pending));
+    // Honest workers finish the job: the image is the honest one, bit for bit.
+    while j.phase == JobPhase::Running {
+        render(&mut j, 1, false, false, t);
+    }
+    assert_eq!(j.image(), honest_image());
+    assert_eq!(j.samples_done, j.samples_total());
+}
+
+#[test]
+fn a_finished_job_reopens_when_a_liar_is_caught_after_it() {
+    let t = Instant::now();
+    let mut j = job();
+    render(&mut j, 9, false, true, t);
+    while j.phase == JobPhase::Running {
+        render(&mut j, 1, false, false, t);
+    }
+    assert_eq!(j.discard_from(9), 1);
+    assert_eq!(j.phase, JobPhase::Running);
+    while j.phase == JobPhase::Running {
+        render(&mut j, 1, false, false, t);
+    }
+    assert_eq!(j.image(), honest_image());
+}
+
+#[test]
+fn with_no_second_worker_held_answers_are_taken_unchecked() {
+    let t = Instant::now();
+    let mut j = job();
+    let (id, a) = render(&mut j, 1, true, false, t);
+    assert_eq!(a, Applied::Held);
+    assert_eq!(j.settle_unchecked(t), 1);
+    assert_eq!(j.units[id as usize].state, UnitState::Done);
+    assert_eq!(j.units[id as usize].unchecked_from, Some(1));
+    // An ended job merges nothing more.
+    let (_, a) = render(&mut j, 1, true, false, t);
+    assert_eq!(a, Applied::Held);
+    let done = j.units_done;
+    j.cancel();
+    assert_eq!((j.settle_unchecked(t), j.units_done), (0, done));
+    let mut j = job();
+    // A lapsed check lease goes back to the check queue, not the ordinary one.
+    let (id, _) = render(&mut j, 1, true, false, t);
+    let later = t + Duration::from_secs(1);
+    assert_eq!(j.lease_next(2, later, later + Duration::from_millis(1), NEVER), Some(id));
+    j.reap_expired(later + Duration::from_secs(1));
+    assert_eq!(j.units_in_check(), 1);
 }

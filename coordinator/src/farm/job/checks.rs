@@ -1,0 +1,160 @@
+//! A job's side of verified results (see [`crate::farm::verify`]): holding a checked
+//! unit's answers until two agree, leasing it to workers that have not answered, and
+//! throwing away what a worker caught lying contributed.
+
+use std::collections::BTreeSet;
+use std::time::Instant;
+
+use tracer::film::Accumulation;
+
+use super::{Applied, Job, JobPhase, Rejection, UnitId, UnitResult, UnitState, WorkerId};
+use crate::farm::verify::{MAX_ANSWERS, Outcome};
+
+impl Job {
+    /// A unit under check that `worker` has not answered, taken off the check queue.
+    pub(super) fn next_to_check(&mut self, worker: WorkerId) -> Option<UnitId> {
+        let units = &self.units;
+        let id = self
+            .checking
+            .iter()
+            .copied()
+            .find(|&id| !units[id as usize].check.as_ref().is_some_and(|c| c.answered(worker)))?;
+        self.checking.remove(&id);
+        Some(id)
+    }
+
+    /// Takes `worker`'s answer for a unit under check (a valid result, not done yet).
+    pub(super) fn answer(&mut self, worker: WorkerId, r: &UnitResult, now: Instant) -> Result<Applied, Rejection> {
+        let id = r.unit;
+        let unit = &mut self.units[id as usize];
+        let check = unit.check.get_or_insert_with(Default::default);
+        if check.answered(worker) {
+            return Ok(Applied::Duplicate);
+        }
+        match check.add(worker, r) {
+            Outcome::Open => {
+                // Another worker must render it: off this worker's lease, onto the check
+                // queue (unless another worker is already on it).
+                match unit.state {
+                    UnitState::Leased { worker: w, since, .. } if w == worker => {
+                        self.clock.ended(id, since);
+                        unit.state = UnitState::Pending;
+                        unit.spare = None;
+                        self.checking.insert(id);
+                    }
+                    UnitState::Leased { .. } => {}
+                    _ => {
+                        self.checking.insert(id);
+                    }
+                }
+                self.pending.remove(&id);
+                Ok(Applied::Held)
+            }
+            Outcome::Settled { agreed, liars } => {
+                let check = unit.check.take().expect("the check just answered");
+                self.checking.remove(&id);
+                self.caught.extend(liars);
+                self.merge(&check.answers[agreed].result, now, None)?;
+                self.units_checked += 1;
+                Ok(Applied::Merged)
+            }
+            Outcome::Undecidable => {
+                self.fail(format!(
+                    "unit {id}: {MAX_ANSWERS} workers returned {MAX_ANSWERS} different results for it, so none can be \
+                     trusted (several workers are broken or lying)"
+                ));
+                Ok(Applied::Discarded)
+            }
+        }
+    }
+
+    /// Workers caught answering wrongly since the last call.
+    pub fn take_caught(&mut self) -> Vec<WorkerId> {
+        std::mem::take(&mut self.caught)
+    }
+
+    /// Units waiting for a check.
+    pub fn units_in_check(&self) -> usize {
+        self.checking.len()
+    }
+
+    /// Merges, unchecked, every held answer that no other worker can check (the farm has
+    /// one worker left); returns how many.
+    pub fn settle_unchecked(&mut self, now: Instant) -> usize {
+        if self.phase != JobPhase::Running {
+            return 0;
+        }
+        let lone: Vec<(UnitId, UnitResult, WorkerId)> = self
+            .checking
+            .iter()
+            .filter_map(|&id| {
+                let c = self.units[id as usize].check.as_ref()?;
+                (c.answers.len() == 1).then(|| (id, c.answers[0].result.clone(), c.answers[0].worker))
+            })
+            .collect();
+        for (id, result, worker) in &lone {
+            self.checking.remove(id);
+            self.units[*id as usize].check = None;
+            if self.merge(result, now, Some(*worker)).is_err() {
+                self.pending.insert(*id);
+            }
+        }
+        lone.len()
+    }
+
+    /// Throws away everything `liar` contributed: its answers to checks, its leases, and
+    /// every tile holding a result it returned unchecked (those tiles render again, their
+    /// honest units too: the merged sums cannot be taken apart). Returns the units
+    /// thrown away. A job already evicted (its image stored) cannot be reopened.
+    pub fn discard_from(&mut self, liar: WorkerId) -> u64 {
+        if self.is_evicted() || self.phase == JobPhase::Loading {
+            return 0;
+        }
+        let mut tainted = BTreeSet::new();
+        for (id, u) in self.units.iter_mut().enumerate() {
+            let id = id as UnitId;
+            if let Some(c) = u.check.as_mut() {
+                c.drop_worker(liar);
+            }
+            if let UnitState::Leased { worker, since, .. } = u.state
+                && worker == liar
+            {
+                self.clock.ended(id, since);
+                u.state = UnitState::Pending;
+                if u.check.is_some() {
+                    self.checking.insert(id)
+                } else {
+                    self.pending.insert(id)
+                };
+            }
+            if u.spare.is_some_and(|s| s.worker == liar) {
+                u.spare = None;
+            }
+            u.holders.retain(|&w| w != liar);
+            if u.state == UnitState::Done && u.unchecked_from == Some(liar) {
+                tainted.insert(u.tile_index);
+            }
+        }
+        let mut discarded = 0;
+        for (id, u) in self.units.iter_mut().enumerate() {
+            if u.state == UnitState::Done && tainted.contains(&u.tile_index) {
+                discarded += u64::from(u.unchecked_from == Some(liar));
+                u.state = UnitState::Pending;
+                u.unchecked_from = None;
+                self.pending.insert(id as UnitId);
+                self.units_done -= 1;
+                self.samples_done -= u.tile.pixel_count() as u64 * u.samples.len() as u64;
+            }
+        }
+        for &t in &tainted {
+            self.nonfinite -= self.tiles[t].nonfinite.min(self.nonfinite);
+            self.tiles[t] = Accumulation::new(self.tiles[t].tile);
+        }
+        if !tainted.is_empty() && self.phase == JobPhase::Done {
+            self.phase = JobPhase::Running;
+            self.finished = None;
+        }
+        self.units_discarded += discarded;
+        discarded
+    }
+}
