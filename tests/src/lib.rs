@@ -126,7 +126,7 @@ impl Coordinator {
         });
         let line = rx.recv_timeout(Duration::from_secs(30)).expect("coordinator printed its address");
         let url = line.strip_prefix("listening on ").expect("listening line").trim().to_string();
-        assert!(url.starts_with("http://127.0.0.1:"), "{url}");
+        assert!(url.starts_with("http://127.0.0.1:") || url.starts_with("https://127.0.0.1:"), "{url}");
         Self { proc, url }
     }
 

@@ -52,7 +52,7 @@ pub fn run(args: CertsArgs) -> anyhow::Result<()> {
     }
 }
 
-fn init(args: InitArgs) -> anyhow::Result<()> {
+pub fn init(args: InitArgs) -> anyhow::Result<()> {
     for u in &args.users {
         anyhow::ensure!(
             !u.is_empty()

@@ -344,3 +344,48 @@ fn restore_jobs(shared: &Arc<Shared>, root: &Path) -> anyhow::Result<()> {
     }
     Ok(())
 }
+
+#[cfg(test)]
+mod tests {
+    use clap::Parser;
+
+    use super::*;
+
+    #[derive(Parser)]
+    struct Cli {
+        #[command(flatten)]
+        serve: ServeArgs,
+    }
+
+    fn access(args: &[&str]) -> anyhow::Result<bool> {
+        let cli = Cli::try_parse_from(std::iter::once("serve").chain(args.iter().copied()))?;
+        access_of(&cli.serve).map(|(_, tls)| tls.is_some())
+    }
+
+    /// Off loopback, a farm needs TLS and a token (or --insecure); on loopback, neither.
+    #[test]
+    fn reachable_farms_need_tls_and_tokens() {
+        let dir = std::env::temp_dir().join(format!("tilefarm-serve-access-{}", std::process::id()));
+        let _ = std::fs::remove_dir_all(&dir);
+        let tls = dir.join("tls");
+        crate::commands::certs::init(crate::commands::certs::InitArgs {
+            dir: tls.clone(),
+            workers: 1,
+            users: vec!["user".into()],
+            host: vec![],
+        })
+        .unwrap();
+        let t = tls.to_str().unwrap();
+        assert!(!access(&["--listen", "127.0.0.1:0"]).unwrap());
+        let e = access(&["--listen", "0.0.0.0:0"]).unwrap_err().to_string();
+        assert!(e.contains("certs init") && e.contains("--insecure"), "{e}");
+        assert!(access(&["--listen", "0.0.0.0:0", "--insecure"]).is_ok());
+        assert!(access(&["--listen", "0.0.0.0:0", "--tls", t]).unwrap());
+        // TLS without a single token would leave users no way in but --insecure's.
+        for token in ["admin.token", "user.token"] {
+            std::fs::remove_file(tls.join(token)).unwrap();
+        }
+        assert!(access(&["--listen", "0.0.0.0:0", "--tls", t]).is_err());
+        std::fs::remove_dir_all(&dir).ok();
+    }
+}

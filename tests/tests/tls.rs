@@ -1,0 +1,201 @@
+//! A farm over TLS with access control, end to end: `certs init`, `serve --tls`, workers
+//! with certificates, users with tokens. Every refusal is checked against the running
+//! coordinator, which stays up and renders the honest job bit for bit.
+
+use std::path::{Path, PathBuf};
+use std::process::{Command, Stdio};
+use std::time::Duration;
+
+use tilefarm_e2e::*;
+use tonic::Code;
+use tonic::transport::{Certificate, Channel, ClientTlsConfig, Endpoint, Identity};
+
+const LIMIT: Duration = Duration::from_secs(180);
+const JOB: [&str; 8] = ["--width", "48", "--spp", "8", "--tile", "16", "--batch-spp", "4"];
+
+fn runtime() -> tokio::runtime::Runtime {
+    tokio::runtime::Builder::new_current_thread().enable_all().build().unwrap()
+}
+
+fn cornell() -> PathBuf {
+    scenes().join("cornell-box/scene.toml")
+}
+
+fn certs_init(dir: &Path, extra: &[&str]) {
+    let out = run(Command::new(bin("coordinator")).args(["certs", "init"]).arg(dir).args(extra), LIMIT);
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+}
+
+fn token(tls: &Path, name: &str) -> String {
+    std::fs::read_to_string(tls.join(format!("{name}.token"))).unwrap().trim().to_string()
+}
+
+/// A channel to `url` trusting `ca_dir`'s CA, presenting `identity` (`NAME` of
+/// `NAME.pem`/`NAME.key` in `ca_dir`) if given.
+async fn channel(url: &str, ca_dir: &Path, identity: Option<&str>) -> Result<Channel, tonic::transport::Error> {
+    let ca = Certificate::from_pem(std::fs::read(ca_dir.join("ca.pem")).unwrap());
+    let mut tls = ClientTlsConfig::new().ca_certificate(ca).domain_name("tilefarm-coordinator");
+    if let Some(name) = identity {
+        let cert = std::fs::read(ca_dir.join(format!("{name}.pem"))).unwrap();
+        let key = std::fs::read(ca_dir.join(format!("{name}.key"))).unwrap();
+        tls = tls.identity(Identity::from_pem(cert, key));
+    }
+    Endpoint::from_shared(url.to_string()).unwrap().tls_config(tls).unwrap().connect().await
+}
+
+fn bearer<T>(mut req: tonic::Request<T>, token: &str) -> tonic::Request<T> {
+    req.metadata_mut().insert("authorization", format!("Bearer {token}").parse().unwrap());
+    req
+}
+
+fn register() -> proto::RegisterRequest {
+    proto::RegisterRequest {
+        protocol_version: proto::PROTOCOL_VERSION,
+        threads: 1,
+        hostname: "rogue".into(),
+        version: "0".into(),
+    }
+}
+
+fn worker(coord: &Coordinator, tls: &Path, name: &str, cache: &Path) -> Proc {
+    let mut cmd = Command::new(bin("worker"));
+    cmd.args(["--coordinator", &coord.url, "--threads", "1", "--tls"])
+        .arg(tls)
+        .args(["--tls-name", name, "--cache"])
+        .arg(cache)
+        .stdin(Stdio::null());
+    Proc::spawn("worker", &mut cmd)
+}
+
+/// `coordinator CMD … --coordinator URL --tls DIR` as user `who`.
+fn client(coord: &Coordinator, tls: &Path, who: &str, args: &[&str]) -> std::process::Output {
+    let mut cmd = Command::new(bin("coordinator"));
+    cmd.args(args).args(["--coordinator", &coord.url, "--tls"]).arg(tls).env("TILEFARM_TOKEN", token(tls, who));
+    run(&mut cmd, LIMIT)
+}
+
+#[test]
+fn a_tls_farm_renders_for_its_users_and_refuses_everyone_else() {
+    let dir = TempDir::new("tls-farm");
+    let tls = dir.path("tls");
+    certs_init(&tls, &["--workers", "2", "--users", "alice,bob"]);
+    let other_farm = dir.path("other-tls");
+    certs_init(&other_farm, &[]);
+    let coord = Coordinator::serve(&[
+        "--listen",
+        "127.0.0.1:0",
+        "--tls",
+        tls.to_str().unwrap(),
+        "--store",
+        dir.path("store").to_str().unwrap(),
+    ]);
+    assert!(coord.url.starts_with("https://"), "{}", coord.url);
+    let _workers =
+        [worker(&coord, &tls, "worker-1", &dir.path("c1")), worker(&coord, &tls, "worker-2", &dir.path("c2"))];
+
+    // Alice renders over TLS; the image is the in-process one, bit for bit.
+    let reference = dir.path("reference.exr");
+    render(&cornell(), &reference, &[&JOB[..], &["--local-workers", "0"]].concat(), LIMIT);
+    let out = dir.path("alice.exr");
+    let sub = client(
+        &coord,
+        &tls,
+        "alice",
+        &[&["submit", cornell().to_str().unwrap(), "-q", "--wait", "-o", out.to_str().unwrap()], &JOB[..]].concat(),
+    );
+    assert!(sub.status.success(), "{}", String::from_utf8_lossy(&sub.stderr));
+    assert_same_bits(&read_exr(&out), &read_exr(&reference), "a render over TLS");
+    let job = "job-1";
+
+    // Bob sees none of Alice's jobs, and may neither fetch nor cancel them.
+    let status = client(&coord, &tls, "bob", &["status"]);
+    assert!(!String::from_utf8_lossy(&status.stdout).contains(job), "{}", String::from_utf8_lossy(&status.stdout));
+    for cmd in [&["cancel", job][..], &["fetch", job, "-o", dir.path("bob.exr").to_str().unwrap()]] {
+        let o = client(&coord, &tls, "bob", cmd);
+        assert!(!o.status.success());
+        assert!(
+            String::from_utf8_lossy(&o.stderr).contains("not one of your jobs"),
+            "{}",
+            String::from_utf8_lossy(&o.stderr)
+        );
+    }
+    // The admin may.
+    let o = client(&coord, &tls, "admin", &["fetch", job, "-q", "-o", dir.path("admin.exr").to_str().unwrap()]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+
+    runtime().block_on(async {
+        use proto::farm_client::FarmClient;
+        use proto::jobs_client::JobsClient;
+        let list = || proto::ListRequest {};
+        // No token: refused.
+        let ch = channel(&coord.url, &tls, None).await.unwrap();
+        let e = JobsClient::new(ch.clone()).list_jobs(list()).await.unwrap_err();
+        assert_eq!(e.code(), Code::PermissionDenied, "{e:?}");
+        // A wrong token: refused.
+        let e =
+            JobsClient::new(ch.clone()).list_jobs(bearer(tonic::Request::new(list()), "0123abcd")).await.unwrap_err();
+        assert_eq!(e.code(), Code::PermissionDenied, "{e:?}");
+        // A user token may not join as a worker.
+        let e = FarmClient::new(ch.clone())
+            .register(bearer(tonic::Request::new(register()), &token(&tls, "alice")))
+            .await
+            .unwrap_err();
+        assert_eq!(e.code(), Code::PermissionDenied, "{e:?}");
+        // A worker certificate may not submit, list or cancel.
+        let w1 = channel(&coord.url, &tls, Some("worker-1")).await.unwrap();
+        let e = JobsClient::new(w1.clone()).list_jobs(list()).await.unwrap_err();
+        assert_eq!(e.code(), Code::PermissionDenied, "{e:?}");
+        let e = JobsClient::new(w1.clone()).cancel_job(proto::JobRequest { job_id: job.into() }).await.unwrap_err();
+        assert_eq!(e.code(), Code::PermissionDenied, "{e:?}");
+        // A worker id belongs to the certificate that registered it.
+        let mine = FarmClient::new(w1.clone()).register(register()).await.unwrap().into_inner().worker_id;
+        let w2 = channel(&coord.url, &tls, Some("worker-2")).await.unwrap();
+        let e = FarmClient::new(w2).lease(proto::LeaseRequest { worker_id: mine, max_units: 1 }).await.unwrap_err();
+        assert_eq!(e.code(), Code::PermissionDenied, "{e:?}");
+        assert!(e.message().contains("another identity"), "{e:?}");
+        // Another farm's certificates are refused by the TLS layer itself.
+        let stranger = channel(&coord.url, &other_farm, Some("worker")).await;
+        match stranger {
+            Err(_) => {}
+            Ok(ch) => {
+                assert!(FarmClient::new(ch).register(register()).await.is_err(), "another CA's worker was let in")
+            }
+        }
+        // Plain text is not spoken.
+        let plain = coord.url.replace("https://", "http://");
+        let plain = Endpoint::from_shared(plain).unwrap().connect().await;
+        if let Ok(ch) = plain {
+            assert!(JobsClient::new(ch).list_jobs(list()).await.is_err());
+        }
+    });
+    // After all that, the farm is up and still renders Alice's next job.
+    let again = dir.path("again.exr");
+    let sub = client(
+        &coord,
+        &tls,
+        "alice",
+        &[&["submit", cornell().to_str().unwrap(), "-q", "--wait", "-o", again.to_str().unwrap()], &JOB[..]].concat(),
+    );
+    assert!(sub.status.success(), "{}", String::from_utf8_lossy(&sub.stderr));
+    assert_same_bits(&read_exr(&again), &read_exr(&reference), "after the attacks");
+}
+
+#[test]
+fn certs_init_never_overwrites_a_farm_s_keys() {
+    let dir = TempDir::new("tls-init");
+    let tls = dir.path("tls");
+    certs_init(&tls, &[]);
+    let before = std::fs::read(tls.join("ca.key")).unwrap();
+    let out = run(Command::new(bin("coordinator")).args(["certs", "init"]).arg(&tls), LIMIT);
+    assert!(!out.status.success());
+    assert!(String::from_utf8_lossy(&out.stderr).contains("not empty"));
+    assert_eq!(std::fs::read(tls.join("ca.key")).unwrap(), before);
+    #[cfg(unix)]
+    {
+        use std::os::unix::fs::PermissionsExt;
+        for secret in ["ca.key", "server.key", "worker.key", "admin.token", "user.token"] {
+            let mode = std::fs::metadata(tls.join(secret)).unwrap().permissions().mode() & 0o777;
+            assert_eq!(mode, 0o600, "{secret}");
+        }
+    }
+}
