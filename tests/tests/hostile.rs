@@ -174,3 +174,92 @@ fn uploads_past_the_farms_limit_are_refused() {
     });
     assert_eq!(std::fs::read(store.join("blobs").join(&stored.sha256)).unwrap(), SPHERE.as_bytes());
 }
+
+/// A rogue client that holds real leases and returns well-formed but forged sums (black,
+/// and near `i128::MAX`) is told they were accepted, like any worker, but a farm checks
+/// a new worker's first results on other workers: the forgeries never reach the image,
+/// the rogue is quarantined and refused from then on (also on a farm of one honest
+/// worker, where the coordinator decides), and the image is the undisturbed
+/// render's, bit for bit. Results for another worker's lease and digests that climb out
+/// of the store are refused too.
+#[test]
+fn forged_results_for_held_leases_are_caught_and_never_reach_the_image() {
+    use proto::farm_client::FarmClient;
+    use tonic::Code;
+
+    const JOB: [&str; 8] = ["--width", "48", "--spp", "16", "--tile", "16", "--batch-spp", "4"];
+    let dir = TempDir::new("hostile-forger");
+    let cornell = scenes().join("cornell-box/scene.toml");
+    let reference = dir.path("reference.exr");
+    render(&cornell, &reference, &[&JOB[..], &["--local-workers", "0"]].concat(), LIMIT);
+    let coord = Coordinator::start(&dir.path("store"), &["--lease-ms", "2000", "--heartbeat-ms", "500"]);
+    let job = coord.submit_id(&cornell, &JOB, LIMIT);
+    let register = proto::RegisterRequest {
+        protocol_version: proto::PROTOCOL_VERSION,
+        threads: 1,
+        hostname: "rogue".into(),
+        version: "0".into(),
+    };
+    let rt = runtime();
+    let (rogue, mut farm) = rt.block_on(async {
+        let mut farm = FarmClient::connect(coord.url.clone()).await.unwrap();
+        let me = farm.register(register.clone()).await.unwrap().into_inner().worker_id;
+        let other = farm.register(register.clone()).await.unwrap().into_inner().worker_id;
+        let mut units = Vec::new();
+        let start = std::time::Instant::now();
+        while units.len() < 2 {
+            assert!(start.elapsed() < LIMIT, "no units leased");
+            let req = proto::LeaseRequest { worker_id: me, max_units: 2 };
+            units.extend(farm.lease(req).await.unwrap().into_inner().units);
+        }
+        let forged = |u: &proto::Unit, value: i128| {
+            let tile = u.tile.unwrap();
+            let n = (tile.width * tile.height) as usize;
+            proto::UnitResult {
+                worker_id: me,
+                job_id: job.clone(),
+                unit_id: u.unit_id,
+                tile: Some(tile),
+                sample_start: u.sample_start,
+                sample_end: u.sample_end,
+                sums: value.to_le_bytes().repeat(3 * n),
+                counts: vec![u.sample_end - u.sample_start; n],
+                nonfinite: 0,
+                rays: 0,
+            }
+        };
+        // Another worker's lease: refused, and nothing about the unit is revealed.
+        let theirs = proto::UnitResult { worker_id: other, ..forged(&units[0], 0) };
+        let e = farm.submit_result(theirs).await.unwrap_err();
+        assert_eq!(e.code(), Code::FailedPrecondition, "{e:?}");
+        // Its own leases: forged sums look accepted…
+        for (u, value) in units.iter().zip([0, i128::MAX / 4]) {
+            assert!(farm.submit_result(forged(u, value)).await.unwrap().into_inner().accepted);
+        }
+        // Digests that climb out of the store find nothing.
+        for sha in ["../../../../etc/passwd", "..", &"a".repeat(64)] {
+            let e = farm.fetch_asset(proto::AssetRequest { sha256: sha.to_string() }).await.unwrap_err();
+            assert_eq!(e.code(), Code::NotFound, "{sha}: {e:?}");
+        }
+        (me, farm)
+    });
+    // One honest worker renders the job, checking the rogue's answers on the way; with
+    // no third worker to decide between the two, the coordinator renders the disputed
+    // units itself.
+    let _worker = coord.worker(2, &dir.path("c1"));
+    let out = dir.path("farm.exr");
+    let fetched = run(
+        Command::new(bin("coordinator")).args(["fetch", &job, "--coordinator", &coord.url, "-q", "-o"]).arg(&out),
+        LIMIT,
+    );
+    assert!(fetched.status.success(), "{}", String::from_utf8_lossy(&fetched.stderr));
+    assert_same_bits(&read_exr(&out), &read_exr(&reference), "after forged results");
+    rt.block_on(async {
+        let e = farm.lease(proto::LeaseRequest { worker_id: rogue, max_units: 1 }).await.unwrap_err();
+        assert_eq!(e.code(), Code::PermissionDenied, "{e:?}");
+        assert!(e.message().contains("quarantined"), "{e:?}");
+    });
+    let status = run(Command::new(bin("coordinator")).args(["status", "--coordinator", &coord.url]), LIMIT);
+    let shown = String::from_utf8_lossy(&status.stdout);
+    assert!(shown.contains("QUARANTINED") && shown.contains("was quarantined"), "{shown}");
+}

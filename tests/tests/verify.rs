@@ -60,15 +60,20 @@ impl Executor for Liar {
 fn a_lying_worker_is_quarantined_and_the_image_equals_the_honest_render() {
     let dir = TempDir::new("verify-liar");
     let reference = dir.path("reference.exr");
+    // For the figures in bench/RESULTS.md: TILEFARM_LIAR_VERIFY=0.02 TILEFARM_LIAR_SPP=1024
+    // measure how long a liar lasts at the default fraction (on a job large enough).
+    let verify = std::env::var("TILEFARM_LIAR_VERIFY").unwrap_or_else(|_| "0.2".into());
+    let spp = std::env::var("TILEFARM_LIAR_SPP").unwrap_or_else(|_| "64".into());
+    let job = [&JOB[..2], &["--spp", spp.as_str()], &JOB[4..]].concat();
+    let coord = Coordinator::start(
+        &dir.path("store"),
+        &["--verify", &verify, "--lease-ms", "2000", "--heartbeat-ms", "500", "--speculate-after-ms", "60000"],
+    );
     render(
         &scenes().join("cornell-box/scene.toml"),
         &reference,
-        &[&JOB[..], &["--local-workers", "0"]].concat(),
+        &[&job[..], &["--local-workers", "0"]].concat(),
         LIMIT,
-    );
-    let coord = Coordinator::start(
-        &dir.path("store"),
-        &["--verify", "0.2", "--lease-ms", "2000", "--heartbeat-ms", "500", "--speculate-after-ms", "60000"],
     );
     let _honest = [coord.worker(1, &dir.path("cache-1")), coord.worker(1, &dir.path("cache-2"))];
 
@@ -98,7 +103,7 @@ fn a_lying_worker_is_quarantined_and_the_image_equals_the_honest_render() {
     let started = Instant::now();
     let sub = coord.submit(
         &scenes().join("cornell-box/scene.toml"),
-        &[&JOB[..], &["--wait", "-o", out.to_str().unwrap()]].concat(),
+        &[&job[..], &["--wait", "-o", out.to_str().unwrap()]].concat(),
         LIMIT,
     );
     assert!(sub.status.success(), "{}", String::from_utf8_lossy(&sub.stderr));

@@ -56,6 +56,7 @@ impl Server {
             loop {
                 tokio::time::sleep(Duration::from_millis(250)).await;
                 reaper.farm().reap(Instant::now());
+                reaper.arbitrate();
                 if Arc::strong_count(&reaper) == 1 {
                     break;
                 }

@@ -49,6 +49,35 @@ pub struct Shared {
 }
 
 impl Shared {
+    /// Renders, on the coordinator, each disputed unit that no live worker can settle
+    /// (two answers differ, and every live worker has answered): its render is the
+    /// truth, and the workers that answered otherwise are quarantined. Rare (a lying
+    /// or broken worker on a farm of two), and in the background.
+    pub fn arbitrate(self: &Arc<Self>) {
+        let disputes = self.farm().take_disputes(Instant::now());
+        for d in disputes {
+            tracing::warn!(job = %d.job, unit = d.unit, "workers disagree on a unit and no other worker can decide: \
+                the coordinator renders it");
+            let shared = Arc::clone(self);
+            std::thread::spawn(move || {
+                let rendered = std::panic::catch_unwind(|| {
+                    tracer::render::render_unit_counted(&d.scene, d.integrator, d.tile, d.samples)
+                });
+                let result = rendered.ok().map(|(acc, count)| UnitResult {
+                    unit: d.unit,
+                    tile: d.tile,
+                    samples: d.samples,
+                    sums: acc.sums,
+                    counts: acc.counts,
+                    rays: count.rays,
+                    nonfinite: acc.nonfinite,
+                });
+                shared.farm().arbitrated(&d.job, d.unit, result.as_ref(), Instant::now());
+                shared.changed.notify_waiters();
+            });
+        }
+    }
+
     pub fn new(farm: Farm, store: AssetStore) -> Self {
         Self {
             farm: Mutex::new(farm),

@@ -133,6 +133,16 @@ pub struct Farm {
     last_worker_sweep: Option<Instant>,
 }
 
+/// A disputed unit for the coordinator to render itself ([`Farm::take_disputes`]).
+pub struct Dispute {
+    pub job: String,
+    pub scene: Arc<Scene>,
+    pub integrator: tracer::integrator::Integrator,
+    pub unit: UnitId,
+    pub tile: tracer::film::Tile,
+    pub samples: tracer::film::SampleRange,
+}
+
 /// A unit handed out by [`Farm::lease`].
 pub struct Leased {
     pub spec: Arc<JobSpec>,
@@ -268,7 +278,7 @@ impl Farm {
         // With one worker left, nobody can check its answers: take them as they are.
         if self.config.verify.enabled() && self.live_workers(now) < 2 {
             for e in &mut self.jobs {
-                let n = e.job.settle_unchecked(now);
+                let n = e.job.settle_unchecked(worker, now);
                 if n > 0 {
                     tracing::warn!(job = %e.job.id, units = n, "one worker left: results merged without a check");
                 }
@@ -332,6 +342,52 @@ impl Farm {
         }
         let finished = was_running && self.entry(job)?.job.phase == JobPhase::Done;
         Ok((applied, finished))
+    }
+
+    /// Disputed units no live worker can settle, with what the coordinator needs to
+    /// render them itself: (job, its scene and integrator, the unit).
+    pub fn take_disputes(&mut self, now: Instant) -> Vec<Dispute> {
+        if !self.config.verify.enabled() {
+            return Vec::new();
+        }
+        let grace = 3 * self.config.lease;
+        let live: Vec<WorkerId> = self
+            .workers
+            .values()
+            .filter(|w| !w.quarantined && now.saturating_duration_since(w.last_seen) < grace)
+            .map(|w| w.id)
+            .collect();
+        let mut out = Vec::new();
+        for e in &mut self.jobs {
+            let Some(scene) = e.scene.clone() else { continue };
+            for id in e.job.disputes_nobody_can_settle(&live) {
+                let u = &e.job.units[id as usize];
+                out.push(Dispute {
+                    job: e.job.id.clone(),
+                    scene: Arc::clone(&scene),
+                    integrator: e.spec.integrator,
+                    unit: id,
+                    tile: u.tile,
+                    samples: u.samples,
+                });
+            }
+        }
+        out
+    }
+
+    /// The coordinator's own render of a disputed unit arrived (or, with `None`, failed).
+    pub fn arbitrated(&mut self, job: &str, unit: UnitId, result: Option<&UnitResult>, now: Instant) {
+        let Ok(entry) = self.entry_mut(job) else { return };
+        let Some(r) = result else {
+            entry.job.arbitration_failed(unit);
+            return;
+        };
+        if let Err(e) = entry.job.arbitrate(r, now) {
+            tracing::warn!(%job, unit, "the coordinator's render of a disputed unit was refused: {e}");
+        }
+        for liar in entry.job.take_caught() {
+            self.quarantine(liar, job, unit);
+        }
     }
 
     /// `liar`'s answer for `unit` of `job` differed from two others that agreed: it gets

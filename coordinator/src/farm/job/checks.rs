@@ -68,6 +68,55 @@ impl Job {
         }
     }
 
+    /// Units whose answers disagree and that no worker in `live` can settle (each has
+    /// answered): taken off the check queue, for the coordinator to render itself
+    /// ([`Job::arbitrate`]). A farm of two workers, one of them lying, ends this way.
+    pub fn disputes_nobody_can_settle(&mut self, live: &[WorkerId]) -> Vec<UnitId> {
+        if self.phase != JobPhase::Running {
+            return Vec::new();
+        }
+        let units = &self.units;
+        let stuck: Vec<UnitId> = self
+            .checking
+            .iter()
+            .copied()
+            .filter(|&id| {
+                units[id as usize]
+                    .check
+                    .as_ref()
+                    .is_some_and(|c| c.answers.len() >= 2 && live.iter().all(|&w| c.answered(w)))
+            })
+            .collect();
+        for id in &stuck {
+            self.checking.remove(id);
+        }
+        stuck
+    }
+
+    /// The coordinator's own render of a disputed unit: the truth. Every answer that
+    /// differs from it was a lie.
+    pub fn arbitrate(&mut self, r: &UnitResult, now: Instant) -> Result<Applied, Rejection> {
+        let unit = self.units.get_mut(r.unit as usize).ok_or(Rejection::UnknownUnit(r.unit))?;
+        if self.phase != JobPhase::Running || unit.state == UnitState::Done {
+            return Ok(Applied::Duplicate);
+        }
+        let truth = crate::farm::verify::digest(r);
+        if let Some(check) = unit.check.take() {
+            self.caught.extend(check.answers.iter().filter(|a| a.digest != truth).map(|a| a.worker));
+        }
+        self.checking.remove(&r.unit);
+        self.merge(r, now, None)?;
+        self.units_checked += 1;
+        Ok(Applied::Merged)
+    }
+
+    /// Puts a unit the coordinator failed to render back on the check queue.
+    pub fn arbitration_failed(&mut self, unit: UnitId) {
+        if self.units.get(unit as usize).is_some_and(|u| u.check.is_some() && u.state != UnitState::Done) {
+            self.checking.insert(unit);
+        }
+    }
+
     /// Workers caught answering wrongly since the last call.
     pub fn take_caught(&mut self) -> Vec<WorkerId> {
         std::mem::take(&mut self.caught)
@@ -78,9 +127,10 @@ impl Job {
         self.checking.len()
     }
 
-    /// Merges, unchecked, every held answer that no other worker can check (the farm has
-    /// one worker left); returns how many.
-    pub fn settle_unchecked(&mut self, now: Instant) -> usize {
+    /// Merges, unchecked, the held answers of `lone`, the farm's one live worker: nobody
+    /// else can check them. (A held answer of a worker now gone is `lone`'s to check.)
+    /// Returns how many.
+    pub fn settle_unchecked(&mut self, lone: WorkerId, now: Instant) -> usize {
         if self.phase != JobPhase::Running {
             return 0;
         }
@@ -89,7 +139,8 @@ impl Job {
             .iter()
             .filter_map(|&id| {
                 let c = self.units[id as usize].check.as_ref()?;
-                (c.answers.len() == 1).then(|| (id, c.answers[0].result.clone(), c.answers[0].worker))
+                let only = c.answers.first().filter(|a| c.answers.len() == 1 && a.worker == lone)?;
+                Some((id, only.result.clone(), lone))
             })
             .collect();
         for (id, result, worker) in &lone {

@@ -316,6 +316,24 @@ fn a_liar_is_caught_by_the_third_answer_and_its_tiles_render_again() {
 }
 
 #[test]
+fn a_dispute_no_live_worker_can_settle_goes_to_the_coordinator_whose_render_decides() {
+    let t = Instant::now();
+    let mut j = job();
+    let (id, _) = render(&mut j, 9, true, true, t);
+    assert_eq!(j.lease_next(1, t, t + NEVER, NEVER), Some(id));
+    let truth = result_for(&j, id, 1000 + id as i128);
+    assert_eq!(j.apply_at(1, &truth, t, false), Ok(Applied::Held));
+    // A third live worker could settle it: not yet the coordinator's.
+    assert!(j.disputes_nobody_can_settle(&[1, 9, 2]).is_empty());
+    assert_eq!(j.disputes_nobody_can_settle(&[1, 9]), [id]);
+    // Taken off the check queue while the coordinator renders it.
+    assert_ne!(j.lease_next(2, t, t + NEVER, NEVER), Some(id));
+    assert_eq!(j.arbitrate(&truth, t), Ok(Applied::Merged));
+    assert_eq!(j.take_caught(), [9]);
+    assert_eq!(j.units[id as usize].state, UnitState::Done);
+}
+
+#[test]
 fn a_finished_job_reopens_when_a_liar_is_caught_after_it() {
     let t = Instant::now();
     let mut j = job();
@@ -337,7 +355,9 @@ fn with_no_second_worker_held_answers_are_taken_unchecked() {
     let mut j = job();
     let (id, a) = render(&mut j, 1, true, false, t);
     assert_eq!(a, Applied::Held);
-    assert_eq!(j.settle_unchecked(t), 1);
+    // Another worker's held answer is not settled: the lone worker can check it.
+    assert_eq!(j.settle_unchecked(2, t), 0);
+    assert_eq!(j.settle_unchecked(1, t), 1);
     assert_eq!(j.units[id as usize].state, UnitState::Done);
     assert_eq!(j.units[id as usize].unchecked_from, Some(1));
     // An ended job merges nothing more.
@@ -345,7 +365,7 @@ fn with_no_second_worker_held_answers_are_taken_unchecked() {
     assert_eq!(a, Applied::Held);
     let done = j.units_done;
     j.cancel();
-    assert_eq!((j.settle_unchecked(t), j.units_done), (0, done));
+    assert_eq!((j.settle_unchecked(1, t), j.units_done), (0, done));
     let mut j = job();
     // A lapsed check lease goes back to the check queue, not the ordinary one.
     let (id, _) = render(&mut j, 1, true, false, t);
