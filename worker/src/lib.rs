@@ -27,10 +27,10 @@ mod rpc;
 mod shell;
 
 pub use asset_cache::LoadedJob;
-pub use executor::Executor;
+pub use executor::{Executor, RenderOutcome};
 pub use link::{GrpcLink, Link};
 pub use machine::{Failure, Grant, Registration, Rendered, Renewal, Settings};
-pub use render_pool::{RenderOutcome, RenderPool};
+pub use render_pool::RenderPool;
 pub use rpc::Credentials;
 pub use shell::{Stop, drive};
 

@@ -4,25 +4,12 @@
 use std::panic::AssertUnwindSafe;
 use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, Ordering};
-use std::time::{Duration, Instant};
+use std::time::Instant;
 
-use tracer::film::{Accumulation, SampleRange, Tile};
+use tracer::film::{SampleRange, Tile};
 
 use crate::asset_cache::LoadedJob;
-use crate::executor::Executor;
-
-/// How a unit given to the pool ended.
-pub enum RenderOutcome {
-    Done {
-        acc: Accumulation,
-        rays: u64,
-        elapsed: Duration,
-    },
-    /// Abandoned before a thread picked it up.
-    Skipped,
-    /// The tracer panicked (a bug); the unit is dropped, the worker carries on.
-    Panicked(String),
-}
+use crate::executor::{Executor, RenderOutcome};
 
 pub struct RenderPool {
     pool: rayon::ThreadPool,

@@ -6,6 +6,7 @@
 
 pub mod assets;
 pub mod checkpoint;
+pub mod ids;
 pub mod job;
 pub mod leases;
 pub mod lifecycle;

@@ -8,8 +8,7 @@ use tracer::film::{SampleRange, Tile};
 
 use super::verify::Check;
 
-pub type WorkerId = u64;
-pub type UnitId = u64;
+pub use super::ids::{UnitId, WorkerId};
 
 #[derive(Clone, Debug, PartialEq, Eq)]
 pub enum UnitState {

@@ -9,7 +9,9 @@
 
 use sha2::{Digest, Sha256};
 
-use super::unit::{UnitId, UnitResult, WorkerId};
+use proto::domain::UnitResult;
+
+use super::ids::{UnitId, WorkerId};
 
 /// Most answers one unit collects before two agree: with honest workers it takes two;
 /// more means several workers disagree with each other.

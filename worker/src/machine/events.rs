@@ -14,7 +14,7 @@ use super::{
     Renewal, SHUTDOWN_GRACE, Slot, SlotState,
 };
 use crate::asset_cache::LoadedJob;
-use crate::render_pool::RenderOutcome;
+use crate::executor::RenderOutcome;
 
 impl Machine {
     /// Applies an event. An error only for what retrying cannot fix (the coordinator

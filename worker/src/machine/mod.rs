@@ -32,7 +32,7 @@ use tracer::film::{Accumulation, SampleRange, Tile};
 use tracing::info;
 
 use crate::asset_cache::{LoadedJob, SceneCache};
-use crate::render_pool::RenderOutcome;
+use crate::executor::RenderOutcome;
 use backoff::Backoff;
 use ops::Op;
 
