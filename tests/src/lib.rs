@@ -236,3 +236,22 @@ pub fn render(scene: &Path, out: &Path, args: &[&str], limit: Duration) -> Outpu
     assert!(o.status.success(), "render failed: {}", String::from_utf8_lossy(&o.stderr));
     o
 }
+
+/// A well-formed result for `unit` as `worker` of `job` would send it, every sum `value`
+/// (what a forger sends: the right shape, the wrong content).
+pub fn forged_result(worker: u64, job: &str, unit: &proto::Unit, value: i128) -> proto::UnitResult {
+    let tile = unit.tile.expect("a leased unit has a tile");
+    let n = (tile.width * tile.height) as usize;
+    proto::UnitResult {
+        worker_id: worker,
+        job_id: job.to_string(),
+        unit_id: unit.unit_id,
+        tile: Some(tile),
+        sample_start: unit.sample_start,
+        sample_end: unit.sample_end,
+        sums: value.to_le_bytes().repeat(3 * n),
+        counts: vec![unit.sample_end - unit.sample_start; n],
+        nonfinite: 0,
+        rays: 0,
+    }
+}

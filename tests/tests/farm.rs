@@ -125,18 +125,7 @@ fn forged_and_malformed_results_are_rejected_and_the_image_is_unaffected() {
         let tile = u.tile.unwrap();
         let n = (tile.width * tile.height) as usize;
         let samples = u.sample_end - u.sample_start;
-        let good = proto::UnitResult {
-            worker_id: me,
-            job_id: job.clone(),
-            unit_id: u.unit_id,
-            tile: Some(tile),
-            sample_start: u.sample_start,
-            sample_end: u.sample_end,
-            sums: vec![0u8; n * 48],
-            counts: vec![samples; n],
-            nonfinite: 0,
-            rays: 0,
-        };
+        let good = forged_result(me, &job, u, 0);
         let negative = {
             let mut s = vec![0u8; n * 48];
             s[..16].copy_from_slice(&(-1i128).to_le_bytes());

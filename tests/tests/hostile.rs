@@ -212,22 +212,7 @@ fn forged_results_for_held_leases_are_caught_and_never_reach_the_image() {
             let req = proto::LeaseRequest { worker_id: me, max_units: 2 };
             units.extend(farm.lease(req).await.unwrap().into_inner().units);
         }
-        let forged = |u: &proto::Unit, value: i128| {
-            let tile = u.tile.unwrap();
-            let n = (tile.width * tile.height) as usize;
-            proto::UnitResult {
-                worker_id: me,
-                job_id: job.clone(),
-                unit_id: u.unit_id,
-                tile: Some(tile),
-                sample_start: u.sample_start,
-                sample_end: u.sample_end,
-                sums: value.to_le_bytes().repeat(3 * n),
-                counts: vec![u.sample_end - u.sample_start; n],
-                nonfinite: 0,
-                rays: 0,
-            }
-        };
+        let forged = |u: &proto::Unit, value: i128| forged_result(me, &job, u, value);
         // Another worker's lease: refused, and nothing about the unit is revealed.
         let theirs = proto::UnitResult { worker_id: other, ..forged(&units[0], 0) };
         let e = farm.submit_result(theirs).await.unwrap_err();
