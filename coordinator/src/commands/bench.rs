@@ -236,6 +236,11 @@ fn bench_scene(name: &str, scene: &Scene, args: &BenchArgs) {
         blocked = shadow.iter().filter(|(r, t)| scene.occluded(r, *t)).count();
     });
     println!("shadow rays (any hit): {shadow_rate:.2} Mrays/s ({blocked} blocked)");
+    let mut found = 0usize;
+    let shadow_closest = rate(repeat, shadow.len(), || {
+        found = shadow.iter().filter(|(r, t)| scene.intersect(r, *t).is_some()).count();
+    });
+    println!("  the same shadow rays, closest hit within their length: {shadow_closest:.2} Mrays/s ({found} hit)");
     packet_rate(scene, "shadow", repeat, &shadow, true);
 
     // Diffuse bounce rays: cosine-distributed around the normals of visible points.
