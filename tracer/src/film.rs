@@ -183,6 +183,62 @@ impl Accumulation {
     }
 }
 
+/// Where an image's pixels come from, read one at a time: an assembled [`Image`], or a
+/// [`Mosaic`] of tile accumulations (which a large render writes from, so that no
+/// second copy of the image is made).
+pub trait Pixels: Sync {
+    fn size(&self) -> (u32, u32);
+    /// Mean radiance and sample count of pixel (x, y).
+    fn pixel(&self, x: u32, y: u32) -> (Vec3, u32);
+}
+
+/// A whole image as its tiles' accumulations (laid out by [`Tile::grid`]), read in
+/// place: the same means as [`Image::put`] gives, without assembling them.
+pub struct Mosaic<'a> {
+    width: u32,
+    height: u32,
+    tile_size: u32,
+    tiles_x: u32,
+    tiles: &'a [Accumulation],
+}
+
+impl<'a> Mosaic<'a> {
+    /// `tiles` must be `Tile::grid(width, height, tile_size)`'s, in order.
+    pub fn new(width: u32, height: u32, tile_size: u32, tiles: &'a [Accumulation]) -> Option<Self> {
+        let size = tile_size.max(1);
+        let (tiles_x, tiles_y) = (width.div_ceil(size), height.div_ceil(size));
+        let ok = tiles.len() == (tiles_x * tiles_y) as usize
+            && tiles.iter().enumerate().all(|(i, a)| {
+                let (tx, ty) = (i as u32 % tiles_x.max(1), i as u32 / tiles_x.max(1));
+                a.tile.x0 == tx * size && a.tile.y0 == ty * size
+            });
+        ok.then_some(Self { width, height, tile_size: size, tiles_x, tiles })
+    }
+}
+
+impl Pixels for Mosaic<'_> {
+    fn size(&self) -> (u32, u32) {
+        (self.width, self.height)
+    }
+
+    fn pixel(&self, x: u32, y: u32) -> (Vec3, u32) {
+        let acc = &self.tiles[((y / self.tile_size) * self.tiles_x + x / self.tile_size) as usize];
+        let i = ((y - acc.tile.y0) * acc.tile.width + (x - acc.tile.x0)) as usize;
+        (acc.mean(i), acc.counts[i])
+    }
+}
+
+impl Pixels for Image {
+    fn size(&self) -> (u32, u32) {
+        (self.width, self.height)
+    }
+
+    fn pixel(&self, x: u32, y: u32) -> (Vec3, u32) {
+        let i = (y * self.width + x) as usize;
+        (self.pixels[i], self.counts[i])
+    }
+}
+
 /// A whole image assembled from tiles: mean radiance and sample count per pixel.
 #[derive(Clone, Debug, PartialEq)]
 pub struct Image {
@@ -215,11 +271,51 @@ impl Image {
     pub fn at(&self, x: u32, y: u32) -> Vec3 {
         self.pixels[(y * self.width + x) as usize]
     }
+
+    /// Assembles any pixel source.
+    pub fn of(p: &impl Pixels) -> Self {
+        let (w, h) = p.size();
+        let mut img = Image::new(w, h);
+        for y in 0..h {
+            for x in 0..w {
+                let (v, n) = p.pixel(x, y);
+                let i = (y * w + x) as usize;
+                (img.pixels[i], img.counts[i]) = (v, n);
+            }
+        }
+        img
+    }
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// An image read in place from its tiles is the assembled one, bit for bit, also
+    /// where the tiles at the right and bottom edges are partial.
+    #[test]
+    fn a_mosaic_reads_the_same_pixels_as_the_assembled_image() {
+        let (w, h, size) = (37, 21, 8);
+        let tiles: Vec<Accumulation> = Tile::grid(w, h, size)
+            .into_iter()
+            .enumerate()
+            .map(|(k, t)| {
+                let mut a = Accumulation::new(t);
+                for i in 0..t.pixel_count() {
+                    for s in 0..(1 + (i + k) % 3) {
+                        a.add_sample(i, Vec3::new(0.1 * i as f32, k as f32 / 7.0, s as f32 + 1e-3));
+                    }
+                }
+                a
+            })
+            .collect();
+        let mut assembled = Image::new(w, h);
+        tiles.iter().for_each(|a| assembled.put(a));
+        let mosaic = Mosaic::new(w, h, size, &tiles).expect("the grid's tiles");
+        assert_eq!(Image::of(&mosaic), assembled);
+        assert!(Mosaic::new(w, h, size + 1, &tiles).is_none());
+        assert!(Mosaic::new(w, h, size, &tiles[1..]).is_none());
+    }
 
     #[test]
     fn fixed_point_conversion_through_i64_is_the_direct_one() {

@@ -5,7 +5,7 @@ use std::path::Path;
 
 use glam::Vec3;
 
-use crate::film::Image;
+use crate::film::{Image, Pixels};
 use crate::math;
 
 #[derive(Debug, thiserror::Error)]
@@ -84,11 +84,13 @@ pub fn write_image(image: &Image, path: &Path) -> Result<(), OutputError> {
     write_image_with(image, None, path)
 }
 
-/// [`write_image`], an EXR's header recording `info`.
-pub fn write_image_with(image: &Image, info: Option<&RenderInfo>, path: &Path) -> Result<(), OutputError> {
+/// [`write_image`] from any pixel source, an EXR's header recording `info`. An EXR is
+/// encoded straight from the source, block by block, into the file: a render as large
+/// as memory allows is written without a second copy of it.
+pub fn write_image_with(image: &impl Pixels, info: Option<&RenderInfo>, path: &Path) -> Result<(), OutputError> {
     match Format::of(path)? {
         Format::Exr => write_exr_with(image, info, path),
-        Format::Png => write_png(image, path),
+        Format::Png => write_png(&Image::of(image), path),
     }
 }
 
@@ -141,12 +143,14 @@ pub fn write_exr(image: &Image, path: &Path) -> Result<(), OutputError> {
     write_exr_with(image, None, path)
 }
 
-/// [`write_exr`], its header recording `info`.
-pub fn write_exr_with(image: &Image, info: Option<&RenderInfo>, path: &Path) -> Result<(), OutputError> {
-    let bytes =
-        exr_bytes(image, info).map_err(|message| OutputError::Write { path: path.display().to_string(), message })?;
-    std::fs::write(path, bytes)
-        .map_err(|e| OutputError::Write { path: path.display().to_string(), message: e.to_string() })
+/// [`write_exr`] from any pixel source, its header recording `info`.
+pub fn write_exr_with(image: &impl Pixels, info: Option<&RenderInfo>, path: &Path) -> Result<(), OutputError> {
+    let fail = |message: String| OutputError::Write { path: path.display().to_string(), message };
+    let file = std::fs::File::create(path).map_err(|e| fail(e.to_string()))?;
+    let mut out = std::io::BufWriter::new(file);
+    write_exr_to(image, info, &mut out).map_err(fail)?;
+    use std::io::Write;
+    out.flush().map_err(|e| fail(e.to_string()))
 }
 
 /// The EXR file of [`write_exr_with`] in memory (for sending over the network).
@@ -157,30 +161,40 @@ pub fn write_exr_with(image: &Image, info: Option<&RenderInfo>, path: &Path) -> 
 /// primaries, D65: sRGB's, linear), and with `info` the standard `worldToCamera` and
 /// `worldToNDC` and `tilefarm/*` attributes for spp asked and reached (the least count of
 /// any pixel), max depth, seed, integrator, render seconds and the scene file.
-pub fn exr_bytes(image: &Image, info: Option<&RenderInfo>) -> Result<Vec<u8>, String> {
+pub fn exr_bytes(image: &impl Pixels, info: Option<&RenderInfo>) -> Result<Vec<u8>, String> {
+    let mut out = std::io::Cursor::new(Vec::new());
+    write_exr_to(image, info, &mut out)?;
+    Ok(out.into_inner())
+}
+
+fn write_exr_to(
+    image: &impl Pixels,
+    info: Option<&RenderInfo>,
+    out: &mut (impl std::io::Write + std::io::Seek),
+) -> Result<(), String> {
     use exr::prelude::*;
-    let size = (image.width as usize, image.height as usize);
-    let channel = |name: &str, f: &dyn Fn(&Vec3) -> f32| {
-        AnyChannel::new(name, FlatSamples::F32(image.pixels.iter().map(f).collect()))
-    };
-    let channels = vec![
-        channel("R", &|p| p.x),
-        channel("G", &|p| p.y),
-        channel("B", &|p| p.z),
-        channel("A", &|_| 1.0),
-        AnyChannel::new("samples", FlatSamples::U32(image.counts.clone())),
-    ];
+    let (w, h) = image.size();
+    let channels = SpecificChannels::build()
+        .with_channel("R")
+        .with_channel("G")
+        .with_channel("B")
+        .with_channel("A")
+        .with_channel("samples")
+        .with_pixel_fn(|Vec2(x, y): Vec2<usize>| {
+            let (p, n) = image.pixel(x as u32, y as u32);
+            (p.x, p.y, p.z, 1.0f32, n)
+        });
     let mut attributes = LayerAttributes::named("tilefarm");
     attributes.software_name = Some(Text::from(concat!("tilefarm ", env!("CARGO_PKG_VERSION"))));
     if let Some(info) = info {
         attributes.world_to_camera = Some(info.world_to_camera);
         attributes.world_to_normalized_device = Some(info.world_to_ndc);
-        let reached = image.counts.iter().copied().min().unwrap_or(0);
+        let reached = (0..h).flat_map(|y| (0..w).map(move |x| (x, y))).map(|(x, y)| image.pixel(x, y).1).min();
         let clamp = |v: u64| AttributeValue::I32(i32::try_from(v).unwrap_or(i32::MAX));
         let text = |s: &str| AttributeValue::Text(Text::new_or_none(s).unwrap_or_default());
         for (name, value) in [
             (keys::SPP, clamp(info.spp.into())),
-            (keys::SPP_REACHED, clamp(reached.into())),
+            (keys::SPP_REACHED, clamp(reached.unwrap_or(0).into())),
             (keys::MAX_DEPTH, AttributeValue::I32(info.max_depth)),
             // Seeds are 64-bit; OpenEXR has no 64-bit integer attribute.
             (keys::SEED, text(&info.seed.to_string())),
@@ -191,7 +205,7 @@ pub fn exr_bytes(image: &Image, info: Option<&RenderInfo>) -> Result<Vec<u8>, St
             attributes.other.insert(Text::from(name), value);
         }
     }
-    let layer = Layer::new(size, attributes, Encoding::SMALL_LOSSLESS, AnyChannels::sort(channels.into()));
+    let layer = Layer::new((w as usize, h as usize), attributes, Encoding::SMALL_LOSSLESS, channels);
     let mut exr = Image::from_layer(layer);
     // Rec. 709 / sRGB primaries and D65 white: what the linear RGB values mean.
     exr.attributes.chromaticities = Some(exr::meta::attribute::Chromaticities {
@@ -200,9 +214,7 @@ pub fn exr_bytes(image: &Image, info: Option<&RenderInfo>) -> Result<Vec<u8>, St
         blue: Vec2(0.15, 0.06),
         white: Vec2(0.3127, 0.3290),
     });
-    let mut out = std::io::Cursor::new(Vec::new());
-    exr.write().to_buffered(&mut out).map_err(|e| e.to_string())?;
-    Ok(out.into_inner())
+    exr.write().to_buffered(out).map_err(|e| e.to_string())
 }
 
 /// Reads back what [`write_exr`] wrote (RGB and the sample counts, if present).

@@ -477,11 +477,11 @@ fn write_result(
     let (image, info, nonfinite, total) = {
         let farm = shared.farm();
         let e = farm.entry(job)?;
-        (e.job.image(), e.render_info(), e.job.nonfinite, e.job.units.len() as u64)
+        (e.job.image_tiles(), e.render_info(), e.job.nonfinite, e.job.units.len() as u64)
     };
-    tracer::output::write_image_with(&image, info.as_ref(), &args.output)?;
+    tracer::output::write_image_with(&image.mosaic(), info.as_ref(), &args.output)?;
     if let Some(p) = &args.preview {
-        tracer::output::write_png(&image, p)?;
+        tracer::output::write_png(&tracer::film::Image::of(&image.mosaic()), p)?;
     }
     println!(
         "{}; units: {resumed} from checkpoint + {} rendered = {total}; wrote {}",
@@ -504,9 +504,9 @@ fn write_partial(shared: &Shared, job: &str, output: &Path) -> anyhow::Result<()
         if e.job.width == 0 {
             return Ok(()); // the scene never loaded: there is no image
         }
-        (e.job.image(), e.render_info(), e.job.samples_done, e.job.samples_total())
+        (e.job.image_tiles(), e.render_info(), e.job.samples_done, e.job.samples_total())
     };
-    tracer::output::write_image_with(&image, info.as_ref(), output)?;
+    tracer::output::write_image_with(&image.mosaic(), info.as_ref(), output)?;
     eprintln!(
         "wrote the image so far to {} ({:.1}% of its samples; --no-partial writes nothing)",
         output.display(),

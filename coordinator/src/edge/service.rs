@@ -325,9 +325,9 @@ impl proto::jobs_server::Jobs for JobsService {
             if e.job.width == 0 {
                 return Err(Status::failed_precondition(format!("job {job} has no image (its scene did not load)")));
             }
-            (e.job.image(), e.render_info())
+            (e.job.image_tiles(), e.render_info())
         };
-        let bytes = tokio::task::spawn_blocking(move || tracer::output::exr_bytes(&image.0, image.1.as_ref()))
+        let bytes = tokio::task::spawn_blocking(move || tracer::output::exr_bytes(&image.0.mosaic(), image.1.as_ref()))
             .await
             .map_err(|e| Status::internal(e.to_string()))?
             .map_err(Status::internal)?;

@@ -5,7 +5,9 @@
 use std::collections::{BTreeSet, VecDeque};
 use std::time::{Duration, Instant};
 
-use tracer::film::{Accumulation, Image, SampleRange, Tile};
+use std::sync::Arc;
+
+use tracer::film::{Accumulation, Image, Mosaic, SampleRange, Tile};
 
 use crate::farm::leases::{LeaseClock, Slot};
 use crate::farm::schedule;
@@ -66,7 +68,9 @@ pub struct Job {
     pub non_negative: bool,
     pub units: Vec<Unit>,
     pending: BTreeSet<UnitId>,
-    tiles: Vec<Accumulation>,
+    /// Shared, so that a done job's image can be written outside the farm's lock without
+    /// a copy (a merge copies only while someone else still reads them).
+    tiles: Arc<Vec<Accumulation>>,
     pub units_done: u64,
     pub samples_done: u64,
     pub rays: u64,
@@ -94,6 +98,21 @@ pub struct Job {
     /// Units thrown away (with the rest of their tiles) because their worker was caught
     /// lying; they render again.
     pub units_discarded: u64,
+}
+
+/// A job's image as its tiles' accumulations, shared with the job ([`Job::image_tiles`]).
+pub struct ImageTiles {
+    width: u32,
+    height: u32,
+    tile_size: u32,
+    tiles: Arc<Vec<Accumulation>>,
+}
+
+impl ImageTiles {
+    /// The pixels, read in place.
+    pub fn mosaic(&self) -> Mosaic<'_> {
+        Mosaic::new(self.width, self.height, self.tile_size, &self.tiles).expect("a job's tiles are its grid's")
+    }
 }
 
 /// Unit times a job keeps for its median.
@@ -133,7 +152,7 @@ impl Job {
             non_negative: true,
             units: Vec::new(),
             pending: BTreeSet::new(),
-            tiles: Vec::new(),
+            tiles: Arc::default(),
             units_done: 0,
             samples_done: 0,
             rays: 0,
@@ -192,7 +211,7 @@ impl Job {
             .collect();
         self.pending = (0..self.units.len() as UnitId).collect();
         self.clock.clear();
-        self.tiles = tiles.into_iter().map(Accumulation::new).collect();
+        self.tiles = Arc::new(tiles.into_iter().map(Accumulation::new).collect());
         (self.width, self.height, self.spp, self.non_negative) = (width, height, spp, non_negative);
         (self.tile_size, self.batch_spp) = (tile_size, batch_spp);
         self.phase = JobPhase::Running;
@@ -241,7 +260,7 @@ impl Job {
             .map(|u| u.tile.pixel_count() as u64 * u.samples.len() as u64)
             .sum();
         self.units = units;
-        self.tiles = r.tiles;
+        self.tiles = Arc::new(r.tiles);
         (self.width, self.height, self.spp, self.tile_size, self.batch_spp) =
             (r.width, r.height, r.spp, r.tile_size, r.batch_spp);
         (self.non_negative, self.rays, self.nonfinite) = (r.non_negative, r.rays, r.nonfinite);
@@ -342,7 +361,7 @@ impl Job {
         if self.phase == JobPhase::Done && self.evicted_units.is_none() {
             self.evicted_units = Some(self.units.len() as u64);
             self.units = Vec::new();
-            self.tiles = Vec::new();
+            self.tiles = Arc::default();
             self.pending = BTreeSet::new();
             self.clock.clear();
         }
@@ -568,7 +587,7 @@ impl Job {
         }
         let acc =
             Accumulation { tile: unit.tile, sums: r.sums.clone(), counts: r.counts.clone(), nonfinite: r.nonfinite };
-        self.tiles[tile_index].merge(&acc).map_err(|e| malformed(e.to_string()))?;
+        Arc::make_mut(&mut self.tiles)[tile_index].merge(&acc).map_err(|e| malformed(e.to_string()))?;
         let unit = &mut self.units[r.unit as usize];
         unit.state = UnitState::Done;
         unit.spare = None;
@@ -589,10 +608,16 @@ impl Job {
         self.finished = Some(Instant::now());
     }
 
+    /// The image as it is now, sharing the job's accumulations (no copy), to be written
+    /// without holding the farm.
+    pub fn image_tiles(&self) -> ImageTiles {
+        ImageTiles { width: self.width, height: self.height, tile_size: self.tile_size, tiles: Arc::clone(&self.tiles) }
+    }
+
     /// The image so far (the mean of the samples merged; all of them once done).
     pub fn image(&self) -> Image {
         let mut img = Image::new(self.width, self.height);
-        for acc in &self.tiles {
+        for acc in self.tiles.iter() {
             img.put(acc);
         }
         img

@@ -163,7 +163,7 @@ impl Shared {
                 .iter()
                 .filter(|e| e.job.phase == JobPhase::Done && !e.job.is_evicted())
                 .filter(|e| retry.get(&e.job.id).is_none_or(|&at| now >= at))
-                .map(|e| (e.job.id.clone(), e.job.image(), e.render_info(), e.job.owner.clone()))
+                .map(|e| (e.job.id.clone(), e.job.image_tiles(), e.render_info(), e.job.owner.clone()))
                 .collect()
         };
         let mut stored = Vec::new();
@@ -245,12 +245,12 @@ pub fn stored_owner(image: &Path) -> Option<String> {
 }
 
 fn write_durably(
-    image: &tracer::film::Image,
+    image: &super::job::ImageTiles,
     info: Option<&tracer::output::RenderInfo>,
     target: &Path,
 ) -> anyhow::Result<()> {
     let tmp = target.with_extension("exr.tmp");
-    tracer::output::write_exr_with(image, info, &tmp)?;
+    tracer::output::write_exr_with(&image.mosaic(), info, &tmp)?;
     std::fs::File::open(&tmp).and_then(|f| f.sync_all()).with_context(|| format!("{}", tmp.display()))?;
     std::fs::rename(&tmp, target).with_context(|| format!("replacing {}", target.display()))?;
     Ok(())

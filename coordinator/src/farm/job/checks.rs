@@ -198,8 +198,9 @@ impl Job {
             }
         }
         for &t in &tainted {
-            self.nonfinite -= self.tiles[t].nonfinite.min(self.nonfinite);
-            self.tiles[t] = Accumulation::new(self.tiles[t].tile);
+            let tiles = std::sync::Arc::make_mut(&mut self.tiles);
+            self.nonfinite -= tiles[t].nonfinite.min(self.nonfinite);
+            tiles[t] = Accumulation::new(tiles[t].tile);
         }
         if !tainted.is_empty() && self.phase == JobPhase::Done {
             self.phase = JobPhase::Running;
