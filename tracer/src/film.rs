@@ -194,21 +194,23 @@ pub trait Pixels: Sync {
 
 /// A whole image as its tiles' accumulations (laid out by [`Tile::grid`]), read in
 /// place: the same means as [`Image::put`] gives, without assembling them.
-pub struct Mosaic<'a> {
+pub struct Mosaic<'a, A = Accumulation> {
     width: u32,
     height: u32,
     tile_size: u32,
     tiles_x: u32,
-    tiles: &'a [Accumulation],
+    tiles: &'a [A],
 }
 
-impl<'a> Mosaic<'a> {
-    /// `tiles` must be `Tile::grid(width, height, tile_size)`'s, in order.
-    pub fn new(width: u32, height: u32, tile_size: u32, tiles: &'a [Accumulation]) -> Option<Self> {
+impl<'a, A: std::borrow::Borrow<Accumulation>> Mosaic<'a, A> {
+    /// `tiles` must be `Tile::grid(width, height, tile_size)`'s, in order (owned or
+    /// shared accumulations).
+    pub fn new(width: u32, height: u32, tile_size: u32, tiles: &'a [A]) -> Option<Self> {
         let size = tile_size.max(1);
         let (tiles_x, tiles_y) = (width.div_ceil(size), height.div_ceil(size));
         let ok = tiles.len() == (tiles_x * tiles_y) as usize
             && tiles.iter().enumerate().all(|(i, a)| {
+                let a = a.borrow();
                 let (tx, ty) = (i as u32 % tiles_x.max(1), i as u32 / tiles_x.max(1));
                 a.tile.x0 == tx * size && a.tile.y0 == ty * size
             });
@@ -216,13 +218,13 @@ impl<'a> Mosaic<'a> {
     }
 }
 
-impl Pixels for Mosaic<'_> {
+impl<A: std::borrow::Borrow<Accumulation> + Sync> Pixels for Mosaic<'_, A> {
     fn size(&self) -> (u32, u32) {
         (self.width, self.height)
     }
 
     fn pixel(&self, x: u32, y: u32) -> (Vec3, u32) {
-        let acc = &self.tiles[((y / self.tile_size) * self.tiles_x + x / self.tile_size) as usize];
+        let acc = self.tiles[((y / self.tile_size) * self.tiles_x + x / self.tile_size) as usize].borrow();
         let i = ((y - acc.tile.y0) * acc.tile.width + (x - acc.tile.x0)) as usize;
         (acc.mean(i), acc.counts[i])
     }

@@ -122,40 +122,63 @@ fn put_bytes(out: &mut Vec<u8>, b: &[u8]) {
     out.extend_from_slice(b);
 }
 
+/// The checkpoint file's bytes (see [`write`], which streams them to disk instead).
 pub fn encode(s: &Snapshot) -> Vec<u8> {
+    let mut out = Vec::new();
+    encode_to(s, &mut out).expect("writing to memory");
+    out
+}
+
+/// Writes the checkpoint to `out` a tile at a time, hashing on the way (the digest goes
+/// last): no copy of the whole file is held. Returns the bytes written.
+fn encode_to(s: &Snapshot, out: &mut impl Write) -> std::io::Result<u64> {
     let j = &s.job;
-    let mut out = Vec::with_capacity(64 + j.tiles.iter().map(|t| t.counts.len() * 20).sum::<usize>());
-    out.extend_from_slice(MAGIC);
-    put_bytes(&mut out, &proto::wire::job_to_bytes(&s.spec));
-    put_bytes(&mut out, s.name.as_bytes());
-    put_bytes(&mut out, s.owner.as_deref().unwrap_or("").as_bytes());
+    let mut h = Sha256::new();
+    let mut written = 0u64;
+    let mut flush = |buf: &mut Vec<u8>, out: &mut dyn Write| -> std::io::Result<()> {
+        h.update(&buf[..]);
+        out.write_all(buf)?;
+        written += buf.len() as u64;
+        buf.clear();
+        Ok(())
+    };
+    let mut buf = Vec::with_capacity(1 << 16);
+    buf.extend_from_slice(MAGIC);
+    put_bytes(&mut buf, &proto::wire::job_to_bytes(&s.spec));
+    put_bytes(&mut buf, s.name.as_bytes());
+    put_bytes(&mut buf, s.owner.as_deref().unwrap_or("").as_bytes());
     for v in [j.width, j.height, j.spp, j.tile_size, j.batch_spp, j.non_negative as u32] {
-        put_varint(&mut out, v as u128);
+        put_varint(&mut buf, v as u128);
     }
-    put_varint(&mut out, j.rays as u128);
-    put_varint(&mut out, j.nonfinite as u128);
-    put_varint(&mut out, j.units.len() as u128);
+    put_varint(&mut buf, j.rays as u128);
+    put_varint(&mut buf, j.nonfinite as u128);
+    put_varint(&mut buf, j.units.len() as u128);
     for u in &j.units {
         for v in [u.tile_index, u.samples.start, u.samples.end, u.done as u32] {
-            put_varint(&mut out, v as u128);
+            put_varint(&mut buf, v as u128);
+        }
+        if buf.len() >= 1 << 16 {
+            flush(&mut buf, out)?;
         }
     }
-    put_varint(&mut out, j.tiles.len() as u128);
+    put_varint(&mut buf, j.tiles.len() as u128);
     for t in &j.tiles {
         for v in [t.tile.x0, t.tile.y0, t.tile.width, t.tile.height] {
-            put_varint(&mut out, v as u128);
+            put_varint(&mut buf, v as u128);
         }
-        put_varint(&mut out, t.nonfinite as u128);
+        put_varint(&mut buf, t.nonfinite as u128);
         for (c, s) in t.counts.iter().zip(&t.sums) {
-            put_varint(&mut out, *c as u128);
+            put_varint(&mut buf, *c as u128);
             for v in s {
-                put_i128(&mut out, *v);
+                put_i128(&mut buf, *v);
             }
         }
+        flush(&mut buf, out)?;
     }
-    let digest = Sha256::digest(&out);
-    out.extend_from_slice(&digest);
-    out
+    flush(&mut buf, out)?;
+    let digest = h.finalize();
+    out.write_all(&digest)?;
+    Ok(written + digest.len() as u64)
 }
 
 struct Reader<'a> {
@@ -237,7 +260,7 @@ pub fn decode(bytes: &[u8]) -> anyhow::Result<Snapshot> {
             acc.counts[i] = r.u32()?;
             acc.sums[i] = [r.i128()?, r.i128()?, r.i128()?];
         }
-        tiles.push(acc);
+        tiles.push(std::sync::Arc::new(acc));
     }
     anyhow::ensure!(r.pos == body.len(), "trailing data");
     Ok(Snapshot {
@@ -263,23 +286,29 @@ pub fn decode(bytes: &[u8]) -> anyhow::Result<Snapshot> {
 
 /// Writes the checkpoint atomically; returns its size.
 pub fn write(dir: &Path, s: &Snapshot) -> anyhow::Result<u64> {
-    let bytes = encode(s);
     let dest = path(dir);
     let tmp = dir.join(format!("{FILE}.tmp"));
-    let mut f = std::fs::File::create(&tmp).with_context(|| format!("creating {}", tmp.display()))?;
-    if let Err(e) = f.write_all(&bytes).and_then(|()| f.sync_all()) {
-        drop(f);
-        // Leave no partial file behind to fill the disk further.
-        let _ = std::fs::remove_file(&tmp);
-        return Err(e).with_context(|| format!("writing {}", dest.display()));
-    }
-    drop(f);
+    let f = std::fs::File::create(&tmp).with_context(|| format!("creating {}", tmp.display()))?;
+    let mut out = std::io::BufWriter::with_capacity(1 << 20, f);
+    let written = encode_to(s, &mut out).and_then(|n| {
+        let f = out.into_inner().map_err(|e| e.into_error())?;
+        f.sync_all()?;
+        Ok(n)
+    });
+    let size = match written {
+        Ok(n) => n,
+        Err(e) => {
+            // Leave no partial file behind to fill the disk further.
+            let _ = std::fs::remove_file(&tmp);
+            return Err(e).with_context(|| format!("writing {}", dest.display()));
+        }
+    };
     std::fs::rename(&tmp, &dest).with_context(|| format!("replacing {}", dest.display()))?;
     // The rename itself must reach the disk before we count the checkpoint as written.
     if let Ok(d) = std::fs::File::open(dir) {
         let _ = d.sync_all();
     }
-    Ok(bytes.len() as u64)
+    Ok(size)
 }
 
 /// Reads `<dir>/checkpoint.tfck` if there is one; a damaged one is an error.

@@ -44,7 +44,7 @@ pub struct Restored {
     pub batch_spp: u32,
     pub non_negative: bool,
     pub units: Vec<UnitRecord>,
-    pub tiles: Vec<Accumulation>,
+    pub tiles: Vec<Arc<Accumulation>>,
     pub rays: u64,
     pub nonfinite: u64,
     /// The job had been cancelled: it comes back cancelled, its image so far kept.
@@ -68,9 +68,10 @@ pub struct Job {
     pub non_negative: bool,
     pub units: Vec<Unit>,
     pending: BTreeSet<UnitId>,
-    /// Shared, so that a done job's image can be written outside the farm's lock without
-    /// a copy (a merge copies only while someone else still reads them).
-    tiles: Arc<Vec<Accumulation>>,
+    /// Each tile shared, so that the image can be written or checkpointed outside the
+    /// farm's lock without a copy: a merge copies only the one tile it changes, and only
+    /// while a writer still reads it.
+    tiles: Vec<Arc<Accumulation>>,
     pub units_done: u64,
     pub samples_done: u64,
     pub rays: u64,
@@ -105,12 +106,12 @@ pub struct ImageTiles {
     width: u32,
     height: u32,
     tile_size: u32,
-    tiles: Arc<Vec<Accumulation>>,
+    tiles: Vec<Arc<Accumulation>>,
 }
 
 impl ImageTiles {
     /// The pixels, read in place.
-    pub fn mosaic(&self) -> Mosaic<'_> {
+    pub fn mosaic(&self) -> Mosaic<'_, Arc<Accumulation>> {
         Mosaic::new(self.width, self.height, self.tile_size, &self.tiles).expect("a job's tiles are its grid's")
     }
 }
@@ -152,7 +153,7 @@ impl Job {
             non_negative: true,
             units: Vec::new(),
             pending: BTreeSet::new(),
-            tiles: Arc::default(),
+            tiles: Vec::new(),
             units_done: 0,
             samples_done: 0,
             rays: 0,
@@ -211,7 +212,7 @@ impl Job {
             .collect();
         self.pending = (0..self.units.len() as UnitId).collect();
         self.clock.clear();
-        self.tiles = Arc::new(tiles.into_iter().map(Accumulation::new).collect());
+        self.tiles = tiles.into_iter().map(|t| Arc::new(Accumulation::new(t))).collect();
         (self.width, self.height, self.spp, self.non_negative) = (width, height, spp, non_negative);
         (self.tile_size, self.batch_spp) = (tile_size, batch_spp);
         self.phase = JobPhase::Running;
@@ -260,7 +261,7 @@ impl Job {
             .map(|u| u.tile.pixel_count() as u64 * u.samples.len() as u64)
             .sum();
         self.units = units;
-        self.tiles = Arc::new(r.tiles);
+        self.tiles = r.tiles;
         (self.width, self.height, self.spp, self.tile_size, self.batch_spp) =
             (r.width, r.height, r.spp, r.tile_size, r.batch_spp);
         (self.non_negative, self.rays, self.nonfinite) = (r.non_negative, r.rays, r.nonfinite);
@@ -316,7 +317,8 @@ impl Job {
             .collect()
     }
 
-    pub fn tile_accumulations(&self) -> &[Accumulation] {
+    /// The tiles, shared (a checkpoint holds them while it writes, without a copy).
+    pub fn tile_accumulations(&self) -> &[Arc<Accumulation>] {
         &self.tiles
     }
 
@@ -361,7 +363,7 @@ impl Job {
         if self.phase == JobPhase::Done && self.evicted_units.is_none() {
             self.evicted_units = Some(self.units.len() as u64);
             self.units = Vec::new();
-            self.tiles = Arc::default();
+            self.tiles = Vec::new();
             self.pending = BTreeSet::new();
             self.clock.clear();
         }
@@ -587,7 +589,7 @@ impl Job {
         }
         let acc =
             Accumulation { tile: unit.tile, sums: r.sums.clone(), counts: r.counts.clone(), nonfinite: r.nonfinite };
-        Arc::make_mut(&mut self.tiles)[tile_index].merge(&acc).map_err(|e| malformed(e.to_string()))?;
+        Arc::make_mut(&mut self.tiles[tile_index]).merge(&acc).map_err(|e| malformed(e.to_string()))?;
         let unit = &mut self.units[r.unit as usize];
         unit.state = UnitState::Done;
         unit.spare = None;
@@ -611,7 +613,7 @@ impl Job {
     /// The image as it is now, sharing the job's accumulations (no copy), to be written
     /// without holding the farm.
     pub fn image_tiles(&self) -> ImageTiles {
-        ImageTiles { width: self.width, height: self.height, tile_size: self.tile_size, tiles: Arc::clone(&self.tiles) }
+        ImageTiles { width: self.width, height: self.height, tile_size: self.tile_size, tiles: self.tiles.clone() }
     }
 
     /// The image so far (the mean of the samples merged; all of them once done).

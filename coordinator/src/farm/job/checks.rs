@@ -198,9 +198,8 @@ impl Job {
             }
         }
         for &t in &tainted {
-            let tiles = std::sync::Arc::make_mut(&mut self.tiles);
-            self.nonfinite -= tiles[t].nonfinite.min(self.nonfinite);
-            tiles[t] = Accumulation::new(tiles[t].tile);
+            self.nonfinite -= self.tiles[t].nonfinite.min(self.nonfinite);
+            self.tiles[t] = std::sync::Arc::new(Accumulation::new(self.tiles[t].tile));
         }
         if !tainted.is_empty() && self.phase == JobPhase::Done {
             self.phase = JobPhase::Running;
