@@ -247,4 +247,5 @@ fn forged_results_for_held_leases_are_caught_and_never_reach_the_image() {
     let status = run(Command::new(bin("coordinator")).args(["status", "--coordinator", &coord.url]), LIMIT);
     let shown = String::from_utf8_lossy(&status.stdout);
     assert!(shown.contains("QUARANTINED") && shown.contains("was quarantined"), "{shown}");
+    assert_eq!(shown.matches("QUARANTINED").count(), 1, "only the rogue: {shown}");
 }

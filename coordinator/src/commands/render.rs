@@ -355,6 +355,12 @@ async fn execute(plan: Plan, args: &RunArgs) -> anyhow::Result<()> {
     let mut shared = Shared::new(Farm::new(args.farm.config()?), store);
     // The user's own scene, read where it lies (also through absolute paths).
     shared.defaults.confine_scenes = false;
+    // Rendering in process needs the scene the coordinator loads; workers load their own.
+    shared.defaults.keep_scenes = workers == 0;
+    if workers > 0 {
+        // The scene it loads for its checks is freed at once: give it back to the system.
+        tracer::memory::return_large_buffers_when_freed();
+    }
     let shared = Arc::new(shared);
     let resumed = restore.as_ref().map_or(0, |s| s.units_done() as u64);
     let (earlier_samples, earlier_rays) = restore.as_ref().map_or((0, 0), |s| (s.samples_done(), s.job.rays));

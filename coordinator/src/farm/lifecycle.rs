@@ -29,11 +29,15 @@ pub struct JobDefaults {
     /// A scene may refer only to its job's uploaded files (a farm's rule); `render`, which
     /// reads the user's own scene where it lies, turns it off.
     pub confine_scenes: bool,
+    /// Keep each job's loaded scene (its geometry and tree) after the checks: only when
+    /// the coordinator renders in process (`render --local-workers 0`). A farm's workers
+    /// load their own, and the coordinator's copy would be memory for nothing.
+    pub keep_scenes: bool,
 }
 
 impl Default for JobDefaults {
     fn default() -> Self {
-        Self { tile: 64, batch_spp: 16, confine_scenes: true }
+        Self { tile: 64, batch_spp: 16, confine_scenes: true, keep_scenes: false }
     }
 }
 
@@ -60,10 +64,28 @@ impl Shared {
                 the coordinator renders it");
             let shared = Arc::clone(self);
             std::thread::spawn(move || {
-                let rendered = std::panic::catch_unwind(|| {
-                    tracer::render::render_unit_counted(&d.scene, d.integrator, d.tile, d.samples)
+                // A farm keeps no geometry: the scene is loaded again for the decision.
+                let scene = match &d.scene {
+                    Some(s) => Some(Arc::clone(s)),
+                    None => match load_scene_of(&shared, &d.job, false) {
+                        Ok(s) if s.warnings.len() <= d.scene_warnings => Some(Arc::new(s)),
+                        Ok(s) => {
+                            tracing::warn!(job = %d.job, "the scene loaded to decide a dispute is not the one the job \
+                                loaded ({} warnings, first {}); not deciding", s.warnings.len(), d.scene_warnings);
+                            None
+                        }
+                        Err(e) => {
+                            tracing::warn!(job = %d.job, "loading the scene to decide a dispute: {e:#}");
+                            None
+                        }
+                    },
+                };
+                let rendered = scene.map(|scene| {
+                    std::panic::catch_unwind(|| {
+                        tracer::render::render_unit_counted(&scene, d.integrator, d.tile, d.samples)
+                    })
                 });
-                let result = rendered.ok().map(|(acc, count)| UnitResult {
+                let result = rendered.and_then(|r| r.ok()).map(|(acc, count)| UnitResult {
                     unit: d.unit,
                     tile: d.tile,
                     samples: d.samples,
@@ -301,13 +323,18 @@ pub fn submit_job(
     Ok(id)
 }
 
-/// Loads a job's scene from its files and starts the job (or restores its checkpoint).
-fn load_job(shared: &Arc<Shared>, job: &str, restore: Option<Restored>) -> anyhow::Result<()> {
+/// Loads a job's scene from its files (in the store's folder for the job), with the
+/// job's overrides applied. `fresh` lays the folder out anew from the store (a job's
+/// first load); otherwise the folder its first load made is read as it is, so that
+/// loads running at once never see it half made.
+pub fn load_scene_of(shared: &Shared, job: &str, fresh: bool) -> anyhow::Result<tracer::scene::Scene> {
     let spec = Arc::clone(&shared.farm().entry(job)?.spec);
     let scene_path = {
         let store = shared.store();
         let dir = store.dir().join("jobs").join(job);
-        let scene_path = store.materialize(&dir, &spec.scene, &spec.assets)?;
+        let laid_out = dir.join(super::assets::safe_relative_path(&spec.scene.path)?);
+        let scene_path =
+            if fresh || !laid_out.is_file() { store.materialize(&dir, &spec.scene, &spec.assets)? } else { laid_out };
         if shared.defaults.confine_scenes {
             tracer::scene::assets::check_within(&scene_path, &dir)?;
         }
@@ -315,13 +342,22 @@ fn load_job(shared: &Arc<Shared>, job: &str, restore: Option<Restored>) -> anyho
     };
     // Named as the user named them (`quad.mtl`), not as the job folder's copies.
     let mut loaded = tracer::scene::load_scene_as(&scene_path, &spec.scene.path, spec.overrides.up)?;
+    let warnings = std::mem::take(&mut loaded.warnings);
+    spec.overrides.apply(&mut loaded).map_err(anyhow::Error::msg)?;
+    loaded.warnings = warnings;
+    Ok(loaded)
+}
+
+/// Loads a job's scene from its files and starts the job (or restores its checkpoint).
+fn load_job(shared: &Arc<Shared>, job: &str, restore: Option<Restored>) -> anyhow::Result<()> {
+    let spec = Arc::clone(&shared.farm().entry(job)?.spec);
+    let loaded = load_scene_of(shared, job, true)?;
     // The one report of the scene's problems: in the job's status, which whoever follows
     // the job prints (workers keep theirs quiet), and the farm's log.
     for w in &loaded.warnings {
         tracing::info!(job = %job, "scene warning: {w}");
     }
     let warnings = super::job::bounded_warnings(&loaded.warnings);
-    spec.overrides.apply(&mut loaded).map_err(anyhow::Error::msg)?;
     let non_negative =
         matches!(spec.integrator, Integrator::Path | Integrator::PathLightOnly | Integrator::PathBsdfOnly);
     let tile = spec.tile_size.unwrap_or(shared.defaults.tile);
@@ -352,8 +388,22 @@ fn load_job(shared: &Arc<Shared>, job: &str, restore: Option<Restored>) -> anyho
         }
     }
     e.info = Some(tracer::output::RenderInfo::of(&loaded, &spec.scene.path, spec.integrator.name()));
+    e.scene_warnings = loaded.warnings.len();
     e.job.warnings = warnings;
-    e.scene = Some(Arc::new(loaded));
-    tracing::info!(job = %job, width = w, height = h, spp, tile, batch, units = e.job.units.len(), "job started");
+    let units = e.job.units.len();
+    let unkept = if shared.defaults.keep_scenes {
+        e.scene = Some(Arc::new(loaded));
+        None
+    } else {
+        Some(loaded)
+    };
+    drop(farm);
+    // Unless kept, its geometry and tree go here, outside the lock (a large scene takes a
+    // while to free).
+    if let Some(scene) = unkept {
+        drop(scene);
+        tracer::memory::return_free_memory();
+    }
+    tracing::info!(job = %job, width = w, height = h, spp, tile, batch, units, "job started");
     Ok(())
 }

@@ -81,6 +81,9 @@ pub struct JobEntry {
     pub info: Option<tracer::output::RenderInfo>,
     /// Where the finished image was stored, when the job's sums have left memory.
     pub stored: Option<std::path::PathBuf>,
+    /// How many warnings its scene's first load gave: a later load (to decide a dispute)
+    /// that gives more did not read the same scene, and is not trusted.
+    pub scene_warnings: usize,
 }
 
 impl JobEntry {
@@ -136,7 +139,10 @@ pub struct Farm {
 /// A disputed unit for the coordinator to render itself ([`Farm::take_disputes`]).
 pub struct Dispute {
     pub job: String,
-    pub scene: Arc<Scene>,
+    /// The job's scene, when the coordinator keeps it (else it is loaded for this).
+    pub scene: Option<Arc<Scene>>,
+    /// Warnings of the scene's first load ([`JobEntry::scene_warnings`]).
+    pub scene_warnings: usize,
     pub integrator: tracer::integrator::Integrator,
     pub unit: UnitId,
     pub tile: tracer::film::Tile,
@@ -240,7 +246,7 @@ impl Farm {
         self.index.insert(id.clone(), self.jobs.len());
         let mut job = Job::loading(id.clone(), name);
         job.owner = owner;
-        let entry = JobEntry { job, spec: Arc::new(spec), scene: None, info: None, stored: None };
+        let entry = JobEntry { job, spec: Arc::new(spec), scene: None, info: None, stored: None, scene_warnings: 0 };
         self.jobs.push(entry);
         id
     }
@@ -359,12 +365,12 @@ impl Farm {
             .collect();
         let mut out = Vec::new();
         for e in &mut self.jobs {
-            let Some(scene) = e.scene.clone() else { continue };
             for id in e.job.disputes_nobody_can_settle(&live) {
                 let u = &e.job.units[id as usize];
                 out.push(Dispute {
                     job: e.job.id.clone(),
-                    scene: Arc::clone(&scene),
+                    scene: e.scene.clone(),
+                    scene_warnings: e.scene_warnings,
                     integrator: e.spec.integrator,
                     unit: id,
                     tile: u.tile,
