@@ -219,12 +219,15 @@ impl Farm {
         Ok(w)
     }
 
-    /// Workers seen within three lease periods.
+    /// Workers seen within three lease periods, and not quarantined.
+    fn live(&self, now: Instant) -> impl Iterator<Item = &Worker> {
+        let grace = 3 * self.config.lease;
+        self.workers.values().filter(move |w| !w.quarantined && now.saturating_duration_since(w.last_seen) < grace)
+    }
+
+    /// How many workers are [live](Farm::live).
     pub fn live_workers(&self, now: Instant) -> usize {
-        self.workers
-            .values()
-            .filter(|w| !w.quarantined && now.duration_since(w.last_seen) < 3 * self.config.lease)
-            .count()
+        self.live(now).count()
     }
 
     /// Creates a job in the loading phase; returns its id. A job restored from a
@@ -356,13 +359,7 @@ impl Farm {
         if !self.config.verify.enabled() {
             return Vec::new();
         }
-        let grace = 3 * self.config.lease;
-        let live: Vec<WorkerId> = self
-            .workers
-            .values()
-            .filter(|w| !w.quarantined && now.saturating_duration_since(w.last_seen) < grace)
-            .map(|w| w.id)
-            .collect();
+        let live: Vec<WorkerId> = self.live(now).map(|w| w.id).collect();
         let mut out = Vec::new();
         for e in &mut self.jobs {
             for id in e.job.disputes_nobody_can_settle(&live) {
