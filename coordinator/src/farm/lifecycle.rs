@@ -342,9 +342,7 @@ pub fn load_scene_of(shared: &Shared, job: &str, fresh: bool) -> anyhow::Result<
     };
     // Named as the user named them (`quad.mtl`), not as the job folder's copies.
     let mut loaded = tracer::scene::load_scene_as(&scene_path, &spec.scene.path, spec.overrides.up)?;
-    let warnings = std::mem::take(&mut loaded.warnings);
     spec.overrides.apply(&mut loaded).map_err(anyhow::Error::msg)?;
-    loaded.warnings = warnings;
     Ok(loaded)
 }
 
