@@ -11,7 +11,7 @@
 //! without re-issuing certificates; worker certificates are for client authentication
 //! only, so one cannot pose as the coordinator.
 
-use std::path::{Path, PathBuf};
+use std::path::PathBuf;
 
 use tonic::transport::{Certificate, ClientTlsConfig, Identity, ServerTlsConfig};
 
@@ -40,10 +40,6 @@ pub struct TlsDir(PathBuf);
 impl TlsDir {
     pub fn new(dir: impl Into<PathBuf>) -> Self {
         Self(dir.into())
-    }
-
-    pub fn path(&self) -> &Path {
-        &self.0
     }
 
     fn read(&self, name: &str) -> Result<Vec<u8>, String> {

@@ -190,6 +190,8 @@ pub trait Pixels: Sync {
     fn size(&self) -> (u32, u32);
     /// Mean radiance and sample count of pixel (x, y).
     fn pixel(&self, x: u32, y: u32) -> (Vec3, u32);
+    /// The sample count alone (no mean computed).
+    fn count(&self, x: u32, y: u32) -> u32;
 }
 
 /// A whole image as its tiles' accumulations (laid out by [`Tile::grid`]), read in
@@ -216,6 +218,12 @@ impl<'a, A: std::borrow::Borrow<Accumulation>> Mosaic<'a, A> {
             });
         ok.then_some(Self { width, height, tile_size: size, tiles_x, tiles })
     }
+
+    /// The tile holding pixel (x, y), and the pixel's index in it.
+    fn at(&self, x: u32, y: u32) -> (&Accumulation, usize) {
+        let acc = self.tiles[((y / self.tile_size) * self.tiles_x + x / self.tile_size) as usize].borrow();
+        (acc, ((y - acc.tile.y0) * acc.tile.width + (x - acc.tile.x0)) as usize)
+    }
 }
 
 impl<A: std::borrow::Borrow<Accumulation> + Sync> Pixels for Mosaic<'_, A> {
@@ -224,9 +232,13 @@ impl<A: std::borrow::Borrow<Accumulation> + Sync> Pixels for Mosaic<'_, A> {
     }
 
     fn pixel(&self, x: u32, y: u32) -> (Vec3, u32) {
-        let acc = self.tiles[((y / self.tile_size) * self.tiles_x + x / self.tile_size) as usize].borrow();
-        let i = ((y - acc.tile.y0) * acc.tile.width + (x - acc.tile.x0)) as usize;
+        let (acc, i) = self.at(x, y);
         (acc.mean(i), acc.counts[i])
+    }
+
+    fn count(&self, x: u32, y: u32) -> u32 {
+        let (acc, i) = self.at(x, y);
+        acc.counts[i]
     }
 }
 
@@ -238,6 +250,10 @@ impl Pixels for Image {
     fn pixel(&self, x: u32, y: u32) -> (Vec3, u32) {
         let i = (y * self.width + x) as usize;
         (self.pixels[i], self.counts[i])
+    }
+
+    fn count(&self, x: u32, y: u32) -> u32 {
+        self.counts[(y * self.width + x) as usize]
     }
 }
 

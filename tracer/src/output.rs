@@ -189,7 +189,7 @@ fn write_exr_to(
     if let Some(info) = info {
         attributes.world_to_camera = Some(info.world_to_camera);
         attributes.world_to_normalized_device = Some(info.world_to_ndc);
-        let reached = (0..h).flat_map(|y| (0..w).map(move |x| (x, y))).map(|(x, y)| image.pixel(x, y).1).min();
+        let reached = (0..h).flat_map(|y| (0..w).map(move |x| (x, y))).map(|(x, y)| image.count(x, y)).min();
         let clamp = |v: u64| AttributeValue::I32(i32::try_from(v).unwrap_or(i32::MAX));
         let text = |s: &str| AttributeValue::Text(Text::new_or_none(s).unwrap_or_default());
         for (name, value) in [

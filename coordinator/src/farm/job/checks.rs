@@ -123,6 +123,7 @@ impl Job {
     }
 
     /// Units waiting for a check.
+    #[cfg(test)]
     pub fn units_in_check(&self) -> usize {
         self.checking.len()
     }
