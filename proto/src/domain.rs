@@ -44,6 +44,22 @@ pub struct JobSpec {
     pub batch_spp: Option<u32>,
 }
 
+impl JobSpec {
+    /// A key over everything a loaded scene depends on besides the tracer itself: the
+    /// overrides, and the paths and digests of the scene's files (not the job's id: the
+    /// same scene in another job is the same scene). See
+    /// [`tracer::scene::prepared::PreparedScenes`].
+    pub fn scene_key(&self) -> [u8; 32] {
+        use sha2::{Digest, Sha256};
+        let mut h = Sha256::new();
+        h.update(format!("{:?}\n", self.overrides).as_bytes());
+        for a in std::iter::once(&self.scene).chain(&self.assets) {
+            h.update(format!("{}\n{}\n{}\n", a.path.len(), a.path, a.sha256).as_bytes());
+        }
+        h.finalize().into()
+    }
+}
+
 /// One leased unit of work.
 #[derive(Clone, Debug)]
 pub struct WorkUnit {
@@ -72,4 +88,37 @@ pub struct ReceivedResult {
     pub worker_id: u64,
     pub job_id: String,
     pub result: UnitResult,
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn job(digest: char) -> JobSpec {
+        let asset = |path: &str| AssetRef { path: path.into(), sha256: digest.to_string().repeat(64), size: 1 };
+        JobSpec {
+            job_id: "j".into(),
+            scene: asset("scene.toml"),
+            assets: vec![asset("a.obj")],
+            overrides: Default::default(),
+            integrator: Integrator::Path,
+            tile_size: None,
+            batch_spp: None,
+        }
+    }
+
+    #[test]
+    fn scene_keys_follow_the_files_and_the_overrides() {
+        let a = job('a');
+        assert_ne!(a.scene_key(), job('b').scene_key(), "another file's content");
+        let mut renamed = job('a');
+        renamed.assets[0].path = "b.obj".into();
+        assert_ne!(a.scene_key(), renamed.scene_key(), "another file's name");
+        let mut wider = job('a');
+        wider.overrides.width = Some(64);
+        assert_ne!(a.scene_key(), wider.scene_key(), "other overrides");
+        let mut elsewhere = job('a');
+        (elsewhere.job_id, elsewhere.tile_size) = ("k".into(), Some(32));
+        assert_eq!(a.scene_key(), elsewhere.scene_key(), "the same scene in another job, cut otherwise");
+    }
 }

@@ -7,7 +7,7 @@ use glam::{Vec2, Vec3};
 use crate::geometry::Ray;
 use crate::math;
 
-#[derive(Clone, Debug, PartialEq)]
+#[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct Camera {
     pub position: Vec3,
     pub forward: Vec3,

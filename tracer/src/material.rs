@@ -50,7 +50,7 @@ impl MaterialDesc {
 
 /// How a material scatters light, decided once from its description (see README.md,
 /// "How MTL keys are interpreted").
-#[derive(Clone, Copy, Debug, PartialEq)]
+#[derive(Clone, Copy, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct Material {
     /// The BSDF with the untextured `Kd`; [`Material::bsdf_at`] applies `map_Kd`.
     pub bsdf: Bsdf,

@@ -5,7 +5,7 @@ use glam::{Vec2, Vec3};
 
 /// How texture coordinates map onto an image: `uv · scale + offset` (MTL's `-s` and
 /// `-o`), then wrapped around, or with `clamp` (MTL's `-clamp on`) held to the edge.
-#[derive(Clone, Copy, Debug, PartialEq)]
+#[derive(Clone, Copy, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct TexMap {
     pub scale: Vec2,
     pub offset: Vec2,
@@ -18,7 +18,7 @@ impl Default for TexMap {
     }
 }
 
-#[derive(Clone, Debug)]
+#[derive(Clone, Debug, serde::Serialize, serde::Deserialize)]
 pub struct Texture {
     pub width: u32,
     pub height: u32,

@@ -21,6 +21,7 @@ use anyhow::{Context, anyhow, bail, ensure};
 use sha2::{Digest, Sha256};
 use tracer::integrator::Integrator;
 use tracer::scene::Scene;
+use tracer::scene::prepared::PreparedScenes;
 
 use crate::rpc::{self, Client, RpcFailure};
 use proto::wire::{AssetRef, JobSpec};
@@ -102,6 +103,8 @@ pub struct AssetCache {
     /// A job's scene may refer only to the job's own files (see
     /// [`AssetCache::trust_scene_paths`]).
     confine: bool,
+    /// Where scenes, once loaded, are kept prepared for the next job of the same scene.
+    prepared: Option<Arc<PreparedScenes>>,
 }
 
 impl AssetCache {
@@ -110,7 +113,13 @@ impl AssetCache {
             let dir = root.join(sub);
             fs::create_dir_all(&dir).with_context(|| format!("cannot create cache folder {}", dir.display()))?;
         }
-        Ok(Self { root: root.to_path_buf(), confine: true })
+        Ok(Self { root: root.to_path_buf(), confine: true, prepared: None })
+    }
+
+    /// Keeps loaded scenes prepared in `scenes`, and loads them from there.
+    pub fn with_prepared(mut self, scenes: PreparedScenes) -> Self {
+        self.prepared = Some(Arc::new(scenes));
+        self
     }
 
     /// Lets scenes refer to files outside their job (absolute paths, `..` past the
@@ -311,6 +320,8 @@ pub struct LoadedJob {
     /// Shared: an in-process executor uses the coordinator's own copy.
     pub scene: Arc<Scene>,
     pub integrator: Integrator,
+    /// Read back from the prepared scenes rather than loaded from its files.
+    pub prepared: bool,
 }
 
 /// Makes a job's scene available: fetches missing blobs, lays out the job folder, loads
@@ -355,12 +366,13 @@ pub async fn prepare_job(
         .await
         .map_err(|e| anyhow!("scene loading thread failed: {e}"))??;
     tracing::info!(
-        "job {}: scene '{}' ready ({}×{}, {} file(s), {fetched} downloaded) in {:.2?}",
+        "job {}: scene '{}' ready ({}×{}, {} file(s), {fetched} downloaded{}) in {:.2?}",
         job.job_id,
         job.scene.path,
         loaded.scene.camera.width,
         loaded.scene.camera.height,
         1 + job.assets.len(),
+        if loaded.prepared { ", read prepared" } else { "" },
         start.elapsed()
     );
     // The coordinator reports a job's scene warnings, once; every worker would repeat them.
@@ -378,10 +390,21 @@ pub fn load_job(cache: &AssetCache, job: &JobSpec) -> anyhow::Result<LoadedJob> 
         tracer::scene::assets::check_within(&scene_path, &cache.job_dir(&job.job_id)?)
             .map_err(|e| anyhow!("job {}: {e}", job.job_id))?;
     }
+    let loaded = |scene, prepared| LoadedJob { spec: job.clone(), scene, integrator: job.integrator, prepared };
+    let (key, what) = (job.scene_key(), format!("job {}", job.job_id));
+    if let Some(scene) = cache.prepared.as_ref().and_then(|p| p.get(&key, &what)) {
+        return Ok(loaded(Arc::new(scene), true));
+    }
     let mut scene =
         tracer::scene::load_scene_as(&scene_path, &job.scene.path, job.overrides.up).map_err(|e| anyhow!("{e}"))?;
     job.overrides.apply(&mut scene).map_err(|e| anyhow!("{}: settings: {e}", job.scene.path))?;
-    Ok(LoadedJob { spec: job.clone(), scene: Arc::new(scene), integrator: job.integrator })
+    let scene = Arc::new(scene);
+    if let Some(p) = &cache.prepared {
+        // Kept in the background: rendering need not wait for the disk.
+        let (p, scene) = (Arc::clone(p), Arc::clone(&scene));
+        std::thread::spawn(move || p.put(&key, &scene, &what));
+    }
+    Ok(loaded(scene, false))
 }
 
 /// The most recently used loaded scenes, by job spec.
@@ -576,6 +599,65 @@ mod tests {
         let _ = fs::remove_dir_all(&root);
     }
 
+    /// The second load of a scene reads it prepared, and renders the same bits; a damaged
+    /// entry is loaded again from the files (and kept again).
+    #[test]
+    fn a_scene_loads_prepared_the_second_time_and_a_damaged_entry_is_rebuilt() {
+        let root = temp_root("prepared");
+        let scenes = PreparedScenes::open(&root.join("prepared"), 1 << 30).unwrap();
+        let cache = AssetCache::open(&root).unwrap().with_prepared(scenes);
+        let scene = asset_of("scene.toml", TINY_SCENE.as_bytes());
+        put_blob(&cache, &scene, TINY_SCENE.as_bytes());
+        let job = JobSpec {
+            job_id: "j".into(),
+            scene,
+            assets: vec![],
+            overrides: tracer::scene::Overrides { width: Some(16), ..Default::default() },
+            integrator: Integrator::Path,
+            tile_size: None,
+            batch_spp: None,
+        };
+        let entry = || {
+            let dir = root.join("prepared");
+            fs::read_dir(&dir)
+                .unwrap()
+                .flatten()
+                .map(|e| e.path())
+                .find(|p| p.extension().is_some_and(|x| x == "scene"))
+        };
+        // Kept in the background: wait for it (bounded).
+        let kept = || {
+            let t = Instant::now();
+            while entry().is_none() {
+                assert!(t.elapsed() < Duration::from_secs(20), "the prepared scene was never kept");
+                std::thread::sleep(Duration::from_millis(10));
+            }
+            entry().unwrap()
+        };
+        let render = |l: &LoadedJob| {
+            let tile = tracer::film::Tile::new(0, 0, 16, 8);
+            tracer::render::render_unit(&l.scene, l.integrator, tile, tracer::film::SampleRange::new(0, 2))
+        };
+        let first = load_job(&cache, &job).unwrap();
+        assert!(!first.prepared);
+        let path = kept();
+        let second = load_job(&cache, &job).unwrap();
+        assert!(second.prepared, "the second load reads the prepared scene");
+        assert_eq!(second.scene.camera.width, 16, "with the job's overrides");
+        assert_eq!(render(&second), render(&first));
+
+        let mut bytes = fs::read(&path).unwrap();
+        let last = bytes.len() - 1;
+        bytes[last] ^= 1;
+        fs::write(&path, bytes).unwrap();
+        let third = load_job(&cache, &job).unwrap();
+        assert!(!third.prepared, "a damaged entry is not used");
+        assert_eq!(render(&third), render(&first));
+        kept();
+        assert!(load_job(&cache, &job).unwrap().prepared, "and it is kept again");
+        let _ = fs::remove_dir_all(&root);
+    }
+
     #[test]
     fn the_scene_cache_keeps_the_most_recent() {
         let spec = |id: &str| JobSpec {
@@ -592,6 +674,7 @@ mod tests {
                 spec: spec(id),
                 scene: Arc::new(tracer::scene::scene_from_toml(TINY_SCENE, "test", Path::new(".")).unwrap()),
                 integrator: Integrator::Path,
+                prepared: false,
             })
         };
         let mut c = SceneCache::new(2);

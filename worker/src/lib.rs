@@ -64,6 +64,17 @@ pub struct Args {
     #[arg(long, value_name = "DIR")]
     cache: Option<PathBuf>,
 
+    /// Folder where loaded scenes are kept prepared (mesh and kd-tree), so that the next
+    /// job of the same scene starts without parsing and building; it must be private to
+    /// this user [default: prepared/ in the --cache folder].
+    #[arg(long, value_name = "DIR")]
+    scene_cache: Option<PathBuf>,
+
+    /// Most megabytes of prepared scenes to keep (the least recently used go first);
+    /// 0 keeps none.
+    #[arg(long, value_name = "MB", default_value_t = tracer::scene::prepared::DEFAULT_MAX_BYTES >> 20)]
+    scene_cache_max_mb: u64,
+
     /// Also exit when standard input reaches end of file. The coordinator's
     /// `render --local-workers` gives its workers a pipe so that they exit with it.
     #[arg(long)]
@@ -116,10 +127,18 @@ pub fn run(args: Args) -> ! {
             std::process::exit(1);
         }
     };
+    let cache_dir = args.cache.unwrap_or_else(asset_cache::default_cache_dir);
+    let prepared = (args.scene_cache_max_mb > 0).then(|| {
+        (
+            args.scene_cache.unwrap_or_else(|| cache_dir.join("prepared")),
+            args.scene_cache_max_mb.saturating_mul(1 << 20),
+        )
+    });
     let config = shell::Config {
         coordinator: args.coordinator,
         threads,
-        cache_dir: args.cache.unwrap_or_else(asset_cache::default_cache_dir),
+        cache_dir,
+        prepared,
         max_backoff: Duration::from_millis(args.max_backoff_ms),
         give_up_after: args.give_up_after_ms.map(Duration::from_millis),
         trust_scene_paths: args.trust_scene_paths,

@@ -17,11 +17,14 @@ use crate::link::{GrpcLink, Link};
 use crate::machine::{Action, Event, Machine, SIGNAL_GRACE, Settings};
 use crate::render_pool::RenderPool;
 use crate::rpc;
+use tracer::scene::prepared::PreparedScenes;
 
 pub struct Config {
     pub coordinator: String,
     pub threads: usize,
     pub cache_dir: PathBuf,
+    /// Where loaded scenes are kept prepared, and the most bytes kept; `None` keeps none.
+    pub prepared: Option<(PathBuf, u64)>,
     pub max_backoff: Duration,
     /// Stop (exit 0) once the coordinator has been unreachable this long; `None` waits
     /// for it forever.
@@ -55,7 +58,14 @@ impl From<Stop> for &'static str {
 pub async fn run(config: Config, stop: watch::Receiver<Option<Stop>>) -> anyhow::Result<()> {
     let credentials = rpc::Credentials::from_env_and(config.tls.as_deref(), &config.tls_name)?;
     let client = rpc::connect(&config.coordinator, &credentials)?;
-    let cache = AssetCache::open(&config.cache_dir)?;
+    let mut cache = AssetCache::open(&config.cache_dir)?;
+    if let Some((dir, max_bytes)) = &config.prepared {
+        // Without it every job loads its scene from the files: slower, never wrong.
+        match PreparedScenes::open(dir, *max_bytes) {
+            Ok(p) => cache = cache.with_prepared(p),
+            Err(e) => warn!("{e}"),
+        }
+    }
     let cache = Arc::new(if config.trust_scene_paths { cache.trust_scene_paths() } else { cache });
     let pool = RenderPool::new(config.threads)?;
     info!(

@@ -130,6 +130,7 @@ mod tests {
             spec: (*shared.farm().entry(&job).unwrap().spec).clone(),
             scene: Arc::new(scene),
             integrator: Integrator::Path,
+            prepared: false,
         });
         let seen = Arc::new(std::sync::Mutex::new(None));
         let s = Arc::clone(&seen);

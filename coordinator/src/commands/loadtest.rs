@@ -324,7 +324,12 @@ impl worker::Link for SimulatedLink {
 
     async fn prepare(&self, job: Arc<JobSpec>) -> Result<Arc<LoadedJob>, String> {
         let first = self.scene.get_or_try_init(|| self.link.prepare(job.clone())).await?;
-        Ok(Arc::new(LoadedJob { spec: (*job).clone(), scene: Arc::clone(&first.scene), integrator: job.integrator }))
+        Ok(Arc::new(LoadedJob {
+            spec: (*job).clone(),
+            scene: Arc::clone(&first.scene),
+            integrator: job.integrator,
+            prepared: false,
+        }))
     }
 }
 

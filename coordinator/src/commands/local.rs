@@ -27,6 +27,7 @@ impl LocalWorkers {
         threads: usize,
         url: &str,
         cache_root: &Path,
+        scene_cache: Option<&Path>,
         token: &proto::auth::Token,
     ) -> anyhow::Result<Self> {
         let exe = worker_executable()?;
@@ -46,6 +47,10 @@ impl LocalWorkers {
                 .arg(threads.to_string())
                 .arg("--cache")
                 .arg(cache_root.join(format!("worker-{i}")))
+                .args(match scene_cache {
+                    Some(dir) => vec!["--scene-cache".into(), dir.as_os_str().to_owned()],
+                    None => vec!["--scene-cache-max-mb".into(), "0".into()],
+                })
                 .arg("--exit-on-stdin-eof")
                 .arg("--trust-scene-paths")
                 .stdin(Stdio::piped())

@@ -142,6 +142,14 @@ pub struct RunArgs {
     /// under 1% of the time).
     #[arg(long, default_value_t = 5_000)]
     pub checkpoint_interval_ms: u64,
+    /// Where local workers keep loaded scenes prepared (mesh and kd-tree), so that the
+    /// next render of the same scene starts without parsing and building
+    /// [default: ~/.cache/tilefarm/prepared, or $XDG_CACHE_HOME/tilefarm/prepared].
+    #[arg(long, value_name = "DIR", env = "TILEFARM_SCENE_CACHE")]
+    pub scene_cache: Option<PathBuf>,
+    /// Keep no prepared scenes: every render loads its scene from its files.
+    #[arg(long, conflicts_with = "scene_cache")]
+    pub no_scene_cache: bool,
     #[command(flatten)]
     pub farm: crate::commands::serve::FarmArgs,
 }
@@ -353,6 +361,11 @@ async fn execute(plan: Plan, args: &RunArgs) -> anyhow::Result<()> {
     let workers = args.local_workers.unwrap_or((cores / 2).max(1));
     let threads = args.threads.map_or_else(|| (cores / workers.max(1)).max(1), |t| t as usize);
     let mut shared = Shared::new(Farm::new(args.farm.config()?), store);
+    let scene_cache =
+        if args.no_scene_cache { None } else { args.scene_cache.clone().or_else(tracer::scene::prepared::user_dir) };
+    // The coordinator and its local workers share the folder: what one builds, the others read.
+    shared.prepared = scene_cache.as_deref().and_then(|dir| args.farm.prepared_scenes(dir));
+    let scene_cache = shared.prepared.as_ref().map(|p| p.dir().to_path_buf());
     // The user's own scene, read where it lies (also through absolute paths).
     shared.defaults.confine_scenes = false;
     // Rendering in process needs the scene the coordinator loads; workers load their own.
@@ -370,7 +383,7 @@ async fn execute(plan: Plan, args: &RunArgs) -> anyhow::Result<()> {
     let name = spec.scene.path.clone();
     let job = submit_job(&shared, name, None, spec, restore.map(|s| s.job))?;
 
-    let mut renderers = Renderers::start(&shared, &job, workers, threads, &cache).await?;
+    let mut renderers = Renderers::start(&shared, &job, workers, threads, &cache, scene_cache.as_deref()).await?;
     let mut bar = JobBar::new(args.quiet);
     let mut feed = LocalJob {
         shared: &shared,
@@ -429,6 +442,7 @@ impl Renderers {
         workers: usize,
         threads: usize,
         cache: &Path,
+        scene_cache: Option<&Path>,
     ) -> anyhow::Result<Self> {
         let (stop, stop_rx) = tokio::sync::watch::channel(None);
         if workers == 0 {
@@ -444,7 +458,7 @@ impl Renderers {
             None,
         )
         .await?;
-        let children = LocalWorkers::spawn(workers, threads, &server.url(), cache, &token)?;
+        let children = LocalWorkers::spawn(workers, threads, &server.url(), cache, scene_cache, &token)?;
         tracing::info!("serving on {}; {workers} local worker(s) × {threads} thread(s)", server.url());
         Ok(Self { server: Some(server), children: Some(children), in_process: None, stop })
     }

@@ -11,6 +11,7 @@ use clap::Args;
 use proto::auth::{Access, Caller, Token};
 use proto::tls::TlsDir;
 use tonic::transport::ServerTlsConfig;
+use tracer::scene::prepared::PreparedScenes;
 
 use crate::edge::server::Server;
 use crate::farm::Shared;
@@ -102,9 +103,25 @@ pub struct FarmArgs {
     /// Most MiB of uploaded scene files the store keeps; an upload past it is refused.
     #[arg(long, value_name = "MIB", default_value_t = 65_536)]
     pub max_store_mb: u64,
+    /// Most MiB of prepared scenes (mesh and kd-tree, kept after a scene's first load so
+    /// that loading it again reads them back) to keep; the least recently used go first.
+    /// 0 keeps none.
+    #[arg(long, value_name = "MIB", default_value_t = tracer::scene::prepared::DEFAULT_MAX_BYTES >> 20)]
+    pub scene_cache_max_mb: u64,
 }
 
 impl FarmArgs {
+    /// The folder of prepared scenes at `dir`, unless none are to be kept or it cannot
+    /// be used (said once: loading from the files is slower, never wrong).
+    pub fn prepared_scenes(&self, dir: &Path) -> Option<PreparedScenes> {
+        if self.scene_cache_max_mb == 0 {
+            return None;
+        }
+        PreparedScenes::open(dir, self.scene_cache_max_mb.saturating_mul(1 << 20))
+            .inspect_err(|e| tracing::warn!("{e}"))
+            .ok()
+    }
+
     pub fn config(&self) -> anyhow::Result<FarmConfig> {
         anyhow::ensure!(
             self.heartbeat_ms > 0 && self.lease_ms > self.heartbeat_ms,
@@ -174,7 +191,9 @@ pub fn run(args: ServeArgs) -> anyhow::Result<()> {
         .or_else(|| args.store.clone())
         .unwrap_or_else(|| std::env::temp_dir().join("tilefarm-coordinator-store"));
     let store = AssetStore::open(&store_dir)?;
-    let shared = Arc::new(Shared::new(Farm::new(config), store));
+    let mut shared = Shared::new(Farm::new(config), store);
+    shared.prepared = args.farm.prepared_scenes(&store_dir.join("prepared"));
+    let shared = Arc::new(shared);
     let ckpt_root = args.checkpoint.as_ref().map(|d| d.join("job-checkpoints"));
     let images = store_dir.join(crate::farm::assets::IMAGES);
     std::fs::create_dir_all(&images).with_context(|| format!("creating {}", images.display()))?;

@@ -81,6 +81,6 @@ impl worker::Link for InProcessLink {
         let farm = self.0.farm();
         let entry = farm.entry(&job.job_id).map_err(|e| e.to_string())?;
         let scene = entry.scene.clone().ok_or_else(|| format!("job {}: its scene is not loaded", job.job_id))?;
-        Ok(Arc::new(LoadedJob { spec: (*job).clone(), scene, integrator: job.integrator }))
+        Ok(Arc::new(LoadedJob { spec: (*job).clone(), scene, integrator: job.integrator, prepared: false }))
     }
 }

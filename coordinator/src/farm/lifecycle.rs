@@ -11,6 +11,7 @@ use std::time::{Duration, Instant};
 use anyhow::Context;
 use proto::domain::JobSpec;
 use tracer::integrator::Integrator;
+use tracer::scene::prepared::PreparedScenes;
 
 use super::assets::AssetStore;
 use super::job::{Applied, JobPhase, Restored, UnitResult, WorkerId};
@@ -46,6 +47,10 @@ pub struct Shared {
     pub farm: Mutex<Farm>,
     pub store: Mutex<AssetStore>,
     pub defaults: JobDefaults,
+    /// Where loaded scenes are kept prepared: a job's scene loads from there when it was
+    /// loaded before, and `render`'s local workers (the same executable, the same folder)
+    /// read what this process built instead of building it again.
+    pub prepared: Option<PreparedScenes>,
     /// Signalled when a unit's result has been applied or a job has failed, so that
     /// `render`, which follows its job, sees the end at once instead of at its next
     /// poll (it still polls every 100 ms for everything else, such as lapsed leases).
@@ -105,6 +110,7 @@ impl Shared {
             farm: Mutex::new(farm),
             store: Mutex::new(store),
             defaults: JobDefaults::default(),
+            prepared: None,
             changed: tokio::sync::Notify::new(),
         }
     }
@@ -341,8 +347,16 @@ pub fn load_scene_of(shared: &Shared, job: &str, fresh: bool) -> anyhow::Result<
         scene_path
     };
     // Named as the user named them (`quad.mtl`), not as the job folder's copies.
+    let (key, what) = (spec.scene_key(), format!("job {job}"));
+    if let Some(scene) = shared.prepared.as_ref().and_then(|p| p.get(&key, &what)) {
+        return Ok(scene);
+    }
     let mut loaded = tracer::scene::load_scene_as(&scene_path, &spec.scene.path, spec.overrides.up)?;
     spec.overrides.apply(&mut loaded).map_err(anyhow::Error::msg)?;
+    if let Some(p) = &shared.prepared {
+        // Before the job starts, so that workers sharing the folder find it.
+        p.put(&key, &loaded, &what);
+    }
     Ok(loaded)
 }
 

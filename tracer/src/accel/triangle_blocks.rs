@@ -44,7 +44,7 @@ const CULL_MIN_BLOCKS: usize = 6;
 const FULL: u32 = (1 << LANES) - 1;
 
 /// Eight triangles: `p[vertex][axis][lane]`.
-#[derive(Clone, Copy, Debug)]
+#[derive(Clone, Copy, Debug, serde::Serialize, serde::Deserialize)]
 #[repr(C, align(32))]
 struct Block {
     p: [[[f32; LANES]; 3]; 3],
@@ -52,12 +52,12 @@ struct Block {
 
 /// One triangle's corners, each padded to four floats: what a 16-byte load broadcasts
 /// to the lanes of a packet query (`accel/ray_packets.rs`).
-#[derive(Clone, Copy, Debug)]
+#[derive(Clone, Copy, Debug, serde::Serialize, serde::Deserialize)]
 #[repr(C, align(16))]
 pub(super) struct Corners4(pub(super) [[f32; 4]; 3]);
 
 /// Eight spheres: `c[axis][lane]` and `r[lane]`.
-#[derive(Clone, Copy, Debug)]
+#[derive(Clone, Copy, Debug, serde::Serialize, serde::Deserialize)]
 #[repr(C, align(32))]
 struct SphereBlock {
     c: [[f32; LANES]; 3],
@@ -67,7 +67,7 @@ struct SphereBlock {
 /// The first `len` primitives of a [`Primitives`] set, when they are triangles, packed for
 /// the block test, and the spheres that follow them, packed for a block pre-test. Queries
 /// take the set itself for the exact tests and for any primitives after those.
-#[derive(Clone, Debug)]
+#[derive(Clone, Debug, serde::Serialize, serde::Deserialize)]
 pub struct PackedTriangles {
     blocks: Vec<Block>,
     len: usize,
@@ -82,6 +82,7 @@ pub struct PackedTriangles {
     /// The spheres, primitives `len..len + spheres`.
     sphere_blocks: Vec<SphereBlock>,
     spheres: usize,
+    #[serde(skip, default = "InstructionSet::detect")]
     simd: InstructionSet,
     /// The triangles again, one by one, and the spheres (center, radius): for packets.
     corners4: Vec<Corners4>,

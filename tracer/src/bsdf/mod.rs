@@ -30,7 +30,7 @@ use mirror::SpecularReflection;
 
 use crate::simd::V3w;
 
-#[derive(Clone, Copy, Debug, PartialEq)]
+#[derive(Clone, Copy, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
 pub enum Bsdf {
     /// Lambertian reflection, two-sided.
     Diffuse { kd: Vec3 },

@@ -3,7 +3,7 @@ use glam::Vec3;
 use super::Ray;
 
 /// An axis-aligned bounding box. The empty box has `min = +inf`, `max = -inf`.
-#[derive(Clone, Copy, Debug, PartialEq)]
+#[derive(Clone, Copy, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct Aabb {
     pub min: Vec3,
     pub max: Vec3,

@@ -22,7 +22,7 @@ mod tests;
 pub use set::{LOCAL_SELECTION_MAX, LightSet};
 use sphere_cone::{sample_sphere_cone, sample_sphere_cone_wide};
 
-#[derive(Clone, Copy, Debug, PartialEq)]
+#[derive(Clone, Copy, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
 pub enum Light {
     /// Radiant intensity `intensity` (W/sr) in every direction.
     Point { position: Vec3, intensity: Vec3 },

@@ -15,7 +15,7 @@ use crate::simd::{F8, M8, U8, V3w};
 pub const LOCAL_SELECTION_MAX: usize = 16;
 
 /// What [`LightSet::select_at`] needs of a light, flat and small.
-#[derive(Clone, Copy, Debug)]
+#[derive(Clone, Copy, Debug, serde::Serialize, serde::Deserialize)]
 struct Importance {
     /// Centre of a local light (point, spot, sphere, triangle centroid).
     center: Vec3,
@@ -95,7 +95,7 @@ impl Importance {
 }
 
 /// The scene's lights and the distributions that choose one for light sampling.
-#[derive(Clone, Debug, Default)]
+#[derive(Clone, Debug, Default, serde::Serialize, serde::Deserialize)]
 pub struct LightSet {
     pub lights: Vec<Light>,
     cdf: Vec<f32>,

@@ -30,7 +30,7 @@ pub enum SceneError {
 }
 
 /// Render settings from the `[render]` table.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
 pub struct RenderSettings {
     pub spp: u32,
     /// Mitsuba 3 `path` semantics: path segments from the camera, -1 = unlimited.

@@ -8,6 +8,7 @@ pub mod generate;
 pub mod load;
 pub mod obj;
 pub mod overrides;
+pub mod prepared;
 
 pub use crate::shapes::{Geometry, GeometryBytes, NONE, PrimRef, Sphere, Tri, TriangleMesh};
 pub use file::UpAxis;
@@ -29,6 +30,7 @@ use crate::simd::{F8, M8, U8, V3w, each};
 use crate::texture::Texture;
 
 /// Everything needed to render: immutable once built, shared by all render threads.
+#[derive(serde::Serialize, serde::Deserialize)]
 pub struct Scene {
     pub camera: Camera,
     pub settings: RenderSettings,
@@ -66,6 +68,13 @@ pub struct SurfaceHit {
 }
 
 impl Scene {
+    /// What a scene read back from disk needs that serde does not give it: the large
+    /// arrays' memory hints (see [`crate::memory::advise_huge_pages`]).
+    pub(crate) fn after_read(&self) {
+        self.geometry.advise_huge_pages();
+        self.accel.advise_huge_pages();
+    }
+
     #[inline]
     pub fn intersect(&self, ray: &Ray, tmax: f32) -> Option<Hit> {
         match &self.packed {

@@ -6,7 +6,7 @@ use glam::{Vec2, Vec3};
 use super::{NONE, TriangleMesh};
 use crate::geometry::Aabb;
 
-#[derive(Clone, Copy, Debug, PartialEq)]
+#[derive(Clone, Copy, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct Sphere {
     pub center: Vec3,
     pub radius: f32,
@@ -35,7 +35,7 @@ impl Sphere {
 /// For the 1M-triangle displaced sphere (no normals, no uvs) that is 40 bytes per
 /// triangle, where the mesh (positions + 40-byte index records) and a copy of the
 /// corners took ~82.
-#[derive(Clone, Debug, Default)]
+#[derive(Clone, Debug, Default, serde::Serialize, serde::Deserialize)]
 pub struct Geometry {
     pub spheres: Vec<Sphere>,
     pub(crate) corners: Vec<[Vec3; 3]>,
@@ -165,8 +165,12 @@ impl Geometry {
         permute(&mut self.materials, order);
         permute(&mut self.normal_idx, order);
         permute(&mut self.uv_idx, order);
-        // Ray queries read the corners in the tree's leaf order but jump between distant
-        // leaves: on 4 KiB pages most of those reads also miss the TLB.
+        self.advise_huge_pages();
+    }
+
+    /// Ray queries read the corners in the tree's leaf order but jump between distant
+    /// leaves: on 4 KiB pages most of those reads also miss the TLB.
+    pub(crate) fn advise_huge_pages(&self) {
         crate::memory::advise_huge_pages(&self.corners);
     }
 

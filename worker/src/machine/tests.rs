@@ -32,7 +32,7 @@ fn scene() -> tracer::scene::Scene {
 }
 
 fn loaded(job: &Arc<JobSpec>) -> Arc<LoadedJob> {
-    Arc::new(LoadedJob { spec: (**job).clone(), scene: Arc::new(scene()), integrator: job.integrator })
+    Arc::new(LoadedJob { spec: (**job).clone(), scene: Arc::new(scene()), integrator: job.integrator, prepared: false })
 }
 
 fn unit(job: &Arc<JobSpec>, id: u64, tile: Tile) -> Result<WorkUnit, String> {

@@ -84,7 +84,7 @@ impl Default for BuildParams {
 }
 
 /// Shape and size of a built tree.
-#[derive(Clone, Debug, Default, PartialEq)]
+#[derive(Clone, Debug, Default, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct KdTreeStats {
     /// Nodes of the binary tree, leaves included.
     pub nodes: usize,
@@ -168,6 +168,7 @@ impl Node {
 
 /// The kd-tree over a [`Primitives`] set. It stores primitive indices only: queries take
 /// the same set again.
+#[derive(serde::Serialize, serde::Deserialize)]
 pub struct KdTree {
     /// The nodes, three levels to a treelet, in depth-first order.
     treelets: Vec<Treelet>,
@@ -181,7 +182,8 @@ pub struct KdTree {
     cell: Aabb,
     stats: KdTreeStats,
     /// The instruction set of the treelet step and of the leaves' eight-lane triangle
-    /// test.
+    /// test: this machine's, also for a tree read back from disk.
+    #[serde(skip, default = "InstructionSet::detect")]
     simd: InstructionSet,
 }
 
@@ -189,14 +191,22 @@ impl KdTree {
     pub fn build<P: Primitives>(prims: &P, params: &BuildParams) -> KdTree {
         let b = build::build(prims, params);
         let (treelets, leaves, root) = to_treelets(&b.out.nodes, &b.out.ids);
-        crate::accel::advise_huge_pages(&treelets);
-        crate::accel::advise_huge_pages(&leaves);
         let stats = KdTreeStats {
             treelets: treelets.len(),
             bytes: treelets.len() * size_of::<Treelet>() + leaves.len() * size_of::<u32>(),
             ..binary_stats(&b.out.nodes, b.max_depth as usize)
         };
-        KdTree { treelets, leaves, root, bounds: b.bounds, cell: b.cell, stats, simd: InstructionSet::detect() }
+        let tree =
+            KdTree { treelets, leaves, root, bounds: b.bounds, cell: b.cell, stats, simd: InstructionSet::detect() };
+        tree.advise_huge_pages();
+        tree
+    }
+
+    /// The nodes and leaves on huge pages where the kernel allows (a tree's first steps
+    /// touch pages far apart).
+    pub(crate) fn advise_huge_pages(&self) {
+        crate::accel::advise_huge_pages(&self.treelets);
+        crate::accel::advise_huge_pages(&self.leaves);
     }
 
     /// Union of the primitives' bounds (empty for an empty set).

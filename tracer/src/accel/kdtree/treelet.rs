@@ -38,7 +38,7 @@ pub(super) const EMPTY: u32 = 3;
 /// children. 64 bytes, one cache line; `axes` is read as the eighth lane of the splits,
 /// whose result is never used.
 #[repr(C, align(64))]
-#[derive(Clone, Copy, Debug, PartialEq)]
+#[derive(Clone, Copy, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
 pub(super) struct Treelet {
     pub(super) split: [f32; 7],
     pub(super) axes: u32,
