@@ -79,6 +79,8 @@ pub struct UnitResult {
     pub counts: Vec<u32>,
     pub nonfinite: u64,
     pub rays: u64,
+    /// Seconds its worker spent rendering it (0 when unknown): not part of the image.
+    pub render_seconds: f64,
 }
 
 /// A unit result as received: checked for shape (a valid tile and sample range, whole

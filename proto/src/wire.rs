@@ -178,6 +178,9 @@ pub fn tile_to_proto(t: Tile) -> crate::Tile {
     crate::Tile { x0: t.x0, y0: t.y0, width: t.width, height: t.height }
 }
 
+/// The longest a unit may say it took to render (a week): more is a broken clock.
+pub const MAX_RENDER_SECONDS: f64 = 7.0 * 86_400.0;
+
 /// Converts and checks a unit result from a worker.
 pub fn result_from_proto(r: crate::UnitResult) -> Result<ReceivedResult, String> {
     let key = UnitKey { job_id: r.job_id, unit_id: r.unit_id };
@@ -185,8 +188,22 @@ pub fn result_from_proto(r: crate::UnitResult) -> Result<ReceivedResult, String>
     let samples = samples_from_proto(r.sample_start, r.sample_end).map_err(|e| format!("unit {key}: {e}"))?;
     let sums = Accumulation::sums_from_bytes(&r.sums)
         .ok_or_else(|| format!("unit {key}: sums are not a whole number of pixels (48 bytes each)"))?;
-    let result =
-        UnitResult { unit: key.unit_id, tile, samples, sums, counts: r.counts, nonfinite: r.nonfinite, rays: r.rays };
+    if !(r.render_seconds.is_finite() && (0.0..=MAX_RENDER_SECONDS).contains(&r.render_seconds)) {
+        return Err(format!(
+            "unit {key}: render_seconds must be between 0 and {MAX_RENDER_SECONDS}, got {}",
+            r.render_seconds
+        ));
+    }
+    let result = UnitResult {
+        unit: key.unit_id,
+        tile,
+        samples,
+        sums,
+        counts: r.counts,
+        nonfinite: r.nonfinite,
+        rays: r.rays,
+        render_seconds: r.render_seconds,
+    };
     Ok(ReceivedResult { worker_id: r.worker_id, job_id: key.job_id, result })
 }
 
@@ -208,6 +225,7 @@ pub fn result_to_proto(
     samples: SampleRange,
     acc: &Accumulation,
     rays: u64,
+    render_seconds: f64,
 ) -> crate::UnitResult {
     crate::UnitResult {
         worker_id,
@@ -220,6 +238,7 @@ pub fn result_to_proto(
         counts: acc.counts.clone(),
         nonfinite: acc.nonfinite,
         rays,
+        render_seconds,
     }
 }
 
@@ -341,7 +360,7 @@ mod tests {
         acc.add_sample(1, glam::Vec3::new(f32::NAN, 0.0, 0.0));
         acc.add_sample(1, glam::Vec3::new(2.0, 2.0, 2.0));
         let key = UnitKey { job_id: "job-9".into(), unit_id: 42 };
-        let m = result_to_proto(3, &key, SampleRange::new(10, 12), &acc, 1234);
+        let m = result_to_proto(3, &key, SampleRange::new(10, 12), &acc, 1234, 0.5);
         assert_eq!(m.worker_id, 3);
         assert_eq!(m.job_id, "job-9");
         assert_eq!(m.unit_id, 42);
@@ -352,6 +371,7 @@ mod tests {
         assert_eq!(m.counts, vec![1, 2]);
         assert_eq!(m.nonfinite, 1);
         assert_eq!(m.rays, 1234);
+        assert_eq!(m.render_seconds, 0.5);
         // Radiance 1.0 is 2^32 in fixed point, little-endian.
         assert_eq!(i128::from_le_bytes(m.sums[0..16].try_into().unwrap()), 1i128 << 32);
     }
@@ -361,7 +381,8 @@ mod tests {
     #[test]
     fn results_from_the_wire_are_checked_for_shape() {
         let acc = Accumulation::new(Tile::new(0, 0, 2, 1));
-        let good = result_to_proto(9, &UnitKey { job_id: "job-1".into(), unit_id: 3 }, SampleRange::new(0, 4), &acc, 5);
+        let good =
+            result_to_proto(9, &UnitKey { job_id: "job-1".into(), unit_id: 3 }, SampleRange::new(0, 4), &acc, 5, 0.25);
         let r = result_from_proto(good.clone()).unwrap();
         assert_eq!(
             (r.worker_id, r.result.unit, r.result.tile, r.result.samples, r.result.sums.len()),
@@ -372,6 +393,9 @@ mod tests {
             crate::UnitResult { tile: Some(crate::Tile { x0: u32::MAX, y0: 0, width: 2, height: 1 }), ..good.clone() },
             crate::UnitResult { sample_start: 4, sample_end: 4, ..good.clone() },
             crate::UnitResult { sums: vec![0; 47], ..good.clone() },
+            crate::UnitResult { render_seconds: -1.0, ..good.clone() },
+            crate::UnitResult { render_seconds: f64::NAN, ..good.clone() },
+            crate::UnitResult { render_seconds: 1e300, ..good.clone() },
         ];
         for b in bad {
             let e = result_from_proto(b).unwrap_err();

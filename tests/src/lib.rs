@@ -253,5 +253,6 @@ pub fn forged_result(worker: u64, job: &str, unit: &proto::Unit, value: i128) ->
         counts: vec![unit.sample_end - unit.sample_start; n],
         nonfinite: 0,
         rays: 0,
+        render_seconds: 0.0,
     }
 }

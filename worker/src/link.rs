@@ -94,8 +94,10 @@ impl Link for GrpcLink {
     }
 
     async fn submit(&self, worker_id: u64, units: Vec<Arc<Rendered>>) -> Result<Vec<Result<bool, String>>, Failure> {
-        let results =
-            units.iter().map(|u| wire::result_to_proto(worker_id, &u.key, u.samples, &u.acc, u.rays)).collect();
+        let results = units
+            .iter()
+            .map(|u| wire::result_to_proto(worker_id, &u.key, u.samples, &u.acc, u.rays, u.seconds))
+            .collect();
         let request = proto::SubmitResultsRequest { worker_id, results };
         let reply = rpc::call(SUBMIT_TIMEOUT, self.client.clone().submit_results(request)).await?;
         Ok(wire::outcomes_from_proto(reply))

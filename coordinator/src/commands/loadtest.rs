@@ -274,7 +274,7 @@ fn wire_sizes(spec: &JobSpec, tile: u32) -> (usize, usize) {
     let key = UnitKey { job_id: "job-1".into(), unit_id: 1 };
     let mut acc = Accumulation::new(tile);
     acc.counts.fill(1);
-    (unit.encoded_len(), proto::wire::result_to_proto(1, &key, samples, &acc, 0).encoded_len())
+    (unit.encoded_len(), proto::wire::result_to_proto(1, &key, samples, &acc, 0, 0.0).encoded_len())
 }
 
 /// When results flowed: the first sent, the last answered.

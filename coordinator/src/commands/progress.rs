@@ -163,10 +163,12 @@ pub fn status_line(j: &JobStatus) -> String {
 /// The closing line of a finished job; `earlier` are the samples (and rays) that a
 /// checkpoint already held, which this run's speed must not count.
 pub fn summary(s: &JobStatus, earlier_samples: u64, earlier_rays: u64) -> String {
-    let secs = s.elapsed_s.max(1e-9);
+    // The rates are of the rendering alone, not of the scene's loading.
+    let secs = if s.render_s > 0.0 { s.render_s } else { s.elapsed_s }.max(1e-9);
     let (samples, rays) = (s.samples_done.saturating_sub(earlier_samples), s.rays.saturating_sub(earlier_rays));
     format!(
-        "rendered {}×{} ({samples} samples) in {:.2}s: {:.3} M samples/s, {:.3} M rays/s",
+        "loaded the scene in {:.2}s; rendered {}×{} ({samples} samples) in {:.2}s: {:.3} M samples/s, {:.3} M rays/s",
+        s.load_s,
         s.width,
         s.height,
         secs,

@@ -69,6 +69,7 @@ impl worker::Link for InProcessLink {
                 counts: u.acc.counts.clone(),
                 nonfinite: u.acc.nonfinite,
                 rays: u.rays,
+                render_seconds: u.seconds,
             })
             .collect();
         let pairs = units.iter().zip(&results).map(|(u, r)| (u.key.job_id.as_str(), r));

@@ -36,6 +36,8 @@ pub fn status_to_proto(s: JobStatus) -> proto::JobStatus {
         height: s.height,
         scene: s.scene,
         elapsed_s: s.elapsed_s,
+        load_s: s.load_s,
+        render_s: s.render_s,
         rays: s.rays,
         samples_per_s: s.samples_per_s,
         warnings: s.warnings,
@@ -68,13 +70,20 @@ pub fn status_from_proto(s: proto::JobStatus) -> Result<JobStatus, String> {
         width: s.width,
         height: s.height,
         scene: s.scene,
-        elapsed_s: if s.elapsed_s.is_finite() { s.elapsed_s.max(0.0) } else { 0.0 },
+        elapsed_s: seconds(s.elapsed_s),
+        load_s: seconds(s.load_s),
+        render_s: seconds(s.render_s),
         rays: s.rays,
         samples_per_s: if s.samples_per_s.is_finite() { s.samples_per_s.max(0.0) } else { 0.0 },
         warnings: warnings.collect(),
         units_checked: s.units_checked,
         units_discarded: s.units_discarded,
     })
+}
+
+/// A duration from the wire: finite and not negative (else 0).
+fn seconds(s: f64) -> f64 {
+    if s.is_finite() { s.max(0.0) } else { 0.0 }
 }
 
 /// The status code a farm error travels as.
@@ -110,6 +119,8 @@ mod tests {
             height: 30,
             scene: "cornell".into(),
             elapsed_s: 1.5,
+            load_s: 0.25,
+            render_s: 1.25,
             rays: 1234,
             samples_per_s: 266.0,
             warnings: vec!["quad.mtl: 1 face skipped".into()],

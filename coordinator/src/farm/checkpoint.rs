@@ -382,6 +382,7 @@ mod tests {
                 counts: vec![u.samples.len(); n],
                 nonfinite: 1,
                 rays: 77,
+                render_seconds: 0.0,
             };
             job.apply(1, &r).unwrap();
         }

@@ -76,8 +76,13 @@ pub struct Job {
     pub samples_done: u64,
     pub rays: u64,
     pub nonfinite: u64,
+    /// When the job was created, before its scene loaded.
+    pub submitted: Instant,
     pub started: Instant,
     pub finished: Option<Instant>,
+    /// When the first unit of this run began rendering on its worker (its result's
+    /// arrival less its render time): before it, the job was loading.
+    rendering_since: Option<Instant>,
     /// Samples already merged when the job (re)started.
     samples_at_start: u64,
     /// The scene's problems, found when it loaded (see [`bounded_warnings`]).
@@ -158,8 +163,10 @@ impl Job {
             samples_done: 0,
             rays: 0,
             nonfinite: 0,
+            submitted: Instant::now(),
             started: Instant::now(),
             finished: None,
+            rendering_since: None,
             samples_at_start: 0,
             warnings: Vec::new(),
             evicted_units: None,
@@ -216,7 +223,7 @@ impl Job {
         (self.width, self.height, self.spp, self.non_negative) = (width, height, spp, non_negative);
         (self.tile_size, self.batch_spp) = (tile_size, batch_spp);
         self.phase = JobPhase::Running;
-        self.started = Instant::now();
+        (self.started, self.rendering_since) = (Instant::now(), None);
         if self.units.is_empty() {
             self.finish();
         }
@@ -266,7 +273,7 @@ impl Job {
             (r.width, r.height, r.spp, r.tile_size, r.batch_spp);
         (self.non_negative, self.rays, self.nonfinite) = (r.non_negative, r.rays, r.nonfinite);
         self.phase = JobPhase::Running;
-        self.started = Instant::now();
+        (self.started, self.rendering_since) = (Instant::now(), None);
         self.samples_at_start = self.samples_done;
         self.finished = None;
         if self.units_done == self.units.len() as u64 {
@@ -599,6 +606,7 @@ impl Job {
         self.samples_done += n as u64 * expected as u64;
         self.rays += r.rays;
         self.nonfinite += r.nonfinite;
+        self.rendered(now, r.render_seconds);
         if self.units_done == self.units.len() as u64 {
             self.finish();
         }
@@ -625,17 +633,6 @@ impl Job {
         img
     }
 
-    /// Samples merged per second since the job started (or was restored: the samples a
-    /// checkpoint brought do not count).
-    pub fn samples_per_second(&self) -> f64 {
-        let secs = self.elapsed().as_secs_f64();
-        if secs > 0.0 { self.samples_done.saturating_sub(self.samples_at_start) as f64 / secs } else { 0.0 }
-    }
-
-    pub fn elapsed(&self) -> Duration {
-        self.finished.unwrap_or_else(Instant::now).saturating_duration_since(self.started)
-    }
-
     /// Units currently leased to `worker`.
     pub fn held_by(&self, worker: WorkerId) -> usize {
         self.units
@@ -651,3 +648,4 @@ impl Job {
 mod checks;
 #[cfg(test)]
 mod tests;
+mod timing;

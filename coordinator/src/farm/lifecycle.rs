@@ -98,6 +98,7 @@ impl Shared {
                     counts: acc.counts,
                     rays: count.rays,
                     nonfinite: acc.nonfinite,
+                    render_seconds: 0.0,
                 });
                 shared.farm().arbitrated(&d.job, d.unit, result.as_ref(), Instant::now());
                 shared.changed.notify_waiters();

@@ -46,6 +46,10 @@ pub struct JobStatus {
     /// The job's name.
     pub scene: String,
     pub elapsed_s: f64,
+    /// From submission until the first unit began rendering: checking and loading.
+    pub load_s: f64,
+    /// From the first unit's start to the end (or now): what the rates are of.
+    pub render_s: f64,
     pub rays: u64,
     /// Over the last few seconds, while the job runs (0 otherwise).
     pub samples_per_s: f64,
@@ -78,6 +82,8 @@ pub fn status_of(j: &Job, workers: usize) -> JobStatus {
         height: j.height,
         scene: j.name.clone(),
         elapsed_s: j.elapsed().as_secs_f64(),
+        load_s: j.load_time().as_secs_f64(),
+        render_s: j.render_time().as_secs_f64(),
         rays: j.rays,
         samples_per_s: if j.phase == JobPhase::Running { j.samples_per_second() } else { 0.0 },
         warnings: j.warnings.clone(),

@@ -154,6 +154,7 @@ mod tests {
             counts: vec![4],
             rays: 10,
             nonfinite: 0,
+            render_seconds: 0.0,
         }
     }
 

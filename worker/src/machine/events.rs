@@ -251,7 +251,8 @@ impl Machine {
         match outcome {
             RenderOutcome::Done { acc, rays, elapsed } => {
                 debug!("unit {} rendered in {elapsed:.2?} ({rays} rays)", slot.unit.key);
-                let unit = Rendered { key: slot.unit.key.clone(), samples: slot.unit.samples, acc, rays };
+                let seconds = elapsed.as_secs_f64();
+                let unit = Rendered { key: slot.unit.key.clone(), samples: slot.unit.samples, acc, rays, seconds };
                 slot.state = SlotState::Finished { unit: Arc::new(unit), submitting: false };
                 slot.loaded = None;
             }

@@ -115,6 +115,8 @@ pub struct Rendered {
     pub samples: SampleRange,
     pub acc: Accumulation,
     pub rays: u64,
+    /// How long it took to render (not to load its scene).
+    pub seconds: f64,
 }
 
 /// What the machine asks the shell to do. Each call's outcome comes back as an

@@ -2,15 +2,15 @@
 
 use super::*;
 
-const NEVER: Duration = Duration::from_secs(1 << 30);
+pub(super) const NEVER: Duration = Duration::from_secs(1 << 30);
 
-fn job() -> Job {
+pub(super) fn job() -> Job {
     let mut j = Job::loading("j1".into(), "test".into());
     j.start(5, 3, 4, 2, 2, true);
     j
 }
 
-fn result_for(j: &Job, unit: UnitId, value: i128) -> UnitResult {
+pub(super) fn result_for(j: &Job, unit: UnitId, value: i128) -> UnitResult {
     let u = &j.units[unit as usize];
     let n = u.tile.pixel_count();
     UnitResult {
@@ -21,6 +21,7 @@ fn result_for(j: &Job, unit: UnitId, value: i128) -> UnitResult {
         counts: vec![u.samples.len(); n],
         nonfinite: 0,
         rays: 10,
+        render_seconds: 0.0,
     }
 }
 
