@@ -98,6 +98,16 @@ fn a_lying_worker_is_quarantined_and_the_image_equals_the_honest_render() {
             let _ = worker::drive(link, Arc::new(liar), settings, stop_rx).await;
         })
     });
+    // All three at work before the job comes: on a fast machine two workers alone may
+    // finish it before the liar has registered.
+    let rt = tokio::runtime::Builder::new_current_thread().enable_all().build().unwrap();
+    let registered = || {
+        rt.block_on(async {
+            let mut jobs = proto::jobs_client::JobsClient::connect(coord.url.clone()).await.unwrap();
+            jobs.list_workers(proto::ListRequest {}).await.unwrap().into_inner().workers.len()
+        })
+    };
+    eventually("the two honest workers and the liar register", LIMIT, || registered() == 3);
 
     let out = dir.path("farm.exr");
     let started = Instant::now();
@@ -110,7 +120,6 @@ fn a_lying_worker_is_quarantined_and_the_image_equals_the_honest_render() {
     let farm_time = started.elapsed();
     let _ = stop_tx.send(Some(worker::Stop::Signal));
 
-    let rt = tokio::runtime::Builder::new_current_thread().enable_all().build().unwrap();
     let (workers, job) = rt.block_on(async {
         let mut jobs = proto::jobs_client::JobsClient::connect(coord.url.clone()).await.unwrap();
         let workers = jobs.list_workers(proto::ListRequest {}).await.unwrap().into_inner().workers;

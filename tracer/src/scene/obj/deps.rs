@@ -5,7 +5,7 @@ use std::path::{Path, PathBuf};
 
 use super::ObjError;
 use super::mtl::{decode_utf8, parse_mtl_str, read_text, resolve_path};
-use super::scan::scan;
+use super::parallel::scan;
 
 /// The MTL files and `map_Kd` textures `obj_path` refers to, whether or not they exist
 /// (a missing one is the loader's warning to give, not an error here). Errors are those

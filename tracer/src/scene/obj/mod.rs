@@ -1,13 +1,14 @@
 //! OBJ/MTL loading.
 //!
-//! tobj parses the geometry and the MTL statements; a light line pass of our own (see
-//! `scan`) runs first to validate with line numbers, to record smoothing groups (which
-//! tobj does not report) and to sanitise the text. Polygons are triangulated here as fans
-//! (counter-clockwise order kept), all groups are merged into one [`TriangleMesh`], and
-//! shading normals come from `vn`, from smoothing groups, or are left flat.
+//! The OBJ's statements are read by a line pass of our own (`scan`, on all threads:
+//! `parallel`) that validates with line numbers and records smoothing groups; tobj
+//! parses the MTL statements. Polygons are triangulated here as fans (counter-clockwise
+//! order kept), all groups are merged into one [`TriangleMesh`], and shading normals
+//! come from `vn`, from smoothing groups, or are left flat.
 
 mod deps;
 mod mtl;
+mod parallel;
 mod scan;
 mod smoothing;
 #[cfg(test)]
@@ -16,7 +17,7 @@ mod tests;
 use std::collections::HashMap;
 use std::path::Path;
 
-use glam::{Vec2, Vec3};
+use glam::Vec3;
 
 pub use self::deps::{obj_dependencies, obj_dependencies_where};
 pub use self::mtl::{MtlLibrary, load_mtl};
@@ -74,26 +75,10 @@ pub(crate) fn shown_beside(from: &str, name: &str) -> String {
 /// the file in errors and warnings.
 pub fn load_obj_from_str(text: &str, base_dir: &Path, display_name: &str) -> Result<ObjModel, ObjError> {
     let text = text.strip_prefix('\u{feff}').unwrap_or(text);
-    let scan = scan::scan(text, display_name)?;
-    let models = parse_with_tobj(&scan, display_name)?;
+    let scan = parallel::scan(text, display_name)?;
     let mut warnings = scan.warnings.clone();
     let library = load_libraries(&scan, base_dir, display_name, &mut warnings)?;
-    Builder::new(&scan, display_name, library, warnings).build(&models)
-}
-
-fn parse_with_tobj(scan: &ObjScan, display: &str) -> Result<Vec<tobj::Model>, ObjError> {
-    let options =
-        tobj::LoadOptions { triangulate: false, single_index: false, ignore_points: true, ignore_lines: true };
-    let fail = |message: String| ObjError::Io { path: display.to_string(), message };
-    let result = std::panic::catch_unwind(|| {
-        let mut reader = std::io::Cursor::new(scan.text.as_bytes());
-        tobj::load_obj_buf(&mut reader, &options, |_| Ok((Vec::new(), Default::default())))
-    });
-    match result {
-        Ok(Ok((models, _))) => Ok(models),
-        Ok(Err(e)) => Err(fail(format!("OBJ parser (tobj): {e}"))),
-        Err(_) => Err(fail("OBJ parser (tobj) panicked".into())),
-    }
+    Ok(Builder::new(&scan, display_name, library, warnings).build())
 }
 
 /// The materials of all `mtllib` files, by name (a later definition wins).
@@ -181,14 +166,6 @@ impl<'a> Builder<'a> {
         }
     }
 
-    fn internal(&self, line: usize, what: &str) -> ObjError {
-        ObjError::Parse {
-            path: self.display.to_string(),
-            line,
-            message: format!("internal error: tobj's {what} disagree with the line scan"),
-        }
-    }
-
     /// The output material index for a face's `usemtl` slot, resolving it on first use.
     fn material(&mut self, slot: u32) -> u32 {
         if slot == NONE {
@@ -227,100 +204,67 @@ impl<'a> Builder<'a> {
     }
 
     // Long on purpose: One pass over the parsed file in its order (groups, materials, faces); its steps share the per-pass index maps, so it stays one function.
-    fn build(mut self, models: &[tobj::Model]) -> Result<ObjModel, ObjError> {
+    fn build(mut self) -> ObjModel {
         let scan = self.scan;
-        let mut pos_map = vec![NONE; scan.num_v];
-        let mut uv_map = vec![NONE; scan.num_vt];
-        let mut normal_map: Vec<Option<u32>> = vec![None; scan.num_vn];
+        let mut pos_map = vec![NONE; scan.positions.len()];
+        let mut uv_map = vec![NONE; scan.texcoords.len()];
+        let mut normal_map: Vec<Option<u32>> = vec![None; scan.normals.len()];
         let mut polygons: Vec<Polygon> = Vec::with_capacity(scan.faces.len());
         let mut zero_vn_faces = 0usize;
 
-        // Walk tobj's faces in file order alongside the scan's.
-        let mut faces = scan.faces.iter();
-        for model in models {
-            let m = &model.mesh;
-            let arities: Vec<usize> = if m.face_arities.is_empty() {
-                vec![3; m.indices.len() / 3]
-            } else {
-                m.face_arities.iter().map(|&a| a as usize).collect()
+        // The scan resolved every index (in range), so the lookups below cannot fail.
+        for face in &scan.faces {
+            let corners: &[Corner] = &scan.corners[face.first..face.first + face.len];
+            let mut poly = Polygon {
+                v: Vec::with_capacity(face.len),
+                uv: Vec::new(),
+                n: Vec::new(),
+                smoothing: face.smoothing,
+                material: face.material,
             };
-            let mut offset = 0usize;
-            for arity in arities {
-                let face = faces.next().ok_or_else(|| self.internal(0, "face count"))?;
-                if face.len != arity {
-                    return Err(self.internal(face.line, "face sizes"));
+            let all_vt = corners.iter().all(|c| c.vt != NONE);
+            let all_vn = corners.iter().all(|c| c.vn != NONE);
+            let mut vn_ok = all_vn;
+            for c in corners {
+                // Position.
+                let out = &mut pos_map[c.v as usize];
+                if *out == NONE {
+                    *out = self.mesh.positions.len() as u32;
+                    self.mesh.positions.push(scan.positions[c.v as usize]);
                 }
-                let corners: &[Corner] = scan
-                    .corners
-                    .get(face.first..face.first + face.len)
-                    .ok_or_else(|| self.internal(face.line, "faces"))?;
-                let mut poly = Polygon {
-                    v: Vec::with_capacity(arity),
-                    uv: Vec::new(),
-                    n: Vec::new(),
-                    smoothing: face.smoothing,
-                    material: face.material,
-                };
-                let all_vt = corners.iter().all(|c| c.vt != NONE);
-                let all_vn = corners.iter().all(|c| c.vn != NONE);
-                let mut vn_ok = all_vn;
-                for (k, c) in corners.iter().enumerate() {
-                    let at = offset + k;
-                    // Position.
-                    let out = &mut pos_map[c.v as usize];
+                poly.v.push(*out);
+                // Texture coordinate.
+                if all_vt {
+                    let out = &mut uv_map[c.vt as usize];
                     if *out == NONE {
-                        let li = *m.indices.get(at).ok_or_else(|| self.internal(face.line, "indices"))? as usize;
-                        let p =
-                            m.positions.get(3 * li..3 * li + 3).ok_or_else(|| self.internal(face.line, "positions"))?;
-                        *out = self.mesh.positions.len() as u32;
-                        self.mesh.positions.push(Vec3::new(p[0], p[1], p[2]));
+                        *out = self.mesh.uvs.len() as u32;
+                        self.mesh.uvs.push(scan.texcoords[c.vt as usize]);
                     }
-                    poly.v.push(*out);
-                    // Texture coordinate.
-                    if all_vt {
-                        let out = &mut uv_map[c.vt as usize];
-                        if *out == NONE {
-                            let li =
-                                *m.texcoord_indices.get(at).ok_or_else(|| self.internal(face.line, "uvs"))? as usize;
-                            let t =
-                                m.texcoords.get(2 * li..2 * li + 2).ok_or_else(|| self.internal(face.line, "uvs"))?;
-                            *out = self.mesh.uvs.len() as u32;
-                            self.mesh.uvs.push(Vec2::new(t[0], t[1]));
-                        }
-                        poly.uv.push(*out);
+                    poly.uv.push(*out);
+                }
+                // Given normal (a zero-length one makes the face fall back to computed normals).
+                if vn_ok {
+                    let slot = &mut normal_map[c.vn as usize];
+                    if slot.is_none() {
+                        let n = scan.normals[c.vn as usize].normalize_or_zero();
+                        *slot = Some(if n == Vec3::ZERO || !n.is_finite() {
+                            NONE
+                        } else {
+                            self.mesh.normals.push(n);
+                            self.mesh.normals.len() as u32 - 1
+                        });
                     }
-                    // Given normal (a zero-length one makes the face fall back to computed normals).
-                    if vn_ok {
-                        let slot = &mut normal_map[c.vn as usize];
-                        if slot.is_none() {
-                            let li =
-                                *m.normal_indices.get(at).ok_or_else(|| self.internal(face.line, "normals"))? as usize;
-                            let n =
-                                m.normals.get(3 * li..3 * li + 3).ok_or_else(|| self.internal(face.line, "normals"))?;
-                            let n = Vec3::new(n[0], n[1], n[2]).normalize_or_zero();
-                            *slot = Some(if n == Vec3::ZERO || !n.is_finite() {
-                                NONE
-                            } else {
-                                self.mesh.normals.push(n);
-                                self.mesh.normals.len() as u32 - 1
-                            });
-                        }
-                        match *slot {
-                            Some(i) if i != NONE => poly.n.push(i),
-                            _ => {
-                                vn_ok = false;
-                                poly.n.clear();
-                                zero_vn_faces += 1;
-                            }
+                    match *slot {
+                        Some(i) if i != NONE => poly.n.push(i),
+                        _ => {
+                            vn_ok = false;
+                            poly.n.clear();
+                            zero_vn_faces += 1;
                         }
                     }
                 }
-                offset += arity;
-                polygons.push(poly);
             }
-        }
-        if let Some(face) = faces.next() {
-            return Err(self.internal(face.line, "face count"));
+            polygons.push(poly);
         }
         if zero_vn_faces > 0 {
             self.warnings.push(format!(
@@ -389,11 +333,11 @@ impl<'a> Builder<'a> {
         if degenerate > 0 {
             self.warnings.push(format!("{}: dropped {degenerate} degenerate (zero-area) triangles", self.display));
         }
-        Ok(ObjModel {
+        ObjModel {
             mesh: self.mesh,
             materials: self.materials,
             textures: self.textures.textures,
             warnings: self.warnings,
-        })
+        }
     }
 }

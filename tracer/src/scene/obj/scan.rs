@@ -1,19 +1,21 @@
-//! A light line-based pass over the OBJ text, run before tobj parses it.
+//! The OBJ lexer: one pass over a run of whole lines of an OBJ file (a chunk, see
+//! `parallel`), which validates every statement (numbers, index ranges, face sizes) with
+//! line numbers and reads the file's vertex data and faces.
 //!
-//! tobj reports neither line numbers nor smoothing groups, so this pass validates every
-//! statement (numbers, index ranges, face sizes) with line numbers, records per face its
-//! line, smoothing group, `usemtl` name and resolved global indices, and writes a
-//! sanitised copy of the text (same line count) containing only the statements tobj
-//! must see, in a form it accepts (comments stripped, `vt u` completed to `vt u 0`, vertex
-//! colours dropped, `l` lines removed, ...).
+//! It is the only OBJ parser: tobj reports neither line numbers nor smoothing groups and
+//! parses serially, so the numbers this pass must read anyway are kept (as tobj would
+//! read them: `f32::from_str`, `v x y z w` divided by `w`). A chunk knows how many `v`,
+//! `vt` and `vn` came before it, so indices (also relative ones) resolve here; what
+//! carries over from earlier lines — the smoothing group and the material — is recorded
+//! as "as at the chunk's start" and settled when the chunks are merged in file order.
 
-use std::collections::HashMap;
+use glam::{Vec2, Vec3};
 
 use super::ObjError;
 use crate::scene::NONE;
 
 /// One face corner: 0-based indices into the file's `v`, `vt` and `vn` lists.
-#[derive(Clone, Copy, Debug)]
+#[derive(Clone, Copy, Debug, PartialEq)]
 pub(super) struct Corner {
     pub v: u32,
     /// `NONE` when the corner has no texture coordinate.
@@ -22,38 +24,84 @@ pub(super) struct Corner {
     pub vn: u32,
 }
 
-#[derive(Clone, Copy, Debug)]
+#[derive(Clone, Copy, Debug, PartialEq)]
 pub(super) struct FaceInfo {
     /// 1-based line number of the `f` statement.
     pub line: usize,
     /// Index of the first corner in [`ObjScan::corners`].
     pub first: usize,
     pub len: usize,
-    /// Smoothing group id (0 = no smoothing).
+    /// Smoothing group id (0 = no smoothing). In a [`Chunk`]: 0 for the group in force
+    /// at the chunk's start, else 1 + the index of the chunk's `s` statement.
     pub smoothing: u32,
-    /// Index into [`ObjScan::material_names`], or `NONE` when no `usemtl` is active.
+    /// Index into [`ObjScan::material_names`], or `NONE` when no `usemtl` is active. In a
+    /// [`Chunk`]: 0 for the material at the chunk's start, else 1 + the index of the
+    /// chunk's `usemtl` statement.
     pub material: u32,
 }
 
-#[derive(Debug, Default)]
+/// A whole OBJ file, scanned.
+#[derive(Debug, Default, PartialEq)]
 pub(super) struct ObjScan {
-    /// Sanitised text for tobj, with the same line numbering as the input.
-    pub text: String,
+    pub positions: Vec<Vec3>,
+    pub texcoords: Vec<Vec2>,
+    pub normals: Vec<Vec3>,
     pub corners: Vec<Corner>,
     pub faces: Vec<FaceInfo>,
     /// Distinct `usemtl` names, with the line of their first use.
     pub material_names: Vec<(String, usize)>,
     /// `mtllib` statements: line and argument.
     pub mtllibs: Vec<(usize, String)>,
-    pub num_v: usize,
-    pub num_vt: usize,
-    pub num_vn: usize,
     pub warnings: Vec<String>,
+}
+
+/// Where a chunk starts: its first line's number and the elements before it.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub(super) struct Start {
+    pub line: usize,
+    pub v: usize,
+    pub vt: usize,
+    pub vn: usize,
+}
+
+/// What one chunk of lines holds.
+#[derive(Debug, Default)]
+pub(super) struct Chunk {
+    pub positions: Vec<Vec3>,
+    pub texcoords: Vec<Vec2>,
+    pub normals: Vec<Vec3>,
+    pub corners: Vec<Corner>,
+    /// `first` counts from this chunk's first corner; see [`FaceInfo`] for the state.
+    pub faces: Vec<FaceInfo>,
+    /// The chunk's `s` statements in order (0 = off).
+    pub smoothing: Vec<u64>,
+    /// The chunk's `usemtl` statements in order: a name and its line, or none.
+    pub materials: Vec<Option<(String, usize)>>,
+    pub mtllibs: Vec<(usize, String)>,
+    /// Warnings given on the way, in order.
+    pub warnings: Vec<String>,
+    /// Unsupported keywords (shortened) with their count and first line, in order of
+    /// first appearance.
+    pub ignored: Vec<(String, usize, usize)>,
+    /// Faces of fewer than 3 vertices, `l` and `p` elements, and the first line of any.
+    pub arealess: (usize, usize, Option<usize>),
+    /// The chunk's first error: nothing after it was read.
+    pub error: Option<ObjError>,
 }
 
 /// Statements recognised and used; anything else is ignored with a summary warning.
 fn is_supported(keyword: &str) -> bool {
     matches!(keyword, "v" | "vt" | "vn" | "f" | "s" | "g" | "o" | "usemtl" | "mtllib")
+}
+
+/// The statement of a line: its keyword (the first word, after any indentation).
+pub(super) fn keyword(line: &str) -> &str {
+    line.split_whitespace().next().unwrap_or("")
+}
+
+/// The first `N` words, without allocating.
+fn first_words<'a, const N: usize>(mut words: impl Iterator<Item = &'a str>) -> [Option<&'a str>; N] {
+    std::array::from_fn(|_| words.next())
 }
 
 /// Cuts a trailing `# comment`.
@@ -94,174 +142,144 @@ fn resolve_index(tok: &str, count: usize, corner: &str, what: &str, plural: &str
 }
 
 fn parse_corner(tok: &str, counts: (usize, usize, usize)) -> Result<Corner, String> {
-    let parts: Vec<&str> = tok.split('/').collect();
-    if parts.len() > 3 {
+    let mut parts = tok.split('/');
+    let (v_tok, vt_tok, vn_tok) = (parts.next().unwrap_or(""), parts.next(), parts.next());
+    if parts.next().is_some() {
         return Err(format!("bad face vertex '{}' (expected v, v/vt, v//vn or v/vt/vn)", shorten(tok)));
     }
-    let v_tok = parts[0];
     if v_tok.is_empty() {
         return Err(format!("face vertex '{}' has no position index", shorten(tok)));
     }
     let v = resolve_index(v_tok, counts.0, tok, "face", "vertices")?;
-    let vt = match parts.get(1) {
+    let vt = match vt_tok {
         Some(s) if !s.is_empty() => resolve_index(s, counts.1, tok, "texture coordinate", "texture coordinates")?,
         _ => NONE,
     };
-    let vn = match parts.get(2) {
+    let vn = match vn_tok {
         Some(s) if !s.is_empty() => resolve_index(s, counts.2, tok, "normal", "normals")?,
         _ => NONE,
     };
     Ok(Corner { v, vt, vn })
 }
 
-/// Scans `text` (already valid UTF-8). Errors name `display` and the line.
-// Long on purpose: One arm per OBJ keyword, in one loop over the lines: a lexer reads best as one match.
-pub(super) fn scan(text: &str, display: &str) -> Result<ObjScan, ObjError> {
-    let mut out = ObjScan { text: String::with_capacity(text.len()), ..Default::default() };
-    let mut smoothing_ids: HashMap<u64, u32> = HashMap::new();
-    let mut material_ids: HashMap<String, u32> = HashMap::new();
-    let mut smoothing = 0u32;
-    let mut material = NONE;
-    let mut ignored: Vec<(String, usize, usize)> = Vec::new(); // keyword, count, first line
-    // Faces of fewer than 3 vertices, `l` and `p` elements, and the first line of any.
-    let mut arealess: (usize, usize, Option<usize>) = (0, 0, None);
-
+/// Scans whole lines starting at `start`; errors name `display` and the line.
+pub(super) fn scan_chunk(text: &str, start: Start, display: &str) -> Chunk {
+    let mut out = Chunk::default();
     for (i, raw) in text.split('\n').enumerate() {
-        let line_no = i + 1;
+        let line_no = start.line + i;
         let line = raw.strip_suffix('\r').unwrap_or(raw);
-        let err = |message: String| ObjError::Parse { path: display.to_string(), line: line_no, message };
-        let trimmed = line.trim();
-        let keyword = trimmed.split_whitespace().next().unwrap_or("");
-        let rest = trimmed[keyword.len()..].trim();
-        let args = || strip_comment(rest).split_whitespace();
-        match keyword {
-            "" => {}
-            k if k.starts_with('#') => {}
-            "v" => {
-                let toks: Vec<&str> = args().collect();
-                if toks.len() < 3 {
-                    return Err(err(format!("vertex needs 3 coordinates, found {}", toks.len())));
-                }
-                let mut xyz = [0.0f32; 3];
-                for (c, tok) in xyz.iter_mut().zip(&toks) {
-                    *c = parse_coord(tok, "vertex").map_err(&err)?;
-                }
-                // 4 numbers: x y z w (tobj divides by w); 6 or more: vertex colours, dropped.
-                if toks.len() == 4 {
-                    let w = parse_coord(toks[3], "vertex").map_err(&err)?;
-                    if w == 0.0 {
-                        return Err(err("vertex with w = 0".into()));
-                    }
-                    if xyz.iter().any(|c| !(c / w).is_finite()) {
-                        return Err(err("vertex coordinates divided by w are not finite".into()));
-                    }
-                    out.text.push_str(&format!("v {} {} {} {}", toks[0], toks[1], toks[2], toks[3]));
-                } else {
-                    out.text.push_str(&format!("v {} {} {}", toks[0], toks[1], toks[2]));
-                }
-                out.num_v += 1;
+        if let Err(message) = scan_line(&mut out, line, line_no, start, display) {
+            out.error = Some(ObjError::Parse { path: display.to_string(), line: line_no, message });
+            break;
+        }
+    }
+    out
+}
+
+// Long on purpose: One arm per OBJ keyword: a lexer reads best as one match.
+fn scan_line(out: &mut Chunk, line: &str, line_no: usize, start: Start, display: &str) -> Result<(), String> {
+    let trimmed = line.trim();
+    let keyword = trimmed.split_whitespace().next().unwrap_or("");
+    let rest = trimmed[keyword.len()..].trim();
+    let args = || strip_comment(rest).split_whitespace();
+    let counts = || (start.v + out.positions.len(), start.vt + out.texcoords.len(), start.vn + out.normals.len());
+    match keyword {
+        "" => {}
+        k if k.starts_with('#') => {}
+        "v" => {
+            let toks = first_words::<5>(args());
+            let found = toks.iter().flatten().count();
+            if found < 3 {
+                return Err(format!("vertex needs 3 coordinates, found {found}"));
             }
-            "vt" => {
-                let toks: Vec<&str> = args().collect();
-                if toks.is_empty() {
-                    return Err(err("texture coordinate needs at least 1 number, found 0".into()));
-                }
-                for tok in toks.iter().take(2) {
-                    parse_coord(tok, "texture coordinate").map_err(&err)?;
-                }
-                let v = toks.get(1).copied().unwrap_or("0");
-                out.text.push_str(&format!("vt {} {}", toks[0], v));
-                out.num_vt += 1;
+            let mut xyz = [0.0f32; 3];
+            for (c, tok) in xyz.iter_mut().zip(toks.iter().flatten()) {
+                *c = parse_coord(tok, "vertex")?;
             }
-            "vn" => {
-                let toks: Vec<&str> = args().collect();
-                if toks.len() < 3 {
-                    return Err(err(format!("normal needs 3 numbers, found {}", toks.len())));
+            // 4 numbers: x y z w (divided by w, as tobj does); 6 or more: vertex colours,
+            // dropped.
+            if let [_, _, _, Some(w), None] = toks {
+                let w = parse_coord(w, "vertex")?;
+                if w == 0.0 {
+                    return Err("vertex with w = 0".into());
                 }
-                for tok in toks.iter().take(3) {
-                    parse_coord(tok, "normal").map_err(&err)?;
+                if xyz.iter().any(|c| !(c / w).is_finite()) {
+                    return Err("vertex coordinates divided by w are not finite".into());
                 }
-                out.text.push_str(&format!("vn {} {} {}", toks[0], toks[1], toks[2]));
-                out.num_vn += 1;
+                xyz = xyz.map(|c| c / w);
             }
-            "f" => {
-                let toks: Vec<&str> = args().collect();
-                if toks.len() < 3 {
-                    // Real models carry stray 1- and 2-vertex faces: no area, nothing to render.
-                    arealess.0 += 1;
-                    arealess.2.get_or_insert(line_no);
-                    out.text.push('\n');
-                    continue;
-                }
-                let first = out.corners.len();
-                for tok in &toks {
-                    let corner = parse_corner(tok, (out.num_v, out.num_vt, out.num_vn)).map_err(&err)?;
-                    out.corners.push(corner);
-                }
-                out.faces.push(FaceInfo { line: line_no, first, len: toks.len(), smoothing, material });
-                out.text.push_str("f ");
-                out.text.push_str(&toks.join(" "));
+            out.positions.push(Vec3::from_array(xyz));
+        }
+        "vt" => {
+            let mut toks = args();
+            let u = toks.next().ok_or("texture coordinate needs at least 1 number, found 0")?;
+            let u = parse_coord(u, "texture coordinate")?;
+            let v = match toks.next() {
+                Some(v) => parse_coord(v, "texture coordinate")?,
+                None => 0.0,
+            };
+            out.texcoords.push(Vec2::new(u, v));
+        }
+        "vn" => {
+            let toks = first_words::<3>(args());
+            let found = toks.iter().flatten().count();
+            if found < 3 {
+                return Err(format!("normal needs 3 numbers, found {found}"));
             }
-            "s" => {
-                let arg = args().next().ok_or_else(|| err("smoothing group needs a number or 'off'".into()))?;
-                let group: u64 = if arg.eq_ignore_ascii_case("off") {
-                    0
-                } else if arg.eq_ignore_ascii_case("on") {
-                    1
-                } else {
-                    arg.parse().map_err(|_| err(format!("bad smoothing group '{}'", shorten(arg))))?
-                };
-                smoothing = if group == 0 {
-                    0
-                } else {
-                    let next = smoothing_ids.len() as u32 + 1;
-                    *smoothing_ids.entry(group).or_insert(next)
-                };
+            let mut n = [0.0f32; 3];
+            for (c, tok) in n.iter_mut().zip(toks.iter().flatten()) {
+                *c = parse_coord(tok, "normal")?;
             }
-            "g" | "o" => out.text.push_str(trimmed),
-            "l" | "p" => {
-                arealess.1 += 1;
-                arealess.2.get_or_insert(line_no);
+            out.normals.push(Vec3::from_array(n));
+        }
+        "f" => {
+            if first_words::<3>(args())[2].is_none() {
+                // Real models carry stray 1- and 2-vertex faces: no area, nothing to render.
+                out.arealess.0 += 1;
+                out.arealess.2.get_or_insert(line_no);
+                return Ok(());
             }
-            "usemtl" => {
-                material = if rest.is_empty() {
-                    NONE
-                } else {
-                    let next = out.material_names.len() as u32;
-                    *material_ids.entry(rest.to_string()).or_insert_with(|| {
-                        out.material_names.push((rest.to_string(), line_no));
-                        next
-                    })
-                };
+            let first = out.corners.len();
+            let counts = counts();
+            for tok in args() {
+                out.corners.push(parse_corner(tok, counts)?);
             }
-            "mtllib" => {
-                if rest.is_empty() {
-                    out.warnings.push(format!("{display}:{line_no}: mtllib without a file name, ignored"));
-                } else {
-                    out.mtllibs.push((line_no, rest.to_string()));
-                }
-            }
-            other => {
-                debug_assert!(!is_supported(other));
-                let key = shorten(other);
-                if let Some(entry) = ignored.iter_mut().find(|(k, _, _)| *k == key) {
-                    entry.1 += 1;
-                } else if ignored.len() < 16 {
-                    ignored.push((key, 1, line_no));
-                }
+            let len = out.corners.len() - first;
+            let (smoothing, material) = (out.smoothing.len() as u32, out.materials.len() as u32);
+            out.faces.push(FaceInfo { line: line_no, first, len, smoothing, material });
+        }
+        "s" => {
+            let arg = args().next().ok_or("smoothing group needs a number or 'off'")?;
+            let group: u64 = if arg.eq_ignore_ascii_case("off") {
+                0
+            } else if arg.eq_ignore_ascii_case("on") {
+                1
+            } else {
+                arg.parse().map_err(|_| format!("bad smoothing group '{}'", shorten(arg)))?
+            };
+            out.smoothing.push(group);
+        }
+        "g" | "o" => {}
+        "l" | "p" => {
+            out.arealess.1 += 1;
+            out.arealess.2.get_or_insert(line_no);
+        }
+        "usemtl" => out.materials.push((!rest.is_empty()).then(|| (rest.to_string(), line_no))),
+        "mtllib" => {
+            if rest.is_empty() {
+                out.warnings.push(format!("{display}:{line_no}: mtllib without a file name, ignored"));
+            } else {
+                out.mtllibs.push((line_no, rest.to_string()));
             }
         }
-        out.text.push('\n');
+        other => {
+            debug_assert!(!is_supported(other));
+            let key = shorten(other);
+            match out.ignored.iter_mut().find(|(k, _, _)| *k == key) {
+                Some(entry) => entry.1 += 1,
+                None => out.ignored.push((key, 1, line_no)),
+            }
+        }
     }
-    if let (faces, lines, Some(first)) = arealess {
-        out.warnings.push(format!(
-            "{display}: skipped {faces} faces with fewer than 3 vertices and {lines} line or point elements \
-             (l, p), which have no area to render (first on line {first})"
-        ));
-    }
-    if !ignored.is_empty() {
-        let list: Vec<String> = ignored.iter().map(|(k, n, l)| format!("'{k}' ({n}x, first on line {l})")).collect();
-        out.warnings.push(format!("{display}: ignored unsupported statements: {}", list.join(", ")));
-    }
-    Ok(out)
+    Ok(())
 }

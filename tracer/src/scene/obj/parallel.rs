@@ -1,0 +1,244 @@
+//! Scanning an OBJ file on all threads: the text is cut at line boundaries into chunks,
+//! a quick count tells each chunk where it starts (its first line and the `v`, `vt`,
+//! `vn` before it), the chunks are scanned at once, and their parts are joined in file
+//! order. The result — and the first error, by line — is the one a single pass over
+//! the whole file gives, for any cut (`tests` checks every cut of small files).
+
+use std::collections::HashMap;
+
+use rayon::prelude::*;
+
+use super::ObjError;
+use super::scan::{Chunk, ObjScan, Start, keyword, scan_chunk};
+use crate::scene::NONE;
+
+/// Files below this are scanned in one piece; larger ones in chunks of at least this.
+const MIN_CHUNK_BYTES: usize = 1 << 20;
+
+/// Scans `text` (already valid UTF-8). Errors name `display` and the line.
+pub(super) fn scan(text: &str, display: &str) -> Result<ObjScan, ObjError> {
+    let pieces = (rayon::current_num_threads() * 4).min(text.len() / MIN_CHUNK_BYTES).max(1);
+    scan_in(text, display, text.len().div_ceil(pieces))
+}
+
+/// [`scan`], cut into chunks of about `chunk_bytes`.
+pub(super) fn scan_in(text: &str, display: &str, chunk_bytes: usize) -> Result<ObjScan, ObjError> {
+    let chunks = cut(text, chunk_bytes.max(1));
+    let counts: Vec<Start> = chunks.par_iter().map(|c| count(c)).collect();
+    let mut starts = Vec::with_capacity(chunks.len());
+    let mut at = Start { line: 1, ..Start::default() };
+    for c in &counts {
+        starts.push(at);
+        at = Start { line: at.line + c.line, v: at.v + c.v, vt: at.vt + c.vt, vn: at.vn + c.vn };
+    }
+    let scanned: Vec<Chunk> =
+        chunks.par_iter().zip(&starts).map(|(text, &start)| scan_chunk(text, start, display)).collect();
+    join(scanned, display)
+}
+
+/// `text` cut into runs of whole lines of about `bytes` each (each but the last ends
+/// with its newline).
+fn cut(text: &str, bytes: usize) -> Vec<&str> {
+    let mut out = Vec::with_capacity(text.len() / bytes + 1);
+    let mut rest = text;
+    while rest.len() > bytes {
+        let end = match rest.as_bytes()[bytes..].iter().position(|&b| b == b'\n') {
+            Some(i) => bytes + i + 1,
+            None => rest.len(),
+        };
+        let (chunk, tail) = rest.split_at(end);
+        out.push(chunk);
+        rest = tail;
+    }
+    if !rest.is_empty() || out.is_empty() {
+        out.push(rest);
+    }
+    out
+}
+
+/// A chunk's newlines and its `v`, `vt` and `vn` statements.
+fn count(text: &str) -> Start {
+    let mut n = Start::default();
+    for line in text.split('\n') {
+        n.line += 1;
+        match keyword(line) {
+            "v" => n.v += 1,
+            "vt" => n.vt += 1,
+            "vn" => n.vn += 1,
+            _ => {}
+        }
+    }
+    // `split` yields one more piece than there are newlines.
+    n.line -= 1;
+    n
+}
+
+/// What carries from chunk to chunk while they are joined.
+#[derive(Default)]
+struct Joined {
+    out: ObjScan,
+    smoothing_ids: HashMap<u64, u32>,
+    material_ids: HashMap<String, u32>,
+    /// The smoothing group and material in force.
+    smoothing: u32,
+    material: u32,
+    ignored: Vec<(String, usize, usize)>,
+    arealess: (usize, usize, Option<usize>),
+}
+
+/// The chunks' parts in file order, as one pass would have made them.
+fn join(chunks: Vec<Chunk>, display: &str) -> Result<ObjScan, ObjError> {
+    let mut j = Joined { material: NONE, ..Joined::default() };
+    let total = |f: fn(&Chunk) -> usize| chunks.iter().map(f).sum::<usize>();
+    j.out.positions.reserve_exact(total(|c| c.positions.len()));
+    j.out.texcoords.reserve_exact(total(|c| c.texcoords.len()));
+    j.out.normals.reserve_exact(total(|c| c.normals.len()));
+    j.out.corners.reserve_exact(total(|c| c.corners.len()));
+    j.out.faces.reserve_exact(total(|c| c.faces.len()));
+    for chunk in chunks {
+        if let Some(e) = j.add(chunk) {
+            return Err(e);
+        }
+    }
+    let Joined { mut out, ignored, arealess, .. } = j;
+    if let (faces, lines, Some(first)) = arealess {
+        out.warnings.push(format!(
+            "{display}: skipped {faces} faces with fewer than 3 vertices and {lines} line or point elements \
+             (l, p), which have no area to render (first on line {first})"
+        ));
+    }
+    if !ignored.is_empty() {
+        let list: Vec<String> = ignored.iter().map(|(k, n, l)| format!("'{k}' ({n}x, first on line {l})")).collect();
+        out.warnings.push(format!("{display}: ignored unsupported statements: {}", list.join(", ")));
+    }
+    Ok(out)
+}
+
+/// Unsupported keywords listed in the warning; later ones are not named.
+const IGNORED_LISTED: usize = 16;
+
+impl Joined {
+    /// Appends a chunk; its error, if it has one (the file's first, as the chunks before
+    /// it had none).
+    fn add(&mut self, c: Chunk) -> Option<ObjError> {
+        // Smoothing groups are numbered, and materials listed, in order of first use.
+        let smoothing: Vec<u32> = c
+            .smoothing
+            .iter()
+            .map(|&g| {
+                let next = self.smoothing_ids.len() as u32 + 1;
+                if g == 0 { 0 } else { *self.smoothing_ids.entry(g).or_insert(next) }
+            })
+            .collect();
+        let materials: Vec<u32> = c
+            .materials
+            .into_iter()
+            .map(|m| match m {
+                None => NONE,
+                Some((name, line)) => {
+                    let next = self.out.material_names.len() as u32;
+                    *self.material_ids.entry(name).or_insert_with_key(|name| {
+                        self.out.material_names.push((name.clone(), line));
+                        next
+                    })
+                }
+            })
+            .collect();
+        let at = |own: &[u32], k: u32, before: u32| if k == 0 { before } else { own[k as usize - 1] };
+        let corner_base = self.out.corners.len();
+        let (smoothing_before, material_before) = (self.smoothing, self.material);
+        self.out.faces.extend(c.faces.iter().map(|f| super::scan::FaceInfo {
+            first: corner_base + f.first,
+            smoothing: at(&smoothing, f.smoothing, smoothing_before),
+            material: at(&materials, f.material, material_before),
+            ..*f
+        }));
+        self.smoothing = smoothing.last().copied().unwrap_or(self.smoothing);
+        self.material = materials.last().copied().unwrap_or(self.material);
+        self.out.positions.extend_from_slice(&c.positions);
+        self.out.texcoords.extend_from_slice(&c.texcoords);
+        self.out.normals.extend_from_slice(&c.normals);
+        self.out.corners.extend_from_slice(&c.corners);
+        self.out.mtllibs.extend(c.mtllibs);
+        self.out.warnings.extend(c.warnings);
+        for (key, n, line) in c.ignored {
+            match self.ignored.iter().position(|(k, _, _)| *k == key) {
+                Some(i) => self.ignored[i].1 += n,
+                None if self.ignored.len() < IGNORED_LISTED => self.ignored.push((key, n, line)),
+                None => {}
+            }
+        }
+        self.arealess.0 += c.arealess.0;
+        self.arealess.1 += c.arealess.1;
+        self.arealess.2 = self.arealess.2.or(c.arealess.2);
+        c.error
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Files that exercise everything that carries across lines: relative indices,
+    /// smoothing groups and materials set before a cut, ignored statements, arealess
+    /// faces, warnings, and errors of each kind (the first one wins).
+    const FILES: &[&str] = &[
+        "v 0 0 0\nv 1 0 0\nv 0 1 0\nv 1 1 0 2\nvt 0.5\nvt 1 1\nvn 0 0 1\nusemtl a\ns 3\nf 1/1/1 2/2/1 3/1/1\n\
+         f -1 -2 -3\ns off\nf 1 2 4\nusemtl b\nusemtl a\ns 9\ns 3\nf 4 3 2\nusemtl\nf 1 2 3\n",
+        "# header\r\nmtllib m.mtl\nmtllib\nv 0 0 0 # comment\nv 1 0 0\nv 0 1 0\nf 1 2\nl 1 2\np 1\nfoo 1\nbar\nfoo 2\n\
+         g one\no two\nf 1 2 3 # tail\n\nv 0 0 1\nf 1 2 3 4\nbaz\n",
+        "v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\nf 1 2 5\nv 1 2\n",
+        "v 0 0 0\nv 1 0 0\nv x 1 0\nf 1 2 4\n",
+        "v 0 0 0\nvn 1\nf 1 1 1\n",
+        "v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1/2 2 3\n",
+        "v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1//1 2//1 3//1\n",
+        "v 1 1 1 0\n",
+        "v 0 0 0\nv 1 0 0\nv 0 1 0\ns x\n",
+        "v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1/1/1/1 2 3\n",
+        "v 0 0 0\nv 1 0 0\nv 0 1 0\nf 0 1 2\n",
+        "vt\n",
+        "",
+        "\n\n\n",
+        "v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3",
+    ];
+
+    /// Every cut gives what one pass gives: the same scan, or the same first error.
+    #[test]
+    fn every_cut_scans_as_one_pass() {
+        let mut errors = 0;
+        for text in FILES {
+            let whole = scan_in(text, "t.obj", usize::MAX).map_err(|e| e.to_string());
+            errors += usize::from(whole.is_err());
+            for bytes in 1..=text.len() {
+                let cut = scan_in(text, "t.obj", bytes).map_err(|e| e.to_string());
+                assert_eq!(cut, whole, "{text:?} cut every {bytes} bytes");
+            }
+        }
+        assert!(errors >= 8, "the error files are errors ({errors})");
+    }
+
+    #[test]
+    fn one_pass_reads_what_the_file_says() {
+        let s = scan_in(FILES[0], "t.obj", usize::MAX).unwrap();
+        assert_eq!(s.positions[3], glam::Vec3::new(0.5, 0.5, 0.0), "x y z w is divided by w");
+        assert_eq!(s.texcoords[0], glam::Vec2::new(0.5, 0.0), "vt u is vt u 0");
+        assert_eq!(s.faces.len(), 5);
+        let names: Vec<&str> = s.material_names.iter().map(|(n, _)| n.as_str()).collect();
+        assert_eq!(names, ["a", "b"]);
+        let state: Vec<(u32, u32)> = s.faces.iter().map(|f| (f.smoothing, f.material)).collect();
+        assert_eq!(state, [(1, 0), (1, 0), (0, 0), (1, 0), (1, NONE)]);
+        assert_eq!(s.corners[3..6].iter().map(|c| c.v).collect::<Vec<_>>(), [3, 2, 1], "relative indices");
+        let w = scan_in(FILES[1], "t.obj", usize::MAX).unwrap().warnings;
+        assert_eq!(w.len(), 3, "{w:?}");
+        assert!(w[1].contains("skipped 1 faces") && w[1].contains("2 line or point") && w[1].contains("line 7"));
+        assert!(w[2].contains("'foo' (2x, first on line 10), 'bar' (1x, first on line 11), 'baz'"), "{w:?}");
+    }
+
+    #[test]
+    fn cuts_fall_after_newlines() {
+        assert_eq!(cut("ab\ncd\nef", 1), ["ab\n", "cd\n", "ef"]);
+        assert_eq!(cut("ab\ncd\n", 4), ["ab\ncd\n"]);
+        assert_eq!(cut("", 4), [""]);
+        assert_eq!(count("v 1\n vt 2\nvn\nf\n"), Start { line: 4, v: 1, vt: 1, vn: 1 });
+    }
+}
