@@ -46,12 +46,14 @@ pub struct JobSpec {
 
 impl JobSpec {
     /// A key over everything a loaded scene depends on besides the tracer itself: the
-    /// overrides, and the paths and digests of the scene's files (not the job's id: the
-    /// same scene in another job is the same scene). See
-    /// [`tracer::scene::prepared::PreparedScenes`].
-    pub fn scene_key(&self) -> [u8; 32] {
+    /// overrides, the paths and digests of the scene's files (not the job's id: the
+    /// same scene in another job is the same scene), and whether it was `confined` to
+    /// them (a scene loaded with its paths trusted never stands in for a checked one).
+    /// See [`tracer::scene::prepared::PreparedScenes`].
+    pub fn scene_key(&self, confined: bool) -> [u8; 32] {
         use sha2::{Digest, Sha256};
         let mut h = Sha256::new();
+        h.update(if confined { "confined\n" } else { "trusted paths\n" });
         h.update(format!("{:?}\n", self.overrides).as_bytes());
         for a in std::iter::once(&self.scene).chain(&self.assets) {
             h.update(format!("{}\n{}\n{}\n", a.path.len(), a.path, a.sha256).as_bytes());
@@ -112,15 +114,16 @@ mod tests {
     #[test]
     fn scene_keys_follow_the_files_and_the_overrides() {
         let a = job('a');
-        assert_ne!(a.scene_key(), job('b').scene_key(), "another file's content");
+        assert_ne!(a.scene_key(true), job('b').scene_key(true), "another file's content");
         let mut renamed = job('a');
         renamed.assets[0].path = "b.obj".into();
-        assert_ne!(a.scene_key(), renamed.scene_key(), "another file's name");
+        assert_ne!(a.scene_key(true), renamed.scene_key(true), "another file's name");
         let mut wider = job('a');
         wider.overrides.width = Some(64);
-        assert_ne!(a.scene_key(), wider.scene_key(), "other overrides");
+        assert_ne!(a.scene_key(true), wider.scene_key(true), "other overrides");
         let mut elsewhere = job('a');
         (elsewhere.job_id, elsewhere.tile_size) = ("k".into(), Some(32));
-        assert_eq!(a.scene_key(), elsewhere.scene_key(), "the same scene in another job, cut otherwise");
+        assert_eq!(a.scene_key(true), elsewhere.scene_key(true), "the same scene in another job, cut otherwise");
+        assert_ne!(a.scene_key(true), a.scene_key(false), "loaded with its paths trusted");
     }
 }

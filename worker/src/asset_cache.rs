@@ -335,11 +335,22 @@ pub async fn prepare_job(
 ) -> anyhow::Result<LoadedJob> {
     let start = Instant::now();
     check_job_id(&job.job_id)?;
-    let mut fetched = 0usize;
-    let mut done = std::collections::HashSet::new();
     for asset in std::iter::once(&job.scene).chain(&job.assets) {
         sanitize_asset_path(&asset.path)?;
         check_digest(&asset.sha256).with_context(|| format!("asset '{}'", asset.path))?;
+    }
+    // A scene prepared before needs none of its files: nothing to download.
+    let (c, j) = (Arc::clone(&cache), Arc::clone(&job));
+    let prepared = tokio::task::spawn_blocking(move || read_prepared(&c, &j))
+        .await
+        .map_err(|e| anyhow!("scene loading thread failed: {e}"))?;
+    if let Some(loaded) = prepared {
+        tracing::info!("job {}: scene '{}' read prepared in {:.2?}", job.job_id, job.scene.path, start.elapsed());
+        return Ok(loaded);
+    }
+    let mut fetched = 0usize;
+    let mut done = std::collections::HashSet::new();
+    for asset in std::iter::once(&job.scene).chain(&job.assets) {
         if !done.insert(asset.sha256.clone()) || cache.has_blob(asset) {
             continue;
         }
@@ -366,13 +377,12 @@ pub async fn prepare_job(
         .await
         .map_err(|e| anyhow!("scene loading thread failed: {e}"))??;
     tracing::info!(
-        "job {}: scene '{}' ready ({}×{}, {} file(s), {fetched} downloaded{}) in {:.2?}",
+        "job {}: scene '{}' ready ({}×{}, {} file(s), {fetched} downloaded) in {:.2?}",
         job.job_id,
         job.scene.path,
         loaded.scene.camera.width,
         loaded.scene.camera.height,
         1 + job.assets.len(),
-        if loaded.prepared { ", read prepared" } else { "" },
         start.elapsed()
     );
     // The coordinator reports a job's scene warnings, once; every worker would repeat them.
@@ -382,19 +392,27 @@ pub async fn prepare_job(
     Ok(loaded)
 }
 
-/// Lays out a job whose blobs are all cached, loads its scene and applies the job's
-/// overrides. Blocking.
+/// The job's scene as prepared by an earlier load of the same files, if one is kept.
+/// Blocking.
+pub fn read_prepared(cache: &AssetCache, job: &JobSpec) -> Option<LoadedJob> {
+    let what = format!("job {}", job.job_id);
+    let scene = cache.prepared.as_ref()?.get(&job.scene_key(cache.confine), &what)?;
+    Some(LoadedJob { spec: job.clone(), scene: Arc::new(scene), integrator: job.integrator, prepared: true })
+}
+
+/// Loads a job's scene: prepared, if it was loaded before; else from its files (all
+/// cached), laid out in the job's folder, with the job's overrides applied. Blocking.
 pub fn load_job(cache: &AssetCache, job: &JobSpec) -> anyhow::Result<LoadedJob> {
+    if let Some(loaded) = read_prepared(cache, job) {
+        return Ok(loaded);
+    }
     let scene_path = cache.lay_out_job(job)?;
     if cache.confine {
         tracer::scene::assets::check_within(&scene_path, &cache.job_dir(&job.job_id)?)
             .map_err(|e| anyhow!("job {}: {e}", job.job_id))?;
     }
     let loaded = |scene, prepared| LoadedJob { spec: job.clone(), scene, integrator: job.integrator, prepared };
-    let (key, what) = (job.scene_key(), format!("job {}", job.job_id));
-    if let Some(scene) = cache.prepared.as_ref().and_then(|p| p.get(&key, &what)) {
-        return Ok(loaded(Arc::new(scene), true));
-    }
+    let (key, what) = (job.scene_key(cache.confine), format!("job {}", job.job_id));
     let mut scene =
         tracer::scene::load_scene_as(&scene_path, &job.scene.path, job.overrides.up).map_err(|e| anyhow!("{e}"))?;
     job.overrides.apply(&mut scene).map_err(|e| anyhow!("{}: settings: {e}", job.scene.path))?;
@@ -641,6 +659,8 @@ mod tests {
         let first = load_job(&cache, &job).unwrap();
         assert!(!first.prepared);
         let path = kept();
+        // A prepared scene needs none of its files.
+        fs::remove_file(cache.blob_path(&job.scene.sha256)).unwrap();
         let second = load_job(&cache, &job).unwrap();
         assert!(second.prepared, "the second load reads the prepared scene");
         assert_eq!(second.scene.camera.width, 16, "with the job's overrides");
@@ -650,6 +670,8 @@ mod tests {
         let last = bytes.len() - 1;
         bytes[last] ^= 1;
         fs::write(&path, bytes).unwrap();
+        assert!(load_job(&cache, &job).is_err(), "without the entry, the files are needed");
+        put_blob(&cache, &job.scene, TINY_SCENE.as_bytes());
         let third = load_job(&cache, &job).unwrap();
         assert!(!third.prepared, "a damaged entry is not used");
         assert_eq!(render(&third), render(&first));

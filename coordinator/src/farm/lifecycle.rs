@@ -348,7 +348,7 @@ pub fn load_scene_of(shared: &Shared, job: &str, fresh: bool) -> anyhow::Result<
         scene_path
     };
     // Named as the user named them (`quad.mtl`), not as the job folder's copies.
-    let (key, what) = (spec.scene_key(), format!("job {job}"));
+    let (key, what) = (spec.scene_key(shared.defaults.confine_scenes), format!("job {job}"));
     if let Some(scene) = shared.prepared.as_ref().and_then(|p| p.get(&key, &what)) {
         return Ok(scene);
     }
