@@ -340,9 +340,11 @@ fn sphere_material(
 fn finish(b: Builder, camera: Camera, settings: RenderSettings, mut lights: Vec<Light>, background: Vec3) -> Scene {
     let Builder { mesh, spheres, materials, material_names, textures, warnings } = b;
     // From here on the scene keeps only the compact runtime form of the mesh.
+    let t = std::time::Instant::now();
     let mut geometry = Geometry::new(mesh, spheres);
     let mut accel =
         KdTree::build(&geometry, &BuildParams::for_scene(geometry.triangle_count(), geometry.spheres.len()));
+    tracing::debug!("kd-tree of {} primitives built in {:.2?}", geometry.len(), t.elapsed());
     let packed = PackedTriangles::for_small_scene(&geometry);
     // When the tree traces the scene, the triangles are stored in its leaf order from
     // here on, for memory locality (`order[new] = old`). Small scenes, traced by packed

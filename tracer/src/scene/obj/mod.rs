@@ -59,7 +59,9 @@ pub fn load_obj(path: &Path) -> Result<ObjModel, ObjError> {
 /// refers to relative to that name), e.g. as the user wrote it rather than where a job's
 /// copy of it lies.
 pub fn load_obj_as(path: &Path, display: &str) -> Result<ObjModel, ObjError> {
+    let (t, shown) = (std::time::Instant::now(), display);
     let text = mtl::read_text(path, display, crate::scene::files::MAX_OBJ_BYTES)?;
+    tracing::debug!("{shown}: read in {:.2?}", t.elapsed());
     load_obj_from_str(&text, path.parent().unwrap_or(Path::new("")), display)
 }
 
@@ -75,10 +77,15 @@ pub(crate) fn shown_beside(from: &str, name: &str) -> String {
 /// the file in errors and warnings.
 pub fn load_obj_from_str(text: &str, base_dir: &Path, display_name: &str) -> Result<ObjModel, ObjError> {
     let text = text.strip_prefix('\u{feff}').unwrap_or(text);
+    let t = std::time::Instant::now();
     let scan = parallel::scan(text, display_name)?;
+    tracing::debug!("{display_name}: scanned in {:.2?}", t.elapsed());
     let mut warnings = scan.warnings.clone();
     let library = load_libraries(&scan, base_dir, display_name, &mut warnings)?;
-    Ok(Builder::new(&scan, display_name, library, warnings).build())
+    let t = std::time::Instant::now();
+    let model = Builder::new(&scan, display_name, library, warnings).build();
+    tracing::debug!("{display_name}: {} triangles made in {:.2?}", model.mesh.tris.len(), t.elapsed());
+    Ok(model)
 }
 
 /// The materials of all `mtllib` files, by name (a later definition wins).
@@ -126,16 +133,24 @@ fn load_libraries(
     Ok(lib)
 }
 
-/// Per-polygon data gathered from tobj before triangulation.
+/// A polygon before triangulation: its corners' output indices are at `first..first +
+/// len` of [`Corners`] (no allocation per polygon: files have millions).
 struct Polygon {
-    /// Output position indices.
-    v: Vec<u32>,
-    /// Output uv indices (all corners) or empty.
-    uv: Vec<u32>,
-    /// Output normal indices from `vn` (all corners, non-zero) or empty.
-    n: Vec<u32>,
+    first: usize,
+    len: usize,
+    /// Every corner has a texture coordinate.
+    has_uv: bool,
+    /// Every corner has a usable (non-zero) `vn` normal.
+    has_n: bool,
     smoothing: u32,
     material: u32,
+}
+
+/// The output position, uv and normal index of each corner of the file's faces.
+struct Corners {
+    v: Vec<u32>,
+    uv: Vec<u32>,
+    n: Vec<u32>,
 }
 
 struct Builder<'a> {
@@ -210,37 +225,42 @@ impl<'a> Builder<'a> {
         let mut uv_map = vec![NONE; scan.texcoords.len()];
         let mut normal_map: Vec<Option<u32>> = vec![None; scan.normals.len()];
         let mut polygons: Vec<Polygon> = Vec::with_capacity(scan.faces.len());
+        let n = scan.corners.len();
+        let if_any = |any: bool| if any { vec![NONE; n] } else { Vec::new() };
+        let mut out =
+            Corners { v: vec![NONE; n], uv: if_any(!scan.texcoords.is_empty()), n: if_any(!scan.normals.is_empty()) };
         let mut zero_vn_faces = 0usize;
 
         // The scan resolved every index (in range), so the lookups below cannot fail.
         for face in &scan.faces {
             let corners: &[Corner] = &scan.corners[face.first..face.first + face.len];
+            let all_vt = corners.iter().all(|c| c.vt != NONE);
+            let all_vn = corners.iter().all(|c| c.vn != NONE);
             let mut poly = Polygon {
-                v: Vec::with_capacity(face.len),
-                uv: Vec::new(),
-                n: Vec::new(),
+                first: face.first,
+                len: face.len,
+                has_uv: all_vt,
+                has_n: all_vn,
                 smoothing: face.smoothing,
                 material: face.material,
             };
-            let all_vt = corners.iter().all(|c| c.vt != NONE);
-            let all_vn = corners.iter().all(|c| c.vn != NONE);
             let mut vn_ok = all_vn;
-            for c in corners {
+            for (at, c) in (face.first..).zip(corners) {
                 // Position.
-                let out = &mut pos_map[c.v as usize];
-                if *out == NONE {
-                    *out = self.mesh.positions.len() as u32;
+                let o = &mut pos_map[c.v as usize];
+                if *o == NONE {
+                    *o = self.mesh.positions.len() as u32;
                     self.mesh.positions.push(scan.positions[c.v as usize]);
                 }
-                poly.v.push(*out);
+                out.v[at] = *o;
                 // Texture coordinate.
                 if all_vt {
-                    let out = &mut uv_map[c.vt as usize];
-                    if *out == NONE {
-                        *out = self.mesh.uvs.len() as u32;
+                    let o = &mut uv_map[c.vt as usize];
+                    if *o == NONE {
+                        *o = self.mesh.uvs.len() as u32;
                         self.mesh.uvs.push(scan.texcoords[c.vt as usize]);
                     }
-                    poly.uv.push(*out);
+                    out.uv[at] = *o;
                 }
                 // Given normal (a zero-length one makes the face fall back to computed normals).
                 if vn_ok {
@@ -255,10 +275,10 @@ impl<'a> Builder<'a> {
                         });
                     }
                     match *slot {
-                        Some(i) if i != NONE => poly.n.push(i),
+                        Some(i) if i != NONE => out.n[at] = i,
                         _ => {
                             vn_ok = false;
-                            poly.n.clear();
+                            poly.has_n = false;
                             zero_vn_faces += 1;
                         }
                     }
@@ -278,19 +298,19 @@ impl<'a> Builder<'a> {
         let mut pts: Vec<Vec3> = Vec::new();
         // Faces with their own vn still shape their neighbours' normals.
         for poly in polygons.iter().filter(|p| p.smoothing != 0) {
+            let v = &out.v[poly.first..poly.first + poly.len];
             pts.clear();
-            pts.extend(poly.v.iter().map(|&v| self.mesh.positions[v as usize]));
-            smooth.add_polygon(poly.smoothing, &poly.v, &pts);
+            pts.extend(v.iter().map(|&v| self.mesh.positions[v as usize]));
+            smooth.add_polygon(poly.smoothing, v, &pts);
         }
 
         // Triangulate (fans) and emit.
         let mut smooth_index: HashMap<(u32, u32), u32> = HashMap::new();
         let mut degenerate = 0usize;
         for poly in &polygons {
-            let count = poly.v.len();
-            for i in 1..count.saturating_sub(1) {
-                let c = [0, i, i + 1];
-                let v = c.map(|k| poly.v[k]);
+            for i in 1..poly.len.saturating_sub(1) {
+                let c = [poly.first, poly.first + i, poly.first + i + 1];
+                let v = c.map(|k| out.v[k]);
                 let p = v.map(|k| self.mesh.positions[k as usize]);
                 let cross = (p[1] - p[0]).cross(p[2] - p[0]);
                 let len = cross.length();
@@ -298,9 +318,9 @@ impl<'a> Builder<'a> {
                     degenerate += 1;
                     continue;
                 }
-                let uv = if poly.uv.is_empty() { [NONE; 3] } else { c.map(|k| poly.uv[k]) };
-                let n = if !poly.n.is_empty() {
-                    c.map(|k| poly.n[k])
+                let uv = if poly.has_uv { c.map(|k| out.uv[k]) } else { [NONE; 3] };
+                let n = if poly.has_n {
+                    c.map(|k| out.n[k])
                 } else if poly.smoothing != 0 {
                     let mut n = [NONE; 3];
                     for (slot, &vi) in n.iter_mut().zip(&v) {
