@@ -17,6 +17,8 @@ use crate::rpc::{self, Client};
 
 const REGISTER_TIMEOUT: Duration = Duration::from_secs(5);
 const LEASE_TIMEOUT: Duration = Duration::from_secs(10);
+/// Jobs loaded early from one lease reply, at most (the coordinator names a few).
+const MAX_PREPARE_EARLY: usize = 4;
 const HEARTBEAT_TIMEOUT: Duration = Duration::from_secs(5);
 const SUBMIT_TIMEOUT: Duration = Duration::from_secs(30);
 
@@ -83,7 +85,10 @@ impl Link for GrpcLink {
         let request = proto::LeaseRequest { worker_id, max_units };
         let r = rpc::call(LEASE_TIMEOUT, self.client.clone().lease(request)).await?;
         let units = r.units.into_iter().map(wire::unit_from_proto).collect();
-        Ok(Grant { units, retry_after_ms: r.retry_after_ms, shutdown: r.shutdown })
+        // A malformed spec is not loaded early; its units, if they come, say what is wrong.
+        let prepare =
+            r.prepare.into_iter().take(MAX_PREPARE_EARLY).filter_map(|j| wire::job_from_proto(j).ok()).map(Arc::new);
+        Ok(Grant { units, retry_after_ms: r.retry_after_ms, shutdown: r.shutdown, prepare: prepare.collect() })
     }
 
     async fn heartbeat(&self, worker_id: u64, held: Vec<UnitKey>) -> Result<Renewal, Failure> {

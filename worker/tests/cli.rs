@@ -274,13 +274,13 @@ mod fake {
                         sample_end: 1 << 20,
                     });
                 }
-                proto::LeaseReply { units, retry_after_ms: 0, shutdown: false }
+                proto::LeaseReply { units, retry_after_ms: 0, shutdown: false, prepare: vec![] }
             } else if (s.results.len() == 4 && (!self.big_unit || s.abandoned_at.is_some()))
                 || (self.corrupt && !s.fetches.is_empty() && s.leases > 3)
             {
-                proto::LeaseReply { units: vec![], retry_after_ms: 0, shutdown: true }
+                proto::LeaseReply { units: vec![], retry_after_ms: 0, shutdown: true, prepare: vec![] }
             } else {
-                proto::LeaseReply { units: vec![], retry_after_ms: 50, shutdown: false }
+                proto::LeaseReply { units: vec![], retry_after_ms: 50, shutdown: false, prepare: vec![] }
             };
             Ok(Response::new(reply))
         }

@@ -370,6 +370,7 @@ async fn execute(plan: Plan, args: &RunArgs) -> anyhow::Result<()> {
     shared.defaults.confine_scenes = false;
     // Rendering in process needs the scene the coordinator loads; workers load their own.
     shared.defaults.keep_scenes = workers == 0;
+    shared.defaults.prepare_early = false;
     if workers > 0 {
         // The scene it loads for its checks is freed at once: give it back to the system.
         tracer::memory::return_large_buffers_when_freed();

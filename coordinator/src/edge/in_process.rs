@@ -47,7 +47,7 @@ impl worker::Link for InProcessLink {
             })
             .collect();
         let retry_after_ms = if units.is_empty() { IDLE_RETRY_MS } else { 0 };
-        Ok(Grant { units, retry_after_ms, shutdown: false })
+        Ok(Grant { units, retry_after_ms, shutdown: false, prepare: vec![] })
     }
 
     async fn heartbeat(&self, worker_id: u64, held: Vec<UnitKey>) -> Result<Renewal, Failure> {

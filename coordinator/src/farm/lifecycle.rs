@@ -34,11 +34,16 @@ pub struct JobDefaults {
     /// the coordinator renders in process (`render --local-workers 0`). A farm's workers
     /// load their own, and the coordinator's copy would be memory for nothing.
     pub keep_scenes: bool,
+    /// Tell idle workers about jobs still loading, so that they load the scene at the
+    /// same time as the coordinator checks it. Not for `render`'s local workers: they
+    /// share the coordinator's prepared scenes, and on the same cores three loads at
+    /// once would only slow each other down.
+    pub prepare_early: bool,
 }
 
 impl Default for JobDefaults {
     fn default() -> Self {
-        Self { tile: 64, batch_spp: 16, confine_scenes: true, keep_scenes: false }
+        Self { tile: 64, batch_spp: 16, confine_scenes: true, keep_scenes: false, prepare_early: true }
     }
 }
 

@@ -305,6 +305,13 @@ impl Farm {
         Ok(out)
     }
 
+    /// Jobs still loading (their scenes being checked), oldest first, at most `max`:
+    /// what workers may load in the meantime.
+    pub fn loading(&self, max: usize) -> Vec<Arc<JobSpec>> {
+        let loading = self.jobs.iter().filter(|e| e.job.phase == super::job::JobPhase::Loading);
+        loading.take(max).map(|e| Arc::clone(&e.spec)).collect()
+    }
+
     /// Renews `worker`'s leases; returns the units it should abandon.
     pub fn heartbeat(
         &mut self,

@@ -105,6 +105,9 @@ impl Machine {
                 for unit in grant.units {
                     accepted += usize::from(self.accept(unit, now));
                 }
+                for job in grant.prepare {
+                    self.prepare_early(job, now);
+                }
                 let next = if accepted > 0 {
                     now
                 } else {
@@ -162,6 +165,18 @@ impl Machine {
             }
             true
         }
+    }
+
+    /// Loads a job the coordinator is still checking, unless it is loaded, loading or
+    /// failed: its units will find the scene ready.
+    fn prepare_early(&mut self, job: Arc<JobSpec>, now: Instant) {
+        self.failed_jobs.retain(|(_, at)| now.duration_since(*at) < FAILED_JOB_MEMORY);
+        let failed = self.failed_jobs.iter().any(|(j, _)| *j == job);
+        if failed || self.loading.contains(&job.job_id) || self.loaded_job(&job).is_some() {
+            return;
+        }
+        debug!("job {}: loading its scene while the coordinator checks it", job.job_id);
+        self.prepare(job);
     }
 
     fn prepare(&mut self, job: Arc<JobSpec>) {

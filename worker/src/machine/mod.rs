@@ -65,12 +65,14 @@ pub struct Registration {
 }
 
 /// The coordinator's answer to a lease request: units (each checked by the wire
-/// mapping, or why it is malformed), when to ask again, whether to stop.
+/// mapping, or why it is malformed), when to ask again, whether to stop, and jobs whose
+/// scenes it is still checking (to load now, before their units come).
 #[derive(Debug, Default)]
 pub struct Grant {
     pub units: Vec<Result<WorkUnit, String>>,
     pub retry_after_ms: u32,
     pub shutdown: bool,
+    pub prepare: Vec<Arc<JobSpec>>,
 }
 
 /// The coordinator's answer to a heartbeat.

@@ -84,7 +84,10 @@ fn registered(m: &mut Machine, t: Instant) {
 }
 
 fn grant(units: Vec<Result<WorkUnit, String>>) -> Event {
-    Event::Leased { worker_id: WORKER, result: Ok(Grant { units, retry_after_ms: 0, shutdown: false }) }
+    Event::Leased {
+        worker_id: WORKER,
+        result: Ok(Grant { units, retry_after_ms: 0, shutdown: false, prepare: vec![] }),
+    }
 }
 
 /// `units` of job-1 (units 0, 1, ... on tiles 0, 1, ...) leased and their scene loaded.
@@ -120,6 +123,37 @@ fn leased_units_wait_for_their_scene_once_then_render() {
     m.handle(Event::JobReady { job: job.clone(), result: Ok(loaded(&job)) }, t).unwrap();
     assert_eq!(names(&m.actions(t)), ["render #0", "render #1", "render #2", "render #3"]);
     assert!(m.actions(t + Duration::from_millis(1)).is_empty(), "nothing more until a unit is rendered");
+}
+
+/// A job the coordinator is still checking is loaded at once, once; its units, when
+/// they come, find the scene loading (or loaded) and wait for nothing more.
+#[test]
+fn a_job_still_being_checked_is_loaded_before_its_units_come() {
+    let (mut m, t) = (machine(1), Instant::now());
+    registered(&mut m, t);
+    let job = spec("job-1");
+    let early = |job: &Arc<JobSpec>| Event::Leased {
+        worker_id: WORKER,
+        result: Ok(Grant { retry_after_ms: 250, prepare: vec![job.clone()], ..Default::default() }),
+    };
+    m.handle(early(&job), t).unwrap();
+    assert_eq!(names(&m.actions(t)), ["prepare job-1"]);
+    let t1 = t + Duration::from_millis(250);
+    m.handle(early(&job), t1).unwrap();
+    m.handle(grant(vec![unit(&job, 0, tile(0))]), t1).unwrap();
+    assert!(!names(&m.actions(t1)).iter().any(|a| a.starts_with("prepare")), "loading already");
+    m.handle(Event::JobReady { job: job.clone(), result: Ok(loaded(&job)) }, t1).unwrap();
+    assert_eq!(names(&m.actions(t1)), ["render #0"]);
+    // Loaded: named again, it is not loaded again.
+    m.handle(early(&job), t1).unwrap();
+    assert!(!names(&m.actions(t1)).iter().any(|a| a.starts_with("prepare")));
+    // A job whose load failed is not tried again on a hint.
+    let bad = spec("job-2");
+    m.handle(early(&bad), t1).unwrap();
+    assert_eq!(names(&m.actions(t1)), ["prepare job-2"]);
+    m.handle(Event::JobReady { job: bad.clone(), result: Err("no such file".into()) }, t1).unwrap();
+    m.handle(early(&bad), t1).unwrap();
+    assert!(!names(&m.actions(t1)).iter().any(|a| a.starts_with("prepare")));
 }
 
 #[test]
@@ -319,7 +353,7 @@ fn malformed_units_and_tiles_outside_the_image_are_dropped() {
 fn an_idle_farm_is_asked_again_after_its_hint() {
     let (mut m, t) = (machine(1), Instant::now());
     registered(&mut m, t);
-    let idle = Grant { units: vec![], retry_after_ms: 250, shutdown: false };
+    let idle = Grant { units: vec![], retry_after_ms: 250, shutdown: false, prepare: vec![] };
     m.handle(Event::Leased { worker_id: WORKER, result: Ok(idle) }, t).unwrap();
     assert!(m.actions(t + Duration::from_millis(249)).iter().all(|a| !matches!(a, Action::Lease { .. })));
     assert_eq!(names(&m.actions(t + Duration::from_millis(250))), ["lease 2"]);
