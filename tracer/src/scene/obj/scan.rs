@@ -104,6 +104,20 @@ fn first_words<'a, const N: usize>(mut words: impl Iterator<Item = &'a str>) -> 
     std::array::from_fn(|_| words.next())
 }
 
+/// The first three of `words` as finite numbers; `needs` says what is missing when there
+/// are fewer (counting them first, so that "needs 3, found 2" wins over a bad number).
+fn three(words: &[Option<&str>], what: &str, needs: &str) -> Result<[f32; 3], String> {
+    let found = words.iter().flatten().count();
+    if found < 3 {
+        return Err(format!("{needs}, found {found}"));
+    }
+    let mut xyz = [0.0f32; 3];
+    for (c, tok) in xyz.iter_mut().zip(words.iter().flatten()) {
+        *c = parse_coord(tok, what)?;
+    }
+    Ok(xyz)
+}
+
 /// Cuts a trailing `# comment`.
 fn strip_comment(s: &str) -> &str {
     match s.find('#') {
@@ -188,14 +202,7 @@ fn scan_line(out: &mut Chunk, line: &str, line_no: usize, start: Start, display:
         k if k.starts_with('#') => {}
         "v" => {
             let toks = first_words::<5>(args());
-            let found = toks.iter().flatten().count();
-            if found < 3 {
-                return Err(format!("vertex needs 3 coordinates, found {found}"));
-            }
-            let mut xyz = [0.0f32; 3];
-            for (c, tok) in xyz.iter_mut().zip(toks.iter().flatten()) {
-                *c = parse_coord(tok, "vertex")?;
-            }
+            let mut xyz = three(&toks, "vertex", "vertex needs 3 coordinates")?;
             // 4 numbers: x y z w (divided by w, as tobj does); 6 or more: vertex colours,
             // dropped.
             if let [_, _, _, Some(w), None] = toks {
@@ -222,15 +229,7 @@ fn scan_line(out: &mut Chunk, line: &str, line_no: usize, start: Start, display:
         }
         "vn" => {
             let toks = first_words::<3>(args());
-            let found = toks.iter().flatten().count();
-            if found < 3 {
-                return Err(format!("normal needs 3 numbers, found {found}"));
-            }
-            let mut n = [0.0f32; 3];
-            for (c, tok) in n.iter_mut().zip(toks.iter().flatten()) {
-                *c = parse_coord(tok, "normal")?;
-            }
-            out.normals.push(Vec3::from_array(n));
+            out.normals.push(Vec3::from_array(three(&toks, "normal", "normal needs 3 numbers")?));
         }
         "f" => {
             if first_words::<3>(args())[2].is_none() {
