@@ -373,7 +373,7 @@ pub async fn prepare_job(
         fetched += 1;
     }
     let blocking_job = job.clone();
-    let loaded = tokio::task::spawn_blocking(move || load_job(&cache, &blocking_job))
+    let loaded = tokio::task::spawn_blocking(move || load_from_files(&cache, &blocking_job))
         .await
         .map_err(|e| anyhow!("scene loading thread failed: {e}"))??;
     tracing::info!(
@@ -400,12 +400,9 @@ pub fn read_prepared(cache: &AssetCache, job: &JobSpec) -> Option<LoadedJob> {
     Some(LoadedJob { spec: job.clone(), scene: Arc::new(scene), integrator: job.integrator, prepared: true })
 }
 
-/// Loads a job's scene: prepared, if it was loaded before; else from its files (all
-/// cached), laid out in the job's folder, with the job's overrides applied. Blocking.
-pub fn load_job(cache: &AssetCache, job: &JobSpec) -> anyhow::Result<LoadedJob> {
-    if let Some(loaded) = read_prepared(cache, job) {
-        return Ok(loaded);
-    }
+/// Loads a job's scene from its files (all cached), laid out in the job's folder, with
+/// the job's overrides applied, and keeps it prepared. Blocking.
+fn load_from_files(cache: &AssetCache, job: &JobSpec) -> anyhow::Result<LoadedJob> {
     let scene_path = cache.lay_out_job(job)?;
     if cache.confine {
         tracer::scene::assets::check_within(&scene_path, &cache.job_dir(&job.job_id)?)

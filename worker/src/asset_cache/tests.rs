@@ -3,6 +3,14 @@
 
 use super::*;
 
+/// What `prepare_job` does once the files are fetched: the prepared scene, else the files.
+fn load_job(cache: &AssetCache, job: &JobSpec) -> anyhow::Result<LoadedJob> {
+    match read_prepared(cache, job) {
+        Some(loaded) => Ok(loaded),
+        None => load_from_files(cache, job),
+    }
+}
+
 fn temp_root(name: &str) -> PathBuf {
     let dir = std::env::temp_dir().join(format!("tilefarm-worker-test-{name}-{}", temp_suffix()));
     let _ = fs::remove_dir_all(&dir);
