@@ -90,6 +90,7 @@ impl Lanes {
             t: h.t,
             u: h.b1,
             v: h.b2,
+            sub: 0,
         })
     }
 }

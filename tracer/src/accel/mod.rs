@@ -3,6 +3,7 @@
 //! the scene's triangles and spheres.
 
 mod block_test;
+pub mod instances;
 pub mod kdtree;
 #[cfg(target_arch = "x86_64")]
 pub mod ray_packets;
@@ -14,12 +15,14 @@ pub use kdtree::{BuildParams, KdTree, KdTreeStats};
 use crate::geometry::{Aabb, Ray};
 
 /// A hit reported by a primitive: distance and two surface parameters (barycentrics
-/// `b1, b2` for triangles; unused for spheres).
+/// `b1, b2` for triangles; unused for spheres), and for a primitive that holds others
+/// (an instance of a mesh) which of them was hit (0 otherwise).
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct PrimHit {
     pub t: f32,
     pub u: f32,
     pub v: f32,
+    pub sub: u32,
 }
 
 /// A hit found by a query over a whole primitive set.
@@ -67,6 +70,21 @@ pub trait Primitives: Sync {
     /// Nearest hit of primitive `i` with `0 < t < tmax`.
     fn intersect(&self, i: u32, ray: &Ray, pre: &RayPrecomp, tmax: f32) -> Option<PrimHit>;
 
+    /// Whether primitive `i` has any hit with `0 < t < tmax`: `intersect(..).is_some()`,
+    /// which a primitive holding others (an instance) answers by an any-hit query.
+    #[inline(always)]
+    fn occludes(&self, i: u32, ray: &Ray, pre: &RayPrecomp, tmax: f32) -> bool {
+        self.intersect(i, ray, pre, tmax).is_some()
+    }
+
+    /// The index a query reports for hit `h` on primitive `i` ([`Hit::prim`]): `i`
+    /// itself, or for an instance the scene-wide index of the triangle `h.sub` of its copy.
+    #[inline(always)]
+    fn hit_prim(&self, i: u32, h: &PrimHit) -> u32 {
+        let _ = h;
+        i
+    }
+
     /// The triangles among the primitives, when they are primitives `0..n` stored as
     /// corners (what the kd-tree's eight-lane leaf test gathers from); empty otherwise.
     /// Primitive `i < n`'s [`Primitives::intersect`] must then be the watertight test
@@ -90,7 +108,7 @@ pub fn brute_force_intersect<P: Primitives>(prims: &P, ray: &Ray, tmax: f32) -> 
     for i in 0..prims.len() as u32 {
         if let Some(h) = prims.intersect(i, ray, &pre, tmax) {
             tmax = h.t;
-            best = Some(Hit { t: h.t, prim: i, u: h.u, v: h.v });
+            best = Some(Hit { t: h.t, prim: prims.hit_prim(i, &h), u: h.u, v: h.v });
         }
     }
     best
@@ -99,7 +117,7 @@ pub fn brute_force_intersect<P: Primitives>(prims: &P, ray: &Ray, tmax: f32) -> 
 /// The O(N) reference any-hit query.
 pub fn brute_force_occluded<P: Primitives>(prims: &P, ray: &Ray, tmax: f32) -> bool {
     let pre = RayPrecomp::new(ray);
-    (0..prims.len() as u32).any(|i| prims.intersect(i, ray, &pre, tmax).is_some())
+    (0..prims.len() as u32).any(|i| prims.occludes(i, ray, &pre, tmax))
 }
 
 /// The benchmarks' incoherent rays (`cargo bench --bench kdtree`, `coordinator bench

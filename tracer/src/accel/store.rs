@@ -31,7 +31,7 @@ impl Geometry {
     #[inline(never)]
     fn intersect_sphere(&self, s: usize, ray: &Ray, tmax: f32) -> Option<PrimHit> {
         let sp = &self.spheres[s];
-        intersect_sphere(ray, sp.center, sp.radius, 0.0, tmax).map(|t| PrimHit { t, u: 0.0, v: 0.0 })
+        intersect_sphere(ray, sp.center, sp.radius, 0.0, tmax).map(|t| PrimHit { t, u: 0.0, v: 0.0, sub: 0 })
     }
 }
 
@@ -64,6 +64,7 @@ impl Primitives for Geometry {
                 t: h.t,
                 u: h.b1,
                 v: h.b2,
+                sub: 0,
             }),
             PrimRef::Sphere(s) => self.intersect_sphere(s, ray, tmax),
         }

@@ -335,10 +335,15 @@ fn scatter(
     let mut material = simd.splat_u(0);
     for l in each(live & hits.found) {
         let prim = hits.prim[l] as usize;
+        let lane = 1 << l;
+        if prim >= g.prim_count() {
+            // A copy of an instanced mesh: the one-path code moves it to the world.
+            one |= lane;
+            continue;
+        }
         let (m, sphere) = if prim < ntri { (g.material(prim), false) } else { (g.spheres[prim - ntri].material, true) };
         material.0[l] = m;
         let wide = materials[m as usize].ok;
-        let lane = 1 << l;
         match (wide, sphere) {
             (true, false) => tri |= lane,
             (true, true) => sph |= lane,

@@ -140,6 +140,37 @@ pub struct MeshDesc {
     pub scale: Option<Scale>,
     /// Rotation about +y in degrees (right-handed).
     pub rotate_y: Option<f32>,
+    /// Rotation about any axis (instead of `rotate_y`).
+    pub rotate: Option<RotateDesc>,
+    /// A 4×4 affine matrix, row by row (the last row `[0, 0, 0, 1]`), instead of `scale`,
+    /// `rotate` and `translate`; `up` still applies first.
+    pub matrix: Option<[[f32; 4]; 4]>,
+    /// Copies of the model, each placed by its own transform after the fields above
+    /// have placed the model. An OBJ placed more than once (here or by several `[[mesh]]`
+    /// tables) is stored once.
+    #[serde(default)]
+    pub instance: Vec<InstanceDesc>,
+}
+
+/// `rotate = { axis = [x, y, z], degrees = a }`: right-handed, about an axis through the
+/// origin.
+#[derive(Clone, Copy, Debug, Deserialize, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct RotateDesc {
+    pub axis: [f32; 3],
+    pub degrees: f32,
+}
+
+/// One copy of a `[[mesh]]`'s model: `scale`, then the rotation, then `translate`, or a
+/// `matrix`.
+#[derive(Clone, Debug, Default, Deserialize, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct InstanceDesc {
+    pub translate: Option<[f32; 3]>,
+    pub scale: Option<Scale>,
+    pub rotate_y: Option<f32>,
+    pub rotate: Option<RotateDesc>,
+    pub matrix: Option<[[f32; 4]; 4]>,
 }
 
 #[derive(Clone, Debug, Deserialize, PartialEq)]

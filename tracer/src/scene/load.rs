@@ -1,13 +1,16 @@
 //! Assembling a [`Scene`] from a TOML scene file or a bare OBJ: loading meshes, placing
 //! them, classifying materials, collecting lights and building the kd-tree.
 
-use std::path::{Path, PathBuf};
+use std::collections::HashMap;
+use std::path::Path;
 
 use glam::{Mat3, Vec3};
 
 use super::file::{LightDesc, SceneFile, SphereDesc, UpAxis};
 use super::obj::{ObjError, ObjModel, load_obj_as};
+use super::placement::Placement;
 use super::{Geometry, NONE, Scene, Sphere, TriangleMesh};
+use crate::accel::instances::{self, Instance, InstancedMesh, Instances};
 use crate::accel::triangle_blocks::PackedTriangles;
 use crate::accel::{BuildParams, KdTree, Primitives};
 use crate::camera::Camera;
@@ -122,13 +125,43 @@ struct Builder {
     material_names: Vec<String>,
     textures: Vec<Texture>,
     warnings: Vec<String>,
+    /// Meshes stored once, and their placed copies.
+    instanced: Vec<InstancedMesh>,
+    copies: Vec<Instance>,
 }
 
 impl Builder {
+    /// Appends a model's materials and textures (and its warnings); returns the index of
+    /// its first material in the scene's list.
+    fn add_materials(&mut self, materials: &[MaterialDesc], textures: Vec<Texture>, warnings: Vec<String>) -> u32 {
+        let (mat_base, tex_base) = (self.materials.len() as u32, self.textures.len() as u32);
+        self.material_names.extend(materials.iter().map(|m| m.name.clone()));
+        self.materials.extend(materials.iter().map(|m| {
+            let mut m = m.clone();
+            m.map_kd = m.map_kd.map(|t| t + tex_base);
+            Material::from_desc(&m)
+        }));
+        self.textures.extend(textures);
+        self.warnings.extend(warnings);
+        mat_base
+    }
+
+    /// Stores a model once, in its own coordinates, for copies to place; returns its
+    /// index among the instanced meshes.
+    fn add_instanced(&mut self, model: ObjModel) -> u32 {
+        let ObjModel { mut mesh, materials, textures, warnings } = model;
+        let mat_base = self.add_materials(&materials, textures, warnings);
+        for t in &mut mesh.tris {
+            t.material += mat_base;
+        }
+        self.instanced.push(InstancedMesh::new(Geometry::new(mesh, Vec::new())));
+        self.instanced.len() as u32 - 1
+    }
+
     /// Appends a model, placing it with `transform(p)` and its normals with `normal_m`.
     fn add_model(&mut self, model: ObjModel, linear: Mat3, translate: Vec3) {
         let ObjModel { mesh, materials, textures, warnings } = model;
-        let (mat_base, tex_base) = (self.materials.len() as u32, self.textures.len() as u32);
+        let mat_base = self.add_materials(&materials, textures, warnings);
         let (pos_base, n_base, uv_base) =
             (self.mesh.positions.len() as u32, self.mesh.normals.len() as u32, self.mesh.uvs.len() as u32);
         let normal_m = linear.inverse().transpose();
@@ -154,14 +187,6 @@ impl Builder {
             }
             t
         }));
-        self.material_names.extend(materials.iter().map(|m| m.name.clone()));
-        self.materials.extend(materials.iter().map(|m| {
-            let mut m = m.clone();
-            m.map_kd = m.map_kd.map(|t| t + tex_base);
-            Material::from_desc(&m)
-        }));
-        self.textures.extend(textures);
-        self.warnings.extend(warnings);
     }
 }
 
@@ -218,28 +243,9 @@ fn assemble(file: &SceneFile, text: &str, name: &str, base: &Path) -> Result<Sce
     }
     let settings = RenderSettings { spp: r.spp, max_depth: r.max_depth, seed: r.seed };
 
-    // Meshes.
+    // Meshes, each OBJ read once (see `place_meshes`).
     let mut b = Builder::default();
-    for (i, m) in file.mesh.iter().enumerate() {
-        let field = |k: &str| format!("mesh[{i}].{k}");
-        let path: PathBuf = base.join(&m.obj);
-        let model = load_obj_as(&path, &super::obj::shown_beside(name, &m.obj))?;
-        let scale = finite3(field("scale"), m.scale.map_or([1.0; 3], |s| s.to_vec()))?;
-        if scale.cmpeq(Vec3::ZERO).any() {
-            return Err(invalid(field("scale"), "must not be zero".into()));
-        }
-        let angle = m.rotate_y.unwrap_or(0.0);
-        if !angle.is_finite() {
-            return Err(invalid(field("rotate_y"), "must be finite".into()));
-        }
-        let translate = finite3(field("translate"), m.translate.unwrap_or([0.0; 3]))?;
-        // As glam's `Mat3::from_rotation_y`, with the platform-free sine and cosine.
-        let (sin, cos) = math::sin_cos(angle.to_radians());
-        let rotation = Mat3::from_cols(Vec3::new(cos, 0.0, -sin), Vec3::Y, Vec3::new(sin, 0.0, cos));
-        let linear = rotation * Mat3::from_diagonal(scale) * m.up.unwrap_or_default().to_y_up();
-        b.add_model(model, linear, translate);
-    }
-
+    place_meshes(&mut b, &file.mesh, name, base, &invalid)?;
     // Spheres, each with its inline material.
     for (i, s) in file.sphere.iter().enumerate() {
         let field = |k: &str| format!("sphere[{i}].{k}");
@@ -290,7 +296,101 @@ fn assemble(file: &SceneFile, text: &str, name: &str, base: &Path) -> Result<Sce
     }
     let background = non_negative3("background.radiance".into(), file.background.radiance)?;
 
-    Ok(finish(b, camera, settings, lights, background))
+    // The copies' triangles are numbered after the scene's own primitives.
+    let instances = match std::mem::take(&mut b.copies) {
+        copies if copies.is_empty() => None,
+        copies => {
+            let first = u32::try_from(b.mesh.tris.len() + b.spheres.len()).unwrap_or(u32::MAX);
+            let meshes = std::mem::take(&mut b.instanced);
+            Some(Instances::new(meshes, copies, first).map_err(|e| invalid("mesh".into(), e.to_string()))?)
+        }
+    };
+    Ok(finish(b, camera, settings, lights, background, instances))
+}
+
+/// The most meshes a scene may place, copies included: each costs a transform pair and
+/// a box before the first ray (about 200 bytes), and a scene file is at most 16 MiB.
+pub const MAX_COPIES: usize = 1_000_000;
+
+/// Reads each `[[mesh]]` table's OBJ once and places its copies: an OBJ placed once is
+/// added to the scene's own triangles (as before instancing existed, bit for bit); one
+/// placed more than once (several tables, or `instance` lists) is stored once and its
+/// copies are instances, unless it emits light (its triangles are then lights, one per
+/// copy, so each copy is added).
+fn place_meshes(
+    b: &mut Builder,
+    meshes: &[super::file::MeshDesc],
+    name: &str,
+    base: &Path,
+    invalid: &dyn Fn(String, String) -> SceneError,
+) -> Result<(), SceneError> {
+    let mut uses: HashMap<&str, usize> = HashMap::new();
+    let mut total = 0usize;
+    for (i, m) in meshes.iter().enumerate() {
+        *uses.entry(m.obj.as_str()).or_default() += m.instance.len().max(1);
+        total += m.instance.len().max(1);
+        if total > MAX_COPIES {
+            let message = format!("more than {MAX_COPIES} placed meshes in one scene");
+            return Err(invalid(format!("mesh[{i}].instance"), message));
+        }
+    }
+    let mut loaded: HashMap<&str, ObjModel> = HashMap::new();
+    let mut instanced: HashMap<&str, u32> = HashMap::new();
+    for (i, m) in meshes.iter().enumerate() {
+        let field = |k: &str| format!("mesh[{i}].{k}");
+        let bad = |(k, message): (String, String)| invalid(field(&k), message);
+        let own = super::placement::of_mesh(m).map_err(bad)?;
+        let copies: Vec<Placement> = if m.instance.is_empty() {
+            vec![own]
+        } else {
+            let each = m.instance.iter().enumerate().map(|(k, d)| super::placement::of_instance(d, k));
+            each.map(|p| p.map(|p| own.then(p)).map_err(bad)).collect::<Result<_, _>>()?
+        };
+        let obj = m.obj.as_str();
+        if !loaded.contains_key(obj) && !instanced.contains_key(obj) {
+            let model = load_obj_as(&base.join(obj), &super::obj::shown_beside(name, obj))?;
+            let times = uses[obj];
+            if times > 1 && model.materials.iter().any(|d| d.ke.max_element() > 0.0) {
+                b.warnings.push(format!(
+                    "{obj}: placed {times} times, but it emits light, so each copy is stored (emitting triangles are lights)"
+                ));
+            }
+            loaded.insert(obj, model);
+        }
+        let remaining = uses.get_mut(obj).expect("counted above");
+        if let Some(model) = loaded.get(obj)
+            && !model.materials.iter().any(|d| d.ke.max_element() > 0.0)
+            && *remaining > 1
+            && !instanced.contains_key(obj)
+        {
+            let model = loaded.remove(obj).expect("just found");
+            instanced.insert(obj, b.add_instanced(model));
+        }
+        match instanced.get(obj) {
+            Some(&mesh) => {
+                for (k, p) in copies.into_iter().enumerate() {
+                    let copy = instances::place(mesh, p.affine()).map_err(|e| {
+                        let table =
+                            if m.instance.is_empty() { format!("mesh[{i}]") } else { field(&format!("instance[{k}]")) };
+                        invalid(table, e.to_string())
+                    })?;
+                    b.copies.push(copy);
+                }
+            }
+            None => {
+                for p in copies {
+                    *remaining -= 1;
+                    let model = if *remaining == 0 {
+                        loaded.remove(obj).expect("kept until its last use")
+                    } else {
+                        loaded[obj].clone()
+                    };
+                    b.add_model(model, p.linear, p.translate);
+                }
+            }
+        }
+    }
+    Ok(())
 }
 
 fn sphere_material(
@@ -337,15 +437,23 @@ fn sphere_material(
 
 /// Collects area lights and builds the kd-tree.
 // Long on purpose: The scene's last steps in order (store, accelerator, lights, checks), sharing its parts.
-fn finish(b: Builder, camera: Camera, settings: RenderSettings, mut lights: Vec<Light>, background: Vec3) -> Scene {
-    let Builder { mesh, spheres, materials, material_names, textures, warnings } = b;
+fn finish(
+    b: Builder,
+    camera: Camera,
+    settings: RenderSettings,
+    mut lights: Vec<Light>,
+    background: Vec3,
+    instances: Option<Instances>,
+) -> Scene {
+    let Builder { mesh, spheres, materials, material_names, textures, warnings, .. } = b;
     // From here on the scene keeps only the compact runtime form of the mesh.
     let t = std::time::Instant::now();
     let mut geometry = Geometry::new(mesh, spheres);
     let mut accel =
         KdTree::build(&geometry, &BuildParams::for_scene(geometry.triangle_count(), geometry.spheres.len()));
     tracing::debug!("kd-tree of {} primitives built in {:.2?}", geometry.len(), t.elapsed());
-    let packed = PackedTriangles::for_small_scene(&geometry);
+    // The eight-ray packets trace the scene's own primitives only.
+    let packed = if instances.is_some() { None } else { PackedTriangles::for_small_scene(&geometry) };
     // When the tree traces the scene, the triangles are stored in its leaf order from
     // here on, for memory locality (`order[new] = old`). Small scenes, traced by packed
     // brute force in index order, keep the file's order.
@@ -357,7 +465,7 @@ fn finish(b: Builder, camera: Camera, settings: RenderSettings, mut lights: Vec<
     for (new, &old) in order.iter().enumerate() {
         new_index[old as usize] = new as u32;
     }
-    let bounds = accel.bounds();
+    let bounds = accel.bounds().union(instances.as_ref().map_or(crate::geometry::Aabb::EMPTY, |i| i.bounds()));
     let (center, radius) = if bounds.is_empty() {
         (Vec3::ZERO, 1.0)
     } else {
@@ -409,6 +517,7 @@ fn finish(b: Builder, camera: Camera, settings: RenderSettings, mut lights: Vec<
         camera,
         settings,
         packed,
+        instances,
         geometry,
         accel,
         materials,
@@ -452,7 +561,7 @@ pub fn scene_from_bare_obj(model: ObjModel, up: UpAxis) -> Scene {
             Vec3::splat(0.25),
         )
     };
-    finish(b, camera, RenderSettings::default(), lights, background)
+    finish(b, camera, RenderSettings::default(), lights, background, None)
 }
 
 #[cfg(test)]

@@ -8,6 +8,7 @@ pub mod generate;
 pub mod load;
 pub mod obj;
 pub mod overrides;
+pub mod placement;
 pub mod prepared;
 
 pub use crate::shapes::{Geometry, GeometryBytes, NONE, PrimRef, Sphere, Tri, TriangleMesh};
@@ -19,6 +20,7 @@ pub use overrides::Overrides;
 
 use glam::{Vec2, Vec3};
 
+use crate::accel::instances::Instances;
 use crate::accel::triangle_blocks::PackedTriangles;
 use crate::accel::{Hit, KdTree};
 use crate::camera::Camera;
@@ -39,6 +41,9 @@ pub struct Scene {
     /// Scenes of a few hundred triangles are traced by brute force in blocks instead of
     /// the tree ([`PackedTriangles::for_small_scene`]); same answers, bit for bit.
     pub packed: Option<PackedTriangles>,
+    /// Meshes placed more than once, stored once each (their triangles are numbered
+    /// after `geometry`'s primitives). A scene with instances has no `packed`.
+    pub instances: Option<Instances>,
     pub materials: Vec<Material>,
     /// The name of each material (from `newmtl`), for messages and tests.
     pub material_names: Vec<String>,
@@ -73,21 +78,46 @@ impl Scene {
     pub(crate) fn after_read(&self) {
         self.geometry.advise_huge_pages();
         self.accel.advise_huge_pages();
+        if let Some(inst) = &self.instances {
+            inst.advise_huge_pages();
+        }
     }
 
+    /// The nearest hit with `0 < t < tmax`; a copy of an instanced mesh is taken over the
+    /// scene's own primitives only when strictly nearer.
     #[inline]
     pub fn intersect(&self, ray: &Ray, tmax: f32) -> Option<Hit> {
-        match &self.packed {
+        let own = match &self.packed {
             Some(p) => p.intersect(&self.geometry, ray, tmax),
             None => self.accel.intersect(&self.geometry, ray, tmax),
+        };
+        match &self.instances {
+            None => own,
+            Some(inst) => inst.intersect(ray, own.map_or(tmax, |h| h.t)).or(own),
         }
     }
 
     #[inline]
     pub fn occluded(&self, ray: &Ray, tmax: f32) -> bool {
-        match &self.packed {
+        let own = match &self.packed {
             Some(p) => p.occluded(&self.geometry, ray, tmax),
             None => self.accel.occluded(&self.geometry, ray, tmax),
+        };
+        own || self.instances.as_ref().is_some_and(|inst| inst.occluded(ray, tmax))
+    }
+
+    /// The material of the primitive a hit names.
+    #[inline]
+    pub fn material_of(&self, prim: u32) -> u32 {
+        match &self.instances {
+            Some(inst) if inst.holds(prim) => {
+                let (_, mesh, tri) = inst.resolve(prim);
+                mesh.geometry.material(tri)
+            }
+            _ => match self.geometry.resolve(prim) {
+                PrimRef::Triangle(i) => self.geometry.material(i),
+                PrimRef::Sphere(i) => self.geometry.spheres[i].material,
+            },
         }
     }
 
@@ -95,6 +125,11 @@ impl Scene {
     // Inline: see the note on `Bsdf`'s methods (bsdf/mod.rs).
     #[inline(always)]
     pub fn interaction(&self, ray: &Ray, hit: &Hit) -> SurfaceHit {
+        if let Some(inst) = &self.instances
+            && inst.holds(hit.prim)
+        {
+            return instanced_interaction(inst, hit);
+        }
         match self.geometry.resolve(hit.prim) {
             PrimRef::Triangle(i) => {
                 let g = &self.geometry;
@@ -197,6 +232,36 @@ impl Scene {
         }
         (p, ng, ns)
     }
+}
+
+/// [`Scene::interaction`] on a copy of an instanced mesh: the triangle's corners and
+/// shading normals moved to the world, then the same steps as on the scene's own
+/// triangles (the face normal keeps the mesh's front side when the copy is mirrored).
+#[inline(never)]
+fn instanced_interaction(instances: &Instances, hit: &Hit) -> SurfaceHit {
+    let (inst, mesh, i) = instances.resolve(hit.prim);
+    let g = &mesh.geometry;
+    let [p0, p1, p2] = g.triangle(i).map(|p| if inst.identity { p } else { inst.to_world.transform_point3(p) });
+    let b = Vec3::new(1.0 - hit.u - hit.v, hit.u, hit.v);
+    let p = b.x * p0 + b.y * p1 + b.z * p2;
+    let ng = (p1 - p0).cross(p2 - p0).normalize_or_zero();
+    let ng = if inst.mirrored { -ng } else { ng };
+    let ns = match g.shading_normals(i) {
+        Some([n0, n1, n2]) => {
+            let n = b.x * n0 + b.y * n1 + b.z * n2;
+            let n = if inst.identity { n } else { inst.normal_to_world * n };
+            let n = n.normalize_or_zero();
+            if n == Vec3::ZERO || !n.is_finite() {
+                ng
+            } else if n.dot(ng) < 0.0 {
+                -n
+            } else {
+                n
+            }
+        }
+        None => ng,
+    };
+    SurfaceHit { p, ng, ns, uv: g.uv(i, b), material: g.material(i), prim: hit.prim, t: hit.t }
 }
 
 #[cfg(test)]

@@ -24,6 +24,8 @@ impl Drop for TempDir {
 }
 
 /// A bundled scene's file.
+// Each test binary compiles this module; not all of them use every helper.
+#[allow(dead_code)]
 pub fn bundled(name: &str) -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR")).join("../scenes").join(name).join("scene.toml")
 }

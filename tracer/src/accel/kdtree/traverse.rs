@@ -278,7 +278,7 @@ impl KdTree {
                 });
             } else {
                 prefetch_all(prims, ids);
-                hit = ids.iter().any(|&g| prims.intersect(g, ray, &pre, tmax).is_some());
+                hit = ids.iter().any(|&g| prims.occludes(g, ray, &pre, tmax));
             }
             if hit { f32::NAN } else { tmax }
         };
@@ -419,7 +419,7 @@ struct Candidates {
 impl Candidates {
     #[inline]
     fn new(tmax: f32, slack: f32) -> Self {
-        let none = PrimHit { t: 0.0, u: 0.0, v: 0.0 };
+        let none = PrimHit { t: 0.0, u: 0.0, v: 0.0, sub: 0 };
         Self {
             n: 0,
             prim: [0; CANDIDATES],
@@ -492,7 +492,7 @@ impl Candidates {
         }
         if k == 1 {
             let h = self.hit[0];
-            return Some(Hit { t: h.t, prim: self.prim[0], u: h.u, v: h.v });
+            return Some(Hit { t: h.t, prim: prims.hit_prim(self.prim[0], &h), u: h.u, v: h.v });
         }
         let group = &mut self.prim[..k];
         group.sort_unstable();
@@ -501,7 +501,7 @@ impl Candidates {
         for &g in group.iter() {
             if let Some(h) = prims.intersect(g, ray, pre, t) {
                 t = h.t;
-                best = Some(Hit { t: h.t, prim: g, u: h.u, v: h.v });
+                best = Some(Hit { t: h.t, prim: prims.hit_prim(g, &h), u: h.u, v: h.v });
             }
         }
         best
