@@ -29,6 +29,8 @@ enum Command {
     Fetch(client::FetchArgs),
     /// List a farm's jobs and workers.
     Status(client::StatusArgs),
+    /// Change a job: its priority, pause or resume it, or render more samples.
+    Update(client::UpdateArgs),
     /// Cancel a job.
     Cancel(client::CancelArgs),
     /// Make a farm's CA, certificates and access tokens (`certs init DIR`).
@@ -60,6 +62,7 @@ fn main() -> std::process::ExitCode {
         Command::Submit(args) => client::submit(args),
         Command::Fetch(args) => client::fetch(args),
         Command::Status(args) => client::status(args),
+        Command::Update(args) => client::update(args),
         Command::Cancel(args) => client::cancel(args),
         Command::Certs(args) => certs::run(args),
         Command::Bench(args) => bench::run(args),

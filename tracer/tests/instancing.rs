@@ -185,7 +185,9 @@ fn a_bad_copy_names_its_table_and_line() {
 fn copies_are_bounded_before_anything_is_placed() {
     let dir = TempDir::new("instancing-bound");
     let copies = "{},".repeat(tracer::scene::load::MAX_COPIES + 1);
-    let text = format!("[camera]\nposition = [0, 0, 7]\nlook_at = [0, 0, 0]\n[[mesh]]\nobj = \"absent.obj\"\ninstance = [{copies}]\n");
+    let text = format!(
+        "[camera]\nposition = [0, 0, 7]\nlook_at = [0, 0, 0]\n[[mesh]]\nobj = \"absent.obj\"\ninstance = [{copies}]\n"
+    );
     let e = scene_from_toml(&text, "many.toml", &dir.0).err().expect("too many copies").to_string();
     assert!(e.contains("mesh[0].instance: more than 1000000 placed meshes"), "{e}");
 }

@@ -1,5 +1,5 @@
 //! The user's side of a farm: `submit` (upload, submit, optionally wait and fetch the
-//! image), `status` and `cancel`.
+//! image), `status`, `update` (priority, pause, more samples) and `cancel`.
 
 use std::path::PathBuf;
 
@@ -51,6 +51,11 @@ pub struct SubmitArgs {
     /// the file is called scene.toml].
     #[arg(long, value_name = "NAME")]
     pub name: Option<String>,
+    /// The job's weight in the farm's fair share of workers, 1 to 1000: of two running
+    /// jobs, one of priority 150 gets three units for each one of priority 50.
+    #[arg(long, value_name = "N", default_value_t = crate::farm::schedule::DEFAULT_PRIORITY,
+          value_parser = clap::value_parser!(u32).range(1..=i64::from(crate::farm::schedule::MAX_PRIORITY)))]
+    pub priority: u32,
     /// Wait for the job, showing progress, and write the image.
     #[arg(long)]
     pub wait: bool,
@@ -89,6 +94,27 @@ pub struct ImageArgs {
 pub struct StatusArgs {
     #[command(flatten)]
     pub coordinator: FarmAddress,
+}
+
+#[derive(Args)]
+pub struct UpdateArgs {
+    /// The job id that `submit` printed (`status` lists them).
+    pub job: String,
+    #[command(flatten)]
+    pub coordinator: FarmAddress,
+    /// A new priority, 1 to 1000 (its weight in the fair share of workers).
+    #[arg(long, value_name = "N",
+          value_parser = clap::value_parser!(u32).range(1..=i64::from(crate::farm::schedule::MAX_PRIORITY)))]
+    pub priority: Option<u32>,
+    /// Give the job no new units (those out finish and merge); its workers go to other jobs.
+    #[arg(long, conflicts_with = "resume")]
+    pub pause: bool,
+    /// Give a paused job units again.
+    #[arg(long)]
+    pub resume: bool,
+    /// Render more samples per pixel than the job was submitted with.
+    #[arg(long, value_name = "N")]
+    pub spp: Option<u32>,
 }
 
 #[derive(Args)]
@@ -136,7 +162,7 @@ pub fn submit(args: SubmitArgs) -> anyhow::Result<()> {
             assets.push(client.upload(f, local.relative(f)).await?);
         }
         let name = args.name.clone().unwrap_or_else(|| job_name(&args.scene));
-        let job = client.submit(name, &args.job.spec(scene, assets)).await?;
+        let job = client.submit(name, args.priority, &args.job.spec(scene, assets)).await?;
         println!("{job}");
         if args.wait {
             let stream = match client.watch(&job).await? {
@@ -233,7 +259,7 @@ async fn wait(
     let followed = follow(&mut RemoteJob { client: &mut *client, job, stream }, &mut bar, preview).await;
     bar.finish();
     let status = match followed? {
-        Followed::Ended(status) => status,
+        Followed::Ended(status) => *status,
         Followed::Interrupted => {
             anyhow::bail!("interrupted; the job goes on (cancel it with `coordinator cancel {job}`)")
         }
@@ -291,6 +317,26 @@ pub fn status(args: StatusArgs) -> anyhow::Result<()> {
                 if w.quarantined { "  QUARANTINED (returned a wrong result)" } else { "" }
             );
         }
+        Ok(())
+    })
+}
+
+pub fn update(args: UpdateArgs) -> anyhow::Result<()> {
+    let paused = if args.pause {
+        Some(true)
+    } else if args.resume {
+        Some(false)
+    } else {
+        None
+    };
+    let change = crate::farm::state::JobChange { priority: args.priority, paused, spp: args.spp };
+    if change == crate::farm::state::JobChange::default() {
+        anyhow::bail!("nothing to change: give --priority, --pause, --resume or --spp");
+    }
+    runtime()?.block_on(async move {
+        let mut client = args.coordinator.connect().await?;
+        let s = client.update(&args.job, &change).await?;
+        println!("{}", crate::commands::progress::status_line(&s));
         Ok(())
     })
 }

@@ -30,7 +30,7 @@ pub trait JobFeed {
 /// How following ended.
 pub enum Followed {
     /// The job reached a final state (done, failed or cancelled).
-    Ended(JobStatus),
+    Ended(Box<JobStatus>),
     /// Ctrl-C or SIGTERM.
     Interrupted,
 }
@@ -48,11 +48,11 @@ pub async fn follow(feed: &mut impl JobFeed, bar: &mut JobBar, preview: Option<&
             s = feed.next_status() => s?,
         };
         let Some(status) = next else {
-            return last.map(Followed::Ended).ok_or_else(|| anyhow::anyhow!("the job's progress stream closed early"));
+            return last.map(|s| Followed::Ended(Box::new(s))).ok_or_else(|| anyhow::anyhow!("the job's progress stream closed early"));
         };
         bar.update(&status);
         if status.state.is_final() {
-            return Ok(Followed::Ended(status));
+            return Ok(Followed::Ended(Box::new(status)));
         }
         feed.tick(&status, bar).await?;
         if let Some(p) = preview

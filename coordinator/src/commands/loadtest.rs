@@ -155,7 +155,7 @@ async fn submit_job(jobs: &mut FarmClient, args: &LoadtestArgs) -> anyhow::Resul
         tile_size: Some(args.tile),
         batch_spp: Some(1),
     };
-    let job = jobs.submit("loadtest".into(), &spec).await.context("submitting the job")?;
+    let job = jobs.submit("loadtest".into(), 0, &spec).await.context("submitting the job")?;
     Ok((spec, job))
 }
 

@@ -151,6 +151,12 @@ pub fn status_line(j: &JobStatus) -> String {
             format_duration(Duration::from_secs_f64(left.min(1e9)))
         );
     }
+    if j.priority != crate::farm::schedule::DEFAULT_PRIORITY {
+        line += &format!("  priority {}", j.priority);
+    }
+    if j.paused {
+        line += "  PAUSED";
+    }
     if j.units_checked > 0 || j.units_discarded > 0 {
         line += &format!("  {} units checked, {} discarded", j.units_checked, j.units_discarded);
     }

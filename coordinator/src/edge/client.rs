@@ -95,13 +95,14 @@ impl FarmClient {
         Ok(AssetRef { path: rel, sha256: sha, size: bytes.len() as u64 })
     }
 
-    /// Submits a job of uploaded files; returns its id.
-    pub async fn submit(&mut self, name: String, spec: &JobSpec) -> anyhow::Result<String> {
+    /// Submits a job of uploaded files; returns its id. `priority` 0 is the farm's default.
+    pub async fn submit(&mut self, name: String, priority: u32, spec: &JobSpec) -> anyhow::Result<String> {
         let request = proto::SubmitJobRequest {
             scene: Some((&spec.scene).into()),
             assets: spec.assets.iter().map(Into::into).collect(),
             settings: Some(proto::wire::settings_to_proto(spec)),
             name,
+            priority,
         };
         Ok(self.jobs.submit_job(request).await.map_err(message)?.into_inner().job_id)
     }
@@ -144,6 +145,18 @@ impl FarmClient {
                 quarantined: w.quarantined,
             })
             .collect())
+    }
+
+    /// Changes a job's priority, pauses or resumes it, or raises its spp.
+    pub async fn update(&mut self, job: &str, change: &crate::farm::state::JobChange) -> anyhow::Result<JobStatus> {
+        let request = proto::UpdateJobRequest {
+            job_id: job.to_string(),
+            priority: change.priority,
+            paused: change.paused,
+            spp: change.spp,
+        };
+        let s = self.jobs.update_job(request).await.map_err(message)?;
+        status_from_proto(s.into_inner()).map_err(anyhow::Error::msg)
     }
 
     pub async fn cancel(&mut self, job: &str) -> anyhow::Result<JobStatus> {

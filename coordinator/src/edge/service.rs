@@ -270,7 +270,11 @@ impl proto::jobs_server::Jobs for JobsService {
         let r = req.into_inner();
         let spec = proto::wire::submission_from_proto(r.scene, r.assets, r.settings.as_ref())
             .map_err(Status::invalid_argument)?;
+        let priority = crate::farm::schedule::priority(r.priority).map_err(Status::invalid_argument)?;
         let job_id = crate::farm::lifecycle::submit_job(&self.0, r.name, owner, spec, None).map_err(error_to_status)?;
+        if let Ok(e) = self.0.farm().entry_mut(&job_id) {
+            e.job.share.priority = priority;
+        }
         Ok(Response::new(proto::SubmitJobReply { job_id }))
     }
 
@@ -346,6 +350,21 @@ impl proto::jobs_server::Jobs for JobsService {
         let job = req.into_inner().job_id;
         self.may_touch(&caller, &job)?;
         Ok(Response::new(status_to_proto(self.0.cancel(&job).map_err(error_to_status)?)))
+    }
+
+    async fn update_job(&self, req: Request<proto::UpdateJobRequest>) -> Result<Response<proto::JobStatus>, Status> {
+        let caller = proto::auth::caller(&req);
+        let r = req.into_inner();
+        self.may_touch(&caller, &r.job_id)?;
+        let change = crate::farm::state::JobChange { priority: r.priority, paused: r.paused, spp: r.spp };
+        let mut farm = self.0.farm();
+        farm.update_job(&r.job_id, &change).map_err(error_to_status)?;
+        tracing::info!(job = %r.job_id, ?change, by = %caller.name, "job changed");
+        let status = farm.status(&r.job_id, Instant::now()).map_err(error_to_status)?;
+        drop(farm);
+        // A raised spp reopens work, a resume frees units: wake whoever waits for either.
+        self.0.changed.notify_one();
+        Ok(Response::new(status_to_proto(status)))
     }
 
     async fn list_jobs(&self, req: Request<proto::ListRequest>) -> Result<Response<proto::ListJobsReply>, Status> {

@@ -11,6 +11,8 @@ use crate::farm::status::{JobState, JobStatus};
 /// Largest number of warnings a status from the wire may carry, and their length.
 const MAX_WARNINGS: usize = 100;
 const MAX_WARNING_CHARS: usize = 2000;
+/// Longest owner name a status from the wire may carry.
+const MAX_NAME_CHARS: usize = 200;
 
 fn state_to_proto(s: JobState) -> proto::JobState {
     match s {
@@ -43,6 +45,10 @@ pub fn status_to_proto(s: JobStatus) -> proto::JobStatus {
         warnings: s.warnings,
         units_checked: s.units_checked,
         units_discarded: s.units_discarded,
+        priority: s.priority,
+        paused: s.paused,
+        owner: s.owner,
+        submitted_unix_s: s.submitted_unix_s,
     }
 }
 
@@ -78,6 +84,10 @@ pub fn status_from_proto(s: proto::JobStatus) -> Result<JobStatus, String> {
         warnings: warnings.collect(),
         units_checked: s.units_checked,
         units_discarded: s.units_discarded,
+        priority: s.priority.min(crate::farm::schedule::MAX_PRIORITY),
+        paused: s.paused,
+        owner: s.owner.chars().take(MAX_NAME_CHARS).collect(),
+        submitted_unix_s: seconds(s.submitted_unix_s),
     })
 }
 
@@ -126,6 +136,10 @@ mod tests {
             warnings: vec!["quad.mtl: 1 face skipped".into()],
             units_checked: 3,
             units_discarded: 1,
+            priority: 70,
+            paused: true,
+            owner: "ana".into(),
+            submitted_unix_s: 1.8e9,
         }
     }
 

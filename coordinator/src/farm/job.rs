@@ -78,6 +78,8 @@ pub struct Job {
     pub nonfinite: u64,
     /// When the job was created, before its scene loaded.
     pub submitted: Instant,
+    /// The same moment on the wall clock, for people.
+    pub submitted_at: std::time::SystemTime,
     pub started: Instant,
     pub finished: Option<Instant>,
     /// When the first unit of this run began rendering on its worker (its result's
@@ -104,6 +106,8 @@ pub struct Job {
     /// Units thrown away (with the rest of their tiles) because their worker was caught
     /// lying; they render again.
     pub units_discarded: u64,
+    /// Its share of the workers against other running jobs (see `schedule`).
+    pub share: super::schedule::Share,
 }
 
 /// A job's image as its tiles' accumulations, shared with the job ([`Job::image_tiles`]).
@@ -164,6 +168,7 @@ impl Job {
             rays: 0,
             nonfinite: 0,
             submitted: Instant::now(),
+            submitted_at: std::time::SystemTime::now(),
             started: Instant::now(),
             finished: None,
             rendering_since: None,
@@ -176,6 +181,7 @@ impl Job {
             caught: Vec::new(),
             units_checked: 0,
             units_discarded: 0,
+            share: super::schedule::Share::default(),
         }
     }
 
@@ -396,7 +402,7 @@ impl Job {
         deadline: Instant,
         speculate_after: Duration,
     ) -> Option<UnitId> {
-        if self.phase != JobPhase::Running {
+        if self.phase != JobPhase::Running || self.share.paused {
             return None;
         }
         // Units under check first: the job cannot end before they are settled.

@@ -118,6 +118,15 @@ pub enum FarmError {
     Exhausted(String),
 }
 
+/// What [`Farm::update_job`] changes (`None`: as it is).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct JobChange {
+    pub priority: Option<u32>,
+    pub paused: Option<bool>,
+    /// A larger spp: more batches for every tile.
+    pub spp: Option<u32>,
+}
+
 /// Most live registrations one identity (a worker certificate, a token) may hold.
 pub const MAX_REGISTRATIONS_PER_IDENTITY: usize = 1024;
 
@@ -126,7 +135,7 @@ pub struct Farm {
     pub config: FarmConfig,
     pub workers: BTreeMap<WorkerId, Worker>,
     next_worker: WorkerId,
-    /// In submission order: earlier jobs are served first.
+    /// In submission order (which breaks ties of the fair share).
     pub jobs: Vec<JobEntry>,
     index: HashMap<String, usize>,
     next_job: u64,
@@ -134,6 +143,8 @@ pub struct Farm {
     pub shutting_down: bool,
     /// When silent workers were last looked for.
     last_worker_sweep: Option<Instant>,
+    /// How running jobs share the workers.
+    fair: super::schedule::FairShare,
 }
 
 /// A disputed unit for the coordinator to render itself ([`Farm::take_disputes`]).
@@ -254,6 +265,41 @@ impl Farm {
         id
     }
 
+    /// Changes a running or loading job's priority or pauses it, or raises a running
+    /// job's spp (within `max_job_bytes` and the unit limit). Pausing takes effect at unit
+    /// boundaries: units out finish and merge.
+    pub fn update_job(&mut self, job: &str, change: &JobChange) -> Result<(), FarmError> {
+        let max_bytes = self.config.max_job_bytes;
+        let e = self.entry_mut(job)?;
+        let j = &mut e.job;
+        if j.phase.is_final() {
+            return Err(FarmError::Invalid(format!("job {job} has ended; there is nothing to change")));
+        }
+        let priority = match change.priority {
+            Some(0) => return Err(FarmError::Invalid("priority 0: priorities run from 1".into())),
+            Some(p) => Some(super::schedule::priority(p).map_err(FarmError::Invalid)?),
+            None => None,
+        };
+        if let Some(spp) = change.spp {
+            if j.phase != super::job::JobPhase::Running {
+                return Err(FarmError::Invalid(format!("job {job} is still loading; raise its spp once it runs")));
+            }
+            if spp <= j.spp {
+                return Err(FarmError::Invalid(format!("spp {spp}: the job already renders {} spp", j.spp)));
+            }
+            super::job::Job::check_size(j.width, j.height, spp, j.tile_size, j.batch_spp, max_bytes)
+                .map_err(FarmError::Invalid)?;
+            j.extend_spp(spp);
+        }
+        if let Some(p) = priority {
+            j.share.priority = p;
+        }
+        if let Some(paused) = change.paused {
+            j.share.paused = paused;
+        }
+        Ok(())
+    }
+
     /// Job ids up to `n` are taken (by finished jobs whose images are stored).
     pub fn reserve_job_ids_through(&mut self, n: u64) {
         self.next_job = self.next_job.max(n + 1);
@@ -280,7 +326,8 @@ impl Farm {
         }
     }
 
-    /// Up to `max` units for `worker`, earliest job first, progressive order within it.
+    /// Up to `max` units for `worker`: between running jobs by weighted fair share
+    /// (`schedule`), in progressive order within each.
     pub fn lease(&mut self, worker: WorkerId, max: usize, now: Instant) -> Result<Vec<Leased>, FarmError> {
         self.touch(worker, now)?;
         self.reap(now);
@@ -295,11 +342,23 @@ impl Farm {
         }
         let deadline = now + self.config.lease;
         let mut out = Vec::new();
-        for e in &mut self.jobs {
-            while out.len() < max {
-                let Some(unit) = e.job.lease_next(worker, now, deadline, self.config.speculate_after) else { break };
-                let u = &e.job.units[unit as usize];
-                out.push(Leased { spec: Arc::clone(&e.spec), unit, tile: u.tile, samples: u.samples });
+        // Unit by unit, to the running job with the least service for its priority.
+        let mut dry = vec![false; self.jobs.len()];
+        while out.len() < max {
+            let running = self
+                .jobs
+                .iter_mut()
+                .enumerate()
+                .filter(|(k, e)| !dry[*k] && e.job.phase == super::job::JobPhase::Running && !e.job.share.paused);
+            let Some(k) = self.fair.pick(running.map(|(k, e)| (k, &mut e.job.share))) else { break };
+            let e = &mut self.jobs[k];
+            match e.job.lease_next(worker, now, deadline, self.config.speculate_after) {
+                Some(unit) => {
+                    self.fair.served(&mut e.job.share);
+                    let u = &e.job.units[unit as usize];
+                    out.push(Leased { spec: Arc::clone(&e.spec), unit, tile: u.tile, samples: u.samples });
+                }
+                None => dry[k] = true,
             }
         }
         Ok(out)
@@ -521,17 +580,54 @@ mod tests {
         assert!(old.iter().all(|&o| o < new), "{old:?} then {new}");
     }
 
+    /// Units leased to one worker, `n` at a time, by job.
+    fn leased_by_job(f: &mut Farm, w: WorkerId, n: usize, now: Instant) -> HashMap<String, usize> {
+        let mut by = HashMap::new();
+        for l in f.lease(w, n, now).unwrap() {
+            *by.entry(l.spec.job_id.clone()).or_default() += 1;
+        }
+        by
+    }
+
     #[test]
-    fn earlier_jobs_are_served_first() {
+    fn running_jobs_share_the_workers_by_priority() {
         let mut f = Farm::new(FarmConfig::default());
         let now = Instant::now();
         let w = f.register("h".into(), 2, now);
         let a = f.add_job("a".into(), None, spec());
         let b = f.add_job("b".into(), None, spec());
-        f.entry_mut(&b).unwrap().job.start(4, 4, 2, 4, 2, true);
-        f.entry_mut(&a).unwrap().job.start(8, 4, 2, 4, 2, true);
-        let got = f.lease(w, 3, now).unwrap();
-        let jobs: Vec<&str> = got.iter().map(|l| l.spec.job_id.as_str()).collect();
-        assert_eq!(jobs, [a.as_str(), a.as_str(), b.as_str()]);
+        // 64 tiles × 4 batches each.
+        f.entry_mut(&a).unwrap().job.start(64, 64, 8, 8, 2, true);
+        f.entry_mut(&b).unwrap().job.start(64, 64, 8, 8, 2, true);
+        // Equal priorities: ties go to the earlier job, then they alternate.
+        let first: Vec<String> = f.lease(w, 4, now).unwrap().into_iter().map(|l| l.spec.job_id.clone()).collect();
+        assert_eq!(first, [a.clone(), b.clone(), a.clone(), b.clone()]);
+        f.update_job(&a, &JobChange { priority: Some(150), ..JobChange::default() }).unwrap();
+        let by = leased_by_job(&mut f, w, 40, now);
+        assert_eq!((by[&a], by[&b]), (30, 10), "priority 150 against 50: three units for one");
+        // Paused: no new units; the others take them all.
+        f.update_job(&a, &JobChange { paused: Some(true), ..JobChange::default() }).unwrap();
+        let by = leased_by_job(&mut f, w, 20, now);
+        assert_eq!((by.get(&a), by[&b]), (None, 20));
+        f.update_job(&a, &JobChange { paused: Some(false), ..JobChange::default() }).unwrap();
+        let by = leased_by_job(&mut f, w, 8, now);
+        assert_eq!((by[&a], by[&b]), (6, 2), "resumed where the clock stands, not owed the pause");
+    }
+
+    #[test]
+    fn job_changes_are_checked() {
+        let mut f = Farm::new(FarmConfig::default());
+        let a = f.add_job("a".into(), None, spec());
+        let bad = |f: &mut Farm, c: JobChange| f.update_job(&a, &c).unwrap_err().to_string();
+        assert!(bad(&mut f, JobChange { spp: Some(64), ..JobChange::default() }).contains("still loading"));
+        f.entry_mut(&a).unwrap().job.start(8, 8, 4, 8, 2, true);
+        assert!(bad(&mut f, JobChange { priority: Some(0), ..JobChange::default() }).contains("from 1"));
+        assert!(bad(&mut f, JobChange { priority: Some(5000), ..JobChange::default() }).contains("1 to 1000"));
+        assert!(bad(&mut f, JobChange { spp: Some(4), ..JobChange::default() }).contains("already renders 4 spp"));
+        f.update_job(&a, &JobChange { spp: Some(10), ..JobChange::default() }).unwrap();
+        let j = &f.entry(&a).unwrap().job;
+        assert_eq!((j.spp, j.units_total()), (10, 5), "one tile, batches 0-2, 2-4, 4-6, 6-8, 8-10");
+        f.entry_mut(&a).unwrap().job.cancel();
+        assert!(bad(&mut f, JobChange { paused: Some(true), ..JobChange::default() }).contains("has ended"));
     }
 }

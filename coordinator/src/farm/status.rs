@@ -59,6 +59,14 @@ pub struct JobStatus {
     pub units_checked: u64,
     /// Units thrown away because their worker was caught lying.
     pub units_discarded: u64,
+    /// Its weight in the fair share of workers (`schedule`).
+    pub priority: u32,
+    /// Gets no new units until resumed.
+    pub paused: bool,
+    /// Who submitted it (empty: an admin, or a farm without users).
+    pub owner: String,
+    /// When it was submitted, in seconds since the Unix epoch.
+    pub submitted_unix_s: f64,
 }
 
 pub fn status_of(j: &Job, workers: usize) -> JobStatus {
@@ -89,5 +97,9 @@ pub fn status_of(j: &Job, workers: usize) -> JobStatus {
         warnings: j.warnings.clone(),
         units_checked: j.units_checked,
         units_discarded: j.units_discarded,
+        priority: j.share.priority,
+        paused: j.share.paused,
+        owner: j.owner.clone().unwrap_or_default(),
+        submitted_unix_s: j.submitted_at.duration_since(std::time::UNIX_EPOCH).map_or(0.0, |d| d.as_secs_f64()),
     }
 }
