@@ -48,7 +48,9 @@ pub async fn follow(feed: &mut impl JobFeed, bar: &mut JobBar, preview: Option<&
             s = feed.next_status() => s?,
         };
         let Some(status) = next else {
-            return last.map(|s| Followed::Ended(Box::new(s))).ok_or_else(|| anyhow::anyhow!("the job's progress stream closed early"));
+            return last
+                .map(|s| Followed::Ended(Box::new(s)))
+                .ok_or_else(|| anyhow::anyhow!("the job's progress stream closed early"));
         };
         bar.update(&status);
         if status.state.is_final() {

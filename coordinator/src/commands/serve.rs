@@ -13,6 +13,7 @@ use proto::tls::TlsDir;
 use tonic::transport::ServerTlsConfig;
 use tracer::scene::prepared::PreparedScenes;
 
+use crate::edge::http::HttpServer;
 use crate::edge::server::Server;
 use crate::farm::Shared;
 use crate::farm::assets::AssetStore;
@@ -44,6 +45,11 @@ pub struct ServeArgs {
     /// clients with --token or TILEFARM_TOKEN) may do everything.
     #[arg(long, value_name = "FILE")]
     pub token_file: Option<PathBuf>,
+    /// Also serve HTTP here: Prometheus metrics at /metrics (with the farm's admin
+    /// token, `Authorization: Bearer …`, when it has tokens), and /healthz and /readyz
+    /// for probes. Plain HTTP: other machines may reach it only with --insecure.
+    #[arg(long, value_name = "ADDRESS")]
+    pub http: Option<String>,
     /// Where uploaded scene files are kept (content-addressed).
     #[arg(long)]
     pub store: Option<PathBuf>,
@@ -155,7 +161,9 @@ fn access_of(args: &ServeArgs) -> anyhow::Result<(Access, Option<ServerTlsConfig
     if let Some(f) = &args.token_file {
         access = access.with_token(Token::from_file(f).map_err(anyhow::Error::msg)?, Caller::admin());
     }
-    if !loopback_only(&args.listen)? && (tls.is_none() || !access.has_tokens()) {
+    if !loopback_only(&args.listen).with_context(|| format!("--listen {}", args.listen))?
+        && (tls.is_none() || !access.has_tokens())
+    {
         anyhow::ensure!(
             args.insecure,
             "--listen {}: other machines could reach this farm, so it needs TLS and access tokens: make them with \
@@ -175,13 +183,21 @@ fn access_of(args: &ServeArgs) -> anyhow::Result<(Access, Option<ServerTlsConfig
 /// Whether every address `listen` names is a loopback one.
 fn loopback_only(listen: &str) -> anyhow::Result<bool> {
     use std::net::ToSocketAddrs;
-    let addrs: Vec<std::net::SocketAddr> =
-        listen.to_socket_addrs().with_context(|| format!("--listen {listen}: not an address"))?.collect();
+    let addrs: Vec<std::net::SocketAddr> = listen.to_socket_addrs().context("not an address")?.collect();
     Ok(!addrs.is_empty() && addrs.iter().all(|a| a.ip().is_loopback()))
 }
 
 pub fn run(args: ServeArgs) -> anyhow::Result<()> {
     let (access, tls) = access_of(&args)?;
+    if let Some(http) = &args.http
+        && !args.insecure
+        && !loopback_only(http).with_context(|| format!("--http {http}"))?
+    {
+        anyhow::bail!(
+            "--http {http}: other machines could reach it, and it is plain HTTP (tokens would cross the network \
+             unencrypted): serve it on 127.0.0.1 behind a TLS proxy, or give --insecure on a network you trust"
+        );
+    }
     let mut config = args.farm.config()?;
     config.verify = Policy::new(args.verify, FIRST_RESULTS_CHECKED).map_err(anyhow::Error::msg)?;
     tracer::memory::return_large_buffers_when_freed();
@@ -208,9 +224,17 @@ pub fn run(args: ServeArgs) -> anyhow::Result<()> {
     let runtime =
         tokio::runtime::Builder::new_multi_thread().worker_threads(2).enable_all().build().context("async runtime")?;
     runtime.block_on(async move {
-        let server = Server::start(Arc::clone(&shared), &args.listen, access, tls).await?;
+        let server = Server::start(Arc::clone(&shared), &args.listen, access.clone(), tls).await?;
         // The first line of output is the URL, for scripts and tests.
         println!("listening on {}", server.url());
+        let http = match &args.http {
+            Some(listen) => {
+                let h = HttpServer::start(Arc::clone(&shared), listen, access).await?;
+                tracing::info!(metrics = %format!("{}/metrics", h.url()), "serving HTTP");
+                Some(h)
+            }
+            None => None,
+        };
         tracing::info!(store = %store_dir.display(), "coordinator serving");
         let stdin_eof = stdin_closed(args.exit_on_stdin_eof);
         let stop = async {
@@ -239,6 +263,9 @@ pub fn run(args: ServeArgs) -> anyhow::Result<()> {
             shared.forget_finished(retain);
         }
         tracing::info!("stopping");
+        if let Some(h) = http {
+            h.stop().await;
+        }
         server.stop().await;
         if let Some(root) = &ckpt_root {
             save_jobs(&shared, root, &mut saved).await;

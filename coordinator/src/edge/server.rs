@@ -1,5 +1,6 @@
-//! Running the gRPC server: both services on one listener, with a reaper that returns
-//! lapsed leases to the queue even when no worker is asking for work.
+//! Running the gRPC server: both services and the standard health service on one
+//! listener, with a reaper that returns lapsed leases to the queue even when no worker
+//! is asking for work.
 
 use std::net::SocketAddr;
 use std::sync::Arc;
@@ -62,12 +63,19 @@ impl Server {
                 }
             }
         });
-        let task = tokio::spawn(builder.add_service(farm).add_service(jobs).serve_with_incoming_shutdown(
-            TcpListenerStream::new(listener).map(no_delay),
-            async {
-                let _ = stopped.await;
-            },
-        ));
+        // The standard health service (grpc.health.v1), open to every caller as probes
+        // expect: "" and both services report SERVING while the server runs.
+        let (reporter, health) = tonic_health::server::health_reporter();
+        for name in ["", "tilefarm.v1.Farm", "tilefarm.v1.Jobs"] {
+            reporter.set_service_status(name, tonic_health::ServingStatus::Serving).await;
+        }
+        let task =
+            tokio::spawn(builder.add_service(health).add_service(farm).add_service(jobs).serve_with_incoming_shutdown(
+                TcpListenerStream::new(listener).map(no_delay),
+                async {
+                    let _ = stopped.await;
+                },
+            ));
         Ok(Self { addr, scheme, stop: Some(stop), task })
     }
 

@@ -170,6 +170,7 @@ impl proto::farm_server::Farm for FarmService {
             store.blob_path(&sha)
         };
         let (tx, rx) = mpsc::channel(4);
+        let shared = Arc::clone(&self.0);
         tokio::spawn(async move {
             use tokio::io::AsyncReadExt;
             let mut f = match tokio::fs::File::open(&path).await {
@@ -184,6 +185,7 @@ impl proto::farm_server::Farm for FarmService {
                 match f.read(&mut buf).await {
                     Ok(0) => break,
                     Ok(n) => {
+                        shared.meters.bytes_out.inc_by(n as u64);
                         if tx.send(Ok(proto::AssetChunk { data: buf[..n].to_vec() })).await.is_err() {
                             break;
                         }
@@ -252,6 +254,7 @@ impl proto::jobs_server::Jobs for JobsService {
             }
             // Chunks are at most 1 MiB (and a message at most 64): a short blocking write.
             tokio::task::block_in_place(|| up.write(&chunk.data)).map_err(internal)?;
+            self.0.meters.bytes_in.inc_by(chunk.data.len() as u64);
         }
         let shared = Arc::clone(&self.0);
         let (sha256, size) = tokio::task::spawn_blocking(move || shared.store().finish_upload(up))
@@ -324,6 +327,7 @@ impl proto::jobs_server::Jobs for JobsService {
         if let Some(path) = stored {
             let bytes =
                 tokio::fs::read(&path).await.map_err(|e| Status::internal(format!("reading the stored image: {e}")))?;
+            self.0.meters.bytes_out.inc_by(bytes.len() as u64);
             let chunks: Vec<Result<proto::ImageChunk, Status>> =
                 bytes.chunks(proto::ASSET_CHUNK_BYTES).map(|c| Ok(proto::ImageChunk { exr: c.to_vec() })).collect();
             return Ok(Response::new(Box::pin(tokio_stream::iter(chunks))));
@@ -340,6 +344,7 @@ impl proto::jobs_server::Jobs for JobsService {
             .await
             .map_err(|e| Status::internal(e.to_string()))?
             .map_err(Status::internal)?;
+        self.0.meters.bytes_out.inc_by(bytes.len() as u64);
         let chunks: Vec<Result<proto::ImageChunk, Status>> =
             bytes.chunks(proto::ASSET_CHUNK_BYTES).map(|c| Ok(proto::ImageChunk { exr: c.to_vec() })).collect();
         Ok(Response::new(Box::pin(tokio_stream::iter(chunks))))

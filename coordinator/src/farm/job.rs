@@ -108,6 +108,10 @@ pub struct Job {
     pub units_discarded: u64,
     /// Its share of the workers against other running jobs (see `schedule`).
     pub share: super::schedule::Share,
+    /// Results merged, ever (a tile thrown away and rendered again counts again).
+    pub merged: u64,
+    /// Checks whose answers disagreed.
+    pub units_mismatched: u64,
 }
 
 /// A job's image as its tiles' accumulations, shared with the job ([`Job::image_tiles`]).
@@ -182,6 +186,8 @@ impl Job {
             units_checked: 0,
             units_discarded: 0,
             share: super::schedule::Share::default(),
+            merged: 0,
+            units_mismatched: 0,
         }
     }
 
@@ -609,6 +615,7 @@ impl Job {
         unit.unchecked_from = from;
         self.pending.remove(&r.unit);
         self.units_done += 1;
+        self.merged += 1;
         self.samples_done += n as u64 * expected as u64;
         self.rays += r.rays;
         self.nonfinite += r.nonfinite;
@@ -640,6 +647,11 @@ impl Job {
     }
 
     /// Units currently leased to `worker`.
+    /// Units waiting for a worker: pending, or under check and waiting for a second answer.
+    pub fn queued(&self) -> usize {
+        self.pending.len() + self.checking.len()
+    }
+
     pub fn held_by(&self, worker: WorkerId) -> usize {
         self.units
             .iter()

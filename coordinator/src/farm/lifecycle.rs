@@ -60,6 +60,8 @@ pub struct Shared {
     /// `render`, which follows its job, sees the end at once instead of at its next
     /// poll (it still polls every 100 ms for everything else, such as lapsed leases).
     pub changed: tokio::sync::Notify,
+    /// Merge latency and bytes moved, for the metrics.
+    pub meters: super::meters::Meters,
 }
 
 impl Shared {
@@ -118,6 +120,7 @@ impl Shared {
             defaults: JobDefaults::default(),
             prepared: None,
             changed: tokio::sync::Notify::new(),
+            meters: super::meters::Meters::default(),
         }
     }
 
@@ -144,11 +147,17 @@ impl Shared {
         results: impl IntoIterator<Item = (&'a str, &'a UnitResult)>,
     ) -> Result<Vec<Result<Applied, FarmError>>, FarmError> {
         let mut outcomes = Vec::new();
+        let arrived = Instant::now();
         {
             let mut farm = self.farm();
             let now = Instant::now();
             for (job, r) in results {
-                let outcome = match farm.submit(worker, job, r, now) {
+                self.meters.bytes_in.inc_by(result_bytes(r));
+                let outcome = farm.submit(worker, job, r, now);
+                if matches!(outcome, Ok((Applied::Merged, _))) {
+                    self.meters.merge_seconds.observe(arrived.elapsed().as_secs_f64());
+                }
+                let outcome = match outcome {
                     Err(e @ FarmError::UnknownWorker(_)) => return Err(e),
                     Err(e) => Err(e),
                     Ok((applied, finished)) => {
@@ -288,6 +297,12 @@ fn write_durably(
     std::fs::File::open(&tmp).and_then(|f| f.sync_all()).with_context(|| format!("{}", tmp.display()))?;
     std::fs::rename(&tmp, target).with_context(|| format!("replacing {}", target.display()))?;
     Ok(())
+}
+
+/// What a unit result carries on the wire, about: its sums (3 × 16 bytes a pixel) and
+/// counts (4 bytes a pixel).
+fn result_bytes(r: &UnitResult) -> u64 {
+    (r.sums.len() * size_of::<[i128; 3]>() + r.counts.len() * size_of::<u32>()) as u64
 }
 
 /// Creates a job from files already in the store and loads its scene in the

@@ -2,7 +2,7 @@
 //! the unit order ([`schedule`]), registered workers and the jobs in submission order
 //! ([`state`]), checkpoints ([`checkpoint`]), the content-addressed asset store
 //! ([`assets`]), what a job's status says ([`status`]), and the job lifecycle
-//! ([`lifecycle`]) that ties them together. No wire types: the edge maps them.
+//! ([`lifecycle`]) that ties them together, and what it counts for metrics ([`meters`]). No wire types: the edge maps them.
 
 pub mod assets;
 pub mod checkpoint;
@@ -10,6 +10,7 @@ pub mod ids;
 pub mod job;
 pub mod leases;
 pub mod lifecycle;
+pub mod meters;
 pub mod schedule;
 pub mod state;
 pub mod status;

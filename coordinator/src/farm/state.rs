@@ -145,6 +145,8 @@ pub struct Farm {
     last_worker_sweep: Option<Instant>,
     /// How running jobs share the workers.
     fair: super::schedule::FairShare,
+    /// Unit events the farm counts itself, and those of jobs no longer listed.
+    counters: super::meters::UnitCounters,
 }
 
 /// A disputed unit for the coordinator to render itself ([`Farm::take_disputes`]).
@@ -308,6 +310,9 @@ impl Farm {
     /// Removes jobs for which `gone` is true, keeping the others' order.
     pub fn remove_jobs(&mut self, gone: impl Fn(&JobEntry) -> bool) -> Vec<String> {
         let removed: Vec<String> = self.jobs.iter().filter(|e| gone(e)).map(|e| e.job.id.clone()).collect();
+        for e in self.jobs.iter().filter(|e| gone(e)) {
+            self.counters.add(&super::meters::UnitCounters::of_job(&e.job));
+        }
         if !removed.is_empty() {
             self.jobs.retain(|e| !gone(e));
             self.index = self.jobs.iter().enumerate().map(|(i, e)| (e.job.id.clone(), i)).collect();
@@ -355,6 +360,7 @@ impl Farm {
             match e.job.lease_next(worker, now, deadline, self.config.speculate_after) {
                 Some(unit) => {
                     self.fair.served(&mut e.job.share);
+                    self.counters.leased += 1;
                     let u = &e.job.units[unit as usize];
                     out.push(Leased { spec: Arc::clone(&e.spec), unit, tile: u.tile, samples: u.samples });
                 }
@@ -406,7 +412,13 @@ impl Farm {
         let check = self.config.verify.must_check(answers_before, job, result.unit);
         let entry = self.entry_mut(job)?;
         let was_running = entry.job.phase == JobPhase::Running;
-        let applied = entry.job.apply_at(worker, result, now, check)?;
+        let applied = match entry.job.apply_at(worker, result, now, check) {
+            Ok(a) => a,
+            Err(e) => {
+                self.counters.rejected += 1;
+                return Err(e.into());
+            }
+        };
         let caught = entry.job.take_caught();
         if let Some(w) = self.workers.get_mut(&worker) {
             w.units_done += u64::from(applied == Applied::Merged);
@@ -494,10 +506,20 @@ impl Farm {
         }
         for e in &mut self.jobs {
             let n = e.job.reap_expired(now);
+            self.counters.lapsed += n as u64;
             if n > 0 {
                 tracing::warn!(job = %e.job.id, units = n, "leases lapsed; units re-queued");
             }
         }
+    }
+
+    /// Unit events since the farm started, over every job it has held.
+    pub fn unit_counters(&self) -> super::meters::UnitCounters {
+        let mut c = self.counters;
+        for e in &self.jobs {
+            c.add(&super::meters::UnitCounters::of_job(&e.job));
+        }
+        c
     }
 
     pub fn status(&self, job: &str, now: Instant) -> Result<JobStatus, FarmError> {

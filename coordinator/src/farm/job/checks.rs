@@ -53,12 +53,14 @@ impl Job {
             Outcome::Settled { agreed, liars } => {
                 let check = unit.check.take().expect("the check just answered");
                 self.checking.remove(&id);
+                self.units_mismatched += u64::from(!liars.is_empty());
                 self.caught.extend(liars);
                 self.merge(&check.answers[agreed].result, now, None)?;
                 self.units_checked += 1;
                 Ok(Applied::Merged)
             }
             Outcome::Undecidable => {
+                self.units_mismatched += 1;
                 self.fail(format!(
                     "unit {id}: {MAX_ANSWERS} workers returned {MAX_ANSWERS} different results for it, so none can be \
                      trusted (several workers are broken or lying)"

@@ -1,0 +1,175 @@
+//! The farm's HTTP side (axum): Prometheus metrics at `/metrics`, and health for
+//! orchestrators' probes at `/healthz` (the process serves) and `/readyz` (the farm takes
+//! work). Metrics need the admin token whenever the farm has tokens — the same tokens as
+//! the gRPC API, sent as `Authorization: Bearer …`; the health endpoints say nothing
+//! about the farm and need none.
+
+use std::net::SocketAddr;
+use std::sync::Arc;
+use std::time::{Duration, Instant};
+
+use anyhow::Context;
+use axum::Router;
+use axum::extract::State;
+use axum::http::{HeaderMap, StatusCode, header};
+use axum::response::{IntoResponse, Response};
+use axum::routing::get;
+use prometheus::{Encoder, Gauge, IntCounter, IntGauge, IntGaugeVec, Opts, Registry, TextEncoder};
+use proto::auth::{Access, Role};
+use tokio::sync::oneshot;
+
+use crate::farm::Shared;
+use crate::farm::job::JobPhase;
+
+#[derive(Clone)]
+struct App {
+    shared: Arc<Shared>,
+    access: Arc<Access>,
+}
+
+pub struct HttpServer {
+    pub addr: SocketAddr,
+    stop: Option<oneshot::Sender<()>>,
+    task: tokio::task::JoinHandle<std::io::Result<()>>,
+}
+
+impl HttpServer {
+    /// Binds `listen` (port 0: any free port) and serves in the background.
+    pub async fn start(shared: Arc<Shared>, listen: &str, access: Access) -> anyhow::Result<Self> {
+        let listener =
+            tokio::net::TcpListener::bind(listen).await.with_context(|| format!("--http {listen}: listening"))?;
+        let addr = listener.local_addr()?;
+        let app = Router::new()
+            .route("/metrics", get(metrics))
+            .route("/healthz", get(|| async { "ok\n" }))
+            .route("/readyz", get(ready))
+            .with_state(App { shared, access: Arc::new(access) });
+        let (stop, stopped) = oneshot::channel::<()>();
+        let task = tokio::spawn(async move {
+            axum::serve(listener, app)
+                .with_graceful_shutdown(async {
+                    let _ = stopped.await;
+                })
+                .await
+        });
+        Ok(Self { addr, stop: Some(stop), task })
+    }
+
+    pub fn url(&self) -> String {
+        format!("http://{}", self.addr)
+    }
+
+    pub async fn stop(mut self) {
+        if let Some(s) = self.stop.take() {
+            let _ = s.send(());
+        }
+        let _ = tokio::time::timeout(Duration::from_secs(3), &mut self.task).await;
+    }
+}
+
+/// The caller's role from the `Authorization` header, or why it is refused.
+fn caller_role(access: &Access, headers: &HeaderMap) -> Result<Role, String> {
+    let bearer = headers.get(header::AUTHORIZATION).and_then(|v| v.to_str().ok());
+    access.identify(bearer, None).map(|c| c.role).map_err(|e| e.message().to_string())
+}
+
+async fn metrics(State(app): State<App>, headers: HeaderMap) -> Response {
+    match caller_role(&app.access, &headers) {
+        Ok(Role::Admin) => {}
+        Ok(_) => return (StatusCode::FORBIDDEN, "metrics need the farm's admin token\n").into_response(),
+        Err(why) => {
+            return (StatusCode::UNAUTHORIZED, [(header::WWW_AUTHENTICATE, "Bearer")], format!("{why}\n"))
+                .into_response();
+        }
+    }
+    match exposition(&app.shared) {
+        Ok(text) => ([(header::CONTENT_TYPE, TextEncoder::new().format_type().to_string())], text).into_response(),
+        Err(e) => (StatusCode::INTERNAL_SERVER_ERROR, format!("{e:#}\n")).into_response(),
+    }
+}
+
+async fn ready(State(app): State<App>) -> Response {
+    if app.shared.farm().shutting_down {
+        (StatusCode::SERVICE_UNAVAILABLE, "shutting down\n").into_response()
+    } else {
+        "ready\n".into_response()
+    }
+}
+
+/// The farm's metrics in Prometheus' text format: a registry made for this scrape,
+/// filled from one snapshot of the farm (so that the numbers agree with each other),
+/// plus the meters that live across scrapes.
+fn exposition(shared: &Shared) -> anyhow::Result<String> {
+    let registry = Registry::new();
+    let counter = |name: &str, help: &str, value: u64| -> anyhow::Result<()> {
+        let c = IntCounter::new(name, help)?;
+        c.inc_by(value);
+        registry.register(Box::new(c))?;
+        Ok(())
+    };
+    let jobs = IntGaugeVec::new(Opts::new("tilefarm_jobs", "Jobs the farm lists, by state"), &["state"])?;
+    let workers = IntGaugeVec::new(Opts::new("tilefarm_workers", "Registered workers, by state"), &["state"])?;
+    let rate = Gauge::new("tilefarm_samples_per_second", "Samples per second over the running jobs")?;
+    let queued = IntGauge::new("tilefarm_units_queued", "Units waiting for a worker in running, unpaused jobs")?;
+    let units = {
+        let farm = shared.farm();
+        let now = Instant::now();
+        for state in ["loading", "running", "paused", "done", "failed", "cancelled"] {
+            jobs.with_label_values(&[state]).set(0);
+        }
+        let mut waiting = 0u64;
+        let mut samples_per_s = 0.0;
+        for e in &farm.jobs {
+            let j = &e.job;
+            let state = match &j.phase {
+                JobPhase::Loading => "loading",
+                JobPhase::Running if j.share.paused => "paused",
+                JobPhase::Running => "running",
+                JobPhase::Done => "done",
+                JobPhase::Failed(_) => "failed",
+                JobPhase::Cancelled => "cancelled",
+            };
+            jobs.with_label_values(&[state]).inc();
+            if state == "running" {
+                waiting += j.queued() as u64;
+                samples_per_s += j.samples_per_second();
+            }
+        }
+        let lease = farm.config.lease;
+        for state in ["busy", "idle", "silent", "quarantined"] {
+            workers.with_label_values(&[state]).set(0);
+        }
+        for w in farm.workers.values() {
+            let held: usize = farm.jobs.iter().map(|e| e.job.held_by(w.id)).sum();
+            let state = if w.quarantined {
+                "quarantined"
+            } else if now.saturating_duration_since(w.last_seen) > lease {
+                "silent"
+            } else if held > 0 {
+                "busy"
+            } else {
+                "idle"
+            };
+            workers.with_label_values(&[state]).inc();
+        }
+        rate.set(samples_per_s);
+        queued.set(i64::try_from(waiting).unwrap_or(i64::MAX));
+        farm.unit_counters()
+    };
+    counter("tilefarm_units_leased_total", "Units handed to workers (a re-lease counts again)", units.leased)?;
+    counter("tilefarm_units_completed_total", "Unit results merged into their job's image", units.completed)?;
+    counter("tilefarm_units_lapsed_total", "Leases that ran out before their result came", units.lapsed)?;
+    counter("tilefarm_units_rejected_total", "Unit results refused", units.rejected)?;
+    counter("tilefarm_units_verified_total", "Units merged once a second worker agreed bit for bit", units.verified)?;
+    counter("tilefarm_units_mismatched_total", "Checks whose answers disagreed", units.mismatched)?;
+    registry.register(Box::new(jobs))?;
+    registry.register(Box::new(workers))?;
+    registry.register(Box::new(rate))?;
+    registry.register(Box::new(queued))?;
+    registry.register(Box::new(shared.meters.merge_seconds.clone()))?;
+    registry.register(Box::new(shared.meters.bytes_in.clone()))?;
+    registry.register(Box::new(shared.meters.bytes_out.clone()))?;
+    let mut out = Vec::new();
+    TextEncoder::new().encode(&registry.gather(), &mut out)?;
+    Ok(String::from_utf8(out)?)
+}
