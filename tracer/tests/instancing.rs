@@ -184,7 +184,7 @@ fn a_bad_copy_names_its_table_and_line() {
 #[test]
 fn copies_are_bounded_before_anything_is_placed() {
     let dir = TempDir::new("instancing-bound");
-    let copies = "{},".repeat(tracer::scene::load::MAX_COPIES + 1);
+    let copies = "{},".repeat(tracer::scene::placement::MAX_COPIES + 1);
     let text = format!(
         "[camera]\nposition = [0, 0, 7]\nlook_at = [0, 0, 0]\n[[mesh]]\nobj = \"absent.obj\"\ninstance = [{copies}]\n"
     );

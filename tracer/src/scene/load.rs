@@ -1,23 +1,21 @@
 //! Assembling a [`Scene`] from a TOML scene file or a bare OBJ: loading meshes, placing
 //! them, classifying materials, collecting lights and building the kd-tree.
 
-use std::collections::HashMap;
 use std::path::Path;
 
-use glam::{Mat3, Vec3};
+use glam::Vec3;
 
+use super::builder::Builder;
 use super::file::{LightDesc, SceneFile, SphereDesc, UpAxis};
 use super::obj::{ObjError, ObjModel, load_obj_as};
-use super::placement::Placement;
-use super::{Geometry, NONE, Scene, Sphere, TriangleMesh};
-use crate::accel::instances::{self, Instance, InstancedMesh, Instances};
+use super::{Geometry, Scene, Sphere};
+use crate::accel::instances::Instances;
 use crate::accel::triangle_blocks::PackedTriangles;
 use crate::accel::{BuildParams, KdTree, Primitives};
 use crate::camera::Camera;
 use crate::light::{Light, LightSet};
 use crate::material::{Material, MaterialDesc};
 use crate::math;
-use crate::texture::Texture;
 
 #[derive(Debug, thiserror::Error)]
 pub enum SceneError {
@@ -117,79 +115,6 @@ pub fn scene_from_toml(text: &str, display_name: &str, base: &Path) -> Result<Sc
     assemble(&file, text, display_name, base)
 }
 
-#[derive(Default)]
-struct Builder {
-    mesh: TriangleMesh,
-    spheres: Vec<Sphere>,
-    materials: Vec<Material>,
-    material_names: Vec<String>,
-    textures: Vec<Texture>,
-    warnings: Vec<String>,
-    /// Meshes stored once, and their placed copies.
-    instanced: Vec<InstancedMesh>,
-    copies: Vec<Instance>,
-}
-
-impl Builder {
-    /// Appends a model's materials and textures (and its warnings); returns the index of
-    /// its first material in the scene's list.
-    fn add_materials(&mut self, materials: &[MaterialDesc], textures: Vec<Texture>, warnings: Vec<String>) -> u32 {
-        let (mat_base, tex_base) = (self.materials.len() as u32, self.textures.len() as u32);
-        self.material_names.extend(materials.iter().map(|m| m.name.clone()));
-        self.materials.extend(materials.iter().map(|m| {
-            let mut m = m.clone();
-            m.map_kd = m.map_kd.map(|t| t + tex_base);
-            Material::from_desc(&m)
-        }));
-        self.textures.extend(textures);
-        self.warnings.extend(warnings);
-        mat_base
-    }
-
-    /// Stores a model once, in its own coordinates, for copies to place; returns its
-    /// index among the instanced meshes.
-    fn add_instanced(&mut self, model: ObjModel) -> u32 {
-        let ObjModel { mut mesh, materials, textures, warnings } = model;
-        let mat_base = self.add_materials(&materials, textures, warnings);
-        for t in &mut mesh.tris {
-            t.material += mat_base;
-        }
-        self.instanced.push(InstancedMesh::new(Geometry::new(mesh, Vec::new())));
-        self.instanced.len() as u32 - 1
-    }
-
-    /// Appends a model, placing it with `transform(p)` and its normals with `normal_m`.
-    fn add_model(&mut self, model: ObjModel, linear: Mat3, translate: Vec3) {
-        let ObjModel { mesh, materials, textures, warnings } = model;
-        let mat_base = self.add_materials(&materials, textures, warnings);
-        let (pos_base, n_base, uv_base) =
-            (self.mesh.positions.len() as u32, self.mesh.normals.len() as u32, self.mesh.uvs.len() as u32);
-        let normal_m = linear.inverse().transpose();
-        // A mirroring transform turns counter-clockwise into clockwise: swap two corners
-        // so that front faces (and one-sided emitters) stay on the same side.
-        let mirrored = linear.determinant() < 0.0;
-        let out = &mut self.mesh;
-        out.positions.extend(mesh.positions.iter().map(|&p| linear * p + translate));
-        out.normals.extend(mesh.normals.iter().map(|&n| (normal_m * n).normalize_or_zero()));
-        out.uvs.extend_from_slice(&mesh.uvs);
-        let shift = |idx: [u32; 3], base: u32| idx.map(|i| if i == NONE { NONE } else { i + base });
-        out.tris.extend(mesh.tris.iter().map(|t| {
-            let mut t = super::Tri {
-                v: shift(t.v, pos_base),
-                n: shift(t.n, n_base),
-                uv: shift(t.uv, uv_base),
-                material: t.material + mat_base,
-            };
-            if mirrored {
-                t.v.swap(1, 2);
-                t.n.swap(1, 2);
-                t.uv.swap(1, 2);
-            }
-            t
-        }));
-    }
-}
-
 fn vec3(v: [f32; 3]) -> Vec3 {
     Vec3::from_array(v)
 }
@@ -245,7 +170,7 @@ fn assemble(file: &SceneFile, text: &str, name: &str, base: &Path) -> Result<Sce
 
     // Meshes, each OBJ read once (see `place_meshes`).
     let mut b = Builder::default();
-    place_meshes(&mut b, &file.mesh, name, base, &invalid)?;
+    super::placement::place_meshes(&mut b, &file.mesh, name, base, &invalid)?;
     // Spheres, each with its inline material.
     for (i, s) in file.sphere.iter().enumerate() {
         let field = |k: &str| format!("sphere[{i}].{k}");
@@ -306,91 +231,6 @@ fn assemble(file: &SceneFile, text: &str, name: &str, base: &Path) -> Result<Sce
         }
     };
     Ok(finish(b, camera, settings, lights, background, instances))
-}
-
-/// The most meshes a scene may place, copies included: each costs a transform pair and
-/// a box before the first ray (about 200 bytes), and a scene file is at most 16 MiB.
-pub const MAX_COPIES: usize = 1_000_000;
-
-/// Reads each `[[mesh]]` table's OBJ once and places its copies: an OBJ placed once is
-/// added to the scene's own triangles (as before instancing existed, bit for bit); one
-/// placed more than once (several tables, or `instance` lists) is stored once and its
-/// copies are instances, unless it emits light (its triangles are then lights, one per
-/// copy, so each copy is added).
-fn place_meshes(
-    b: &mut Builder,
-    meshes: &[super::file::MeshDesc],
-    name: &str,
-    base: &Path,
-    invalid: &dyn Fn(String, String) -> SceneError,
-) -> Result<(), SceneError> {
-    let mut uses: HashMap<&str, usize> = HashMap::new();
-    let mut total = 0usize;
-    for (i, m) in meshes.iter().enumerate() {
-        *uses.entry(m.obj.as_str()).or_default() += m.instance.len().max(1);
-        total += m.instance.len().max(1);
-        if total > MAX_COPIES {
-            let message = format!("more than {MAX_COPIES} placed meshes in one scene");
-            return Err(invalid(format!("mesh[{i}].instance"), message));
-        }
-    }
-    let mut loaded: HashMap<&str, ObjModel> = HashMap::new();
-    let mut instanced: HashMap<&str, u32> = HashMap::new();
-    for (i, m) in meshes.iter().enumerate() {
-        let field = |k: &str| format!("mesh[{i}].{k}");
-        let bad = |(k, message): (String, String)| invalid(field(&k), message);
-        let own = super::placement::of_mesh(m).map_err(bad)?;
-        let copies: Vec<Placement> = if m.instance.is_empty() {
-            vec![own]
-        } else {
-            let each = m.instance.iter().enumerate().map(|(k, d)| super::placement::of_instance(d, k));
-            each.map(|p| p.map(|p| own.then(p)).map_err(bad)).collect::<Result<_, _>>()?
-        };
-        let obj = m.obj.as_str();
-        if !loaded.contains_key(obj) && !instanced.contains_key(obj) {
-            let model = load_obj_as(&base.join(obj), &super::obj::shown_beside(name, obj))?;
-            let times = uses[obj];
-            if times > 1 && model.materials.iter().any(|d| d.ke.max_element() > 0.0) {
-                b.warnings.push(format!(
-                    "{obj}: placed {times} times, but it emits light, so each copy is stored (emitting triangles are lights)"
-                ));
-            }
-            loaded.insert(obj, model);
-        }
-        let remaining = uses.get_mut(obj).expect("counted above");
-        if let Some(model) = loaded.get(obj)
-            && !model.materials.iter().any(|d| d.ke.max_element() > 0.0)
-            && *remaining > 1
-            && !instanced.contains_key(obj)
-        {
-            let model = loaded.remove(obj).expect("just found");
-            instanced.insert(obj, b.add_instanced(model));
-        }
-        match instanced.get(obj) {
-            Some(&mesh) => {
-                for (k, p) in copies.into_iter().enumerate() {
-                    let copy = instances::place(mesh, p.affine()).map_err(|e| {
-                        let table =
-                            if m.instance.is_empty() { format!("mesh[{i}]") } else { field(&format!("instance[{k}]")) };
-                        invalid(table, e.to_string())
-                    })?;
-                    b.copies.push(copy);
-                }
-            }
-            None => {
-                for p in copies {
-                    *remaining -= 1;
-                    let model = if *remaining == 0 {
-                        loaded.remove(obj).expect("kept until its last use")
-                    } else {
-                        loaded[obj].clone()
-                    };
-                    b.add_model(model, p.linear, p.translate);
-                }
-            }
-        }
-    }
-    Ok(())
 }
 
 fn sphere_material(

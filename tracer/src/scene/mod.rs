@@ -2,6 +2,7 @@
 //! its ray queries.
 
 pub mod assets;
+mod builder;
 pub mod file;
 pub mod files;
 pub mod generate;

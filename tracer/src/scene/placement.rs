@@ -1,9 +1,15 @@
 //! Where a model goes: the transform fields of a `[[mesh]]` table and of each of its
-//! `instance` copies, as a linear map and a translation.
+//! `instance` copies, as a linear map and a translation; and the scene's meshes placed,
+//! each OBJ read once, stored flat or as instances (`place_meshes`).
+
+use std::collections::HashMap;
+use std::path::Path;
 
 use glam::{Affine3A, Mat3, Vec3};
 
 use super::file::{InstanceDesc, MeshDesc, RotateDesc, Scale, UpAxis};
+use super::obj::ObjModel;
+use crate::accel::instances;
 use crate::math;
 
 /// `p ↦ linear · p + translate`.
@@ -145,6 +151,91 @@ fn from_rows(m: &[[f32; 4]; 4]) -> Result<Placement, String> {
         return Err("is not invertible (its 3×3 part has determinant 0)".into());
     }
     Ok(Placement { linear, translate: Vec3::new(m[0][3], m[1][3], m[2][3]) })
+}
+
+/// The most meshes a scene may place, copies included: each costs a transform pair and
+/// a box before the first ray (about 200 bytes), and a scene file is at most 16 MiB.
+pub const MAX_COPIES: usize = 1_000_000;
+
+/// Reads each `[[mesh]]` table's OBJ once and places its copies: an OBJ placed once is
+/// added to the scene's own triangles (as before instancing existed, bit for bit); one
+/// placed more than once (several tables, or `instance` lists) is stored once and its
+/// copies are instances, unless it emits light (its triangles are then lights, one per
+/// copy, so each copy is added).
+pub(super) fn place_meshes<E: From<super::obj::ObjError>>(
+    b: &mut super::builder::Builder,
+    meshes: &[MeshDesc],
+    name: &str,
+    base: &Path,
+    invalid: &dyn Fn(String, String) -> E,
+) -> Result<(), E> {
+    let mut uses: HashMap<&str, usize> = HashMap::new();
+    let mut total = 0usize;
+    for (i, m) in meshes.iter().enumerate() {
+        *uses.entry(m.obj.as_str()).or_default() += m.instance.len().max(1);
+        total += m.instance.len().max(1);
+        if total > MAX_COPIES {
+            let message = format!("more than {MAX_COPIES} placed meshes in one scene");
+            return Err(invalid(format!("mesh[{i}].instance"), message));
+        }
+    }
+    let mut loaded: HashMap<&str, ObjModel> = HashMap::new();
+    let mut instanced: HashMap<&str, u32> = HashMap::new();
+    for (i, m) in meshes.iter().enumerate() {
+        let field = |k: &str| format!("mesh[{i}].{k}");
+        let bad = |(k, message): (String, String)| invalid(field(&k), message);
+        let own = of_mesh(m).map_err(bad)?;
+        let copies: Vec<Placement> = if m.instance.is_empty() {
+            vec![own]
+        } else {
+            let each = m.instance.iter().enumerate().map(|(k, d)| of_instance(d, k));
+            each.map(|p| p.map(|p| own.then(p)).map_err(bad)).collect::<Result<_, _>>()?
+        };
+        let obj = m.obj.as_str();
+        if !loaded.contains_key(obj) && !instanced.contains_key(obj) {
+            let model = super::obj::load_obj_as(&base.join(obj), &super::obj::shown_beside(name, obj))?;
+            let times = uses[obj];
+            if times > 1 && model.materials.iter().any(|d| d.ke.max_element() > 0.0) {
+                b.warnings.push(format!(
+                    "{obj}: placed {times} times, but it emits light, so each copy is stored (emitting triangles are lights)"
+                ));
+            }
+            loaded.insert(obj, model);
+        }
+        let remaining = uses.get_mut(obj).expect("counted above");
+        if let Some(model) = loaded.get(obj)
+            && !model.materials.iter().any(|d| d.ke.max_element() > 0.0)
+            && *remaining > 1
+            && !instanced.contains_key(obj)
+        {
+            let model = loaded.remove(obj).expect("just found");
+            instanced.insert(obj, b.add_instanced(model));
+        }
+        match instanced.get(obj) {
+            Some(&mesh) => {
+                for (k, p) in copies.into_iter().enumerate() {
+                    let copy = instances::place(mesh, p.affine()).map_err(|e| {
+                        let table =
+                            if m.instance.is_empty() { format!("mesh[{i}]") } else { field(&format!("instance[{k}]")) };
+                        invalid(table, e.to_string())
+                    })?;
+                    b.copies.push(copy);
+                }
+            }
+            None => {
+                for p in copies {
+                    *remaining -= 1;
+                    let model = if *remaining == 0 {
+                        loaded.remove(obj).expect("kept until its last use")
+                    } else {
+                        loaded[obj].clone()
+                    };
+                    b.add_model(model, p.linear, p.translate);
+                }
+            }
+        }
+    }
+    Ok(())
 }
 
 #[cfg(test)]
