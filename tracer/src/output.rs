@@ -257,6 +257,24 @@ pub fn tonemap(p: Vec3) -> [u8; 3] {
     [q(p.x), q(p.y), q(p.z)]
 }
 
+/// A tone-mapped PNG of `image` (each radiance scaled by `scale` first: 2^stops of
+/// exposure), in memory: the dashboard's live image.
+pub fn png_bytes(image: &impl Pixels, scale: f32) -> Result<Vec<u8>, String> {
+    use image::ImageEncoder;
+    let (w, h) = image.size();
+    let mut buf = Vec::with_capacity(w as usize * h as usize * 3);
+    for y in 0..h {
+        for x in 0..w {
+            buf.extend_from_slice(&tonemap(image.pixel(x, y).0 * scale));
+        }
+    }
+    let mut out = Vec::new();
+    image::codecs::png::PngEncoder::new(&mut out)
+        .write_image(&buf, w, h, image::ExtendedColorType::Rgb8)
+        .map_err(|e| e.to_string())?;
+    Ok(out)
+}
+
 pub fn write_png(image: &Image, path: &Path) -> Result<(), OutputError> {
     let mut buf = Vec::with_capacity(image.pixels.len() * 3);
     for p in &image.pixels {

@@ -17,6 +17,7 @@ use crate::commands::follow::{Followed, JobFeed, follow};
 use crate::commands::in_process::execute_in_process;
 use crate::commands::local::LocalWorkers;
 use crate::commands::progress::{JobBar, summary};
+use crate::edge::http::HttpServer;
 use crate::edge::server::Server;
 use crate::farm::Shared;
 use crate::farm::assets::{AssetRef, AssetStore, LocalScene};
@@ -134,6 +135,10 @@ pub struct RunArgs {
     /// No progress bar.
     #[arg(long, short)]
     pub quiet: bool,
+    /// Serve the live dashboard (and /metrics) on this loopback address, e.g.
+    /// 127.0.0.1:8080; its URL, with a token for this run, is printed.
+    #[arg(long, value_name = "ADDRESS")]
+    pub http: Option<String>,
     /// On Ctrl-C, write nothing. By default an interrupted render writes the image so far
     /// to --output (its `samples` channel shows how far each pixel got).
     #[arg(long)]
@@ -384,6 +389,10 @@ async fn execute(plan: Plan, args: &RunArgs) -> anyhow::Result<()> {
     let name = spec.scene.path.clone();
     let job = submit_job(&shared, name, None, spec, restore.map(|s| s.job))?;
 
+    let dashboard = match &args.http {
+        Some(listen) => Some(start_dashboard(&shared, listen).await?),
+        None => None,
+    };
     let mut renderers = Renderers::start(&shared, &job, workers, threads, &cache, scene_cache.as_deref()).await?;
     let mut bar = JobBar::new(args.quiet);
     let mut feed = LocalJob {
@@ -409,6 +418,9 @@ async fn execute(plan: Plan, args: &RunArgs) -> anyhow::Result<()> {
     bar.finish();
 
     renderers.stop(&shared, outcome.is_ok()).await;
+    if let Some(d) = dashboard {
+        d.stop().await;
+    }
     // Whatever happened, keep what was rendered.
     // (A checkpoint that cannot be written must not cost the image: say so, write it.)
     if let Some(dir) = &checkpoint_dir {
@@ -425,6 +437,19 @@ async fn execute(plan: Plan, args: &RunArgs) -> anyhow::Result<()> {
     }
     let status = outcome?;
     write_result(&shared, &job, args, &status, resumed, (earlier_samples, earlier_rays))
+}
+
+/// The dashboard of a local render, on a loopback address, with a token of this run's
+/// own (printed in the URL, after `#`, so the page keeps it out of requests' lines).
+async fn start_dashboard(shared: &Arc<Shared>, listen: &str) -> anyhow::Result<HttpServer> {
+    if !crate::commands::serve::loopback_only(listen).with_context(|| format!("--http {listen}"))? {
+        anyhow::bail!("--http {listen}: a local render serves its dashboard on loopback only (e.g. 127.0.0.1:8080)");
+    }
+    let token = proto::auth::Token::random().map_err(anyhow::Error::msg)?;
+    let access = proto::auth::Access::default().with_token(token.clone(), proto::auth::Caller::admin());
+    let http = HttpServer::start(Arc::clone(shared), listen, access).await?;
+    eprintln!("dashboard: {}/#token={}", http.url(), token.secret());
+    Ok(http)
 }
 
 /// What renders a local job: worker processes with the server they connect to, or the

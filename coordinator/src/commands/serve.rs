@@ -181,7 +181,7 @@ fn access_of(args: &ServeArgs) -> anyhow::Result<(Access, Option<ServerTlsConfig
 }
 
 /// Whether every address `listen` names is a loopback one.
-fn loopback_only(listen: &str) -> anyhow::Result<bool> {
+pub(crate) fn loopback_only(listen: &str) -> anyhow::Result<bool> {
     use std::net::ToSocketAddrs;
     let addrs: Vec<std::net::SocketAddr> = listen.to_socket_addrs().context("not an address")?.collect();
     Ok(!addrs.is_empty() && addrs.iter().all(|a| a.ip().is_loopback()))

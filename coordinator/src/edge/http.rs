@@ -1,6 +1,6 @@
-//! The farm's HTTP side (axum): Prometheus metrics at `/metrics`, and health for
-//! orchestrators' probes at `/healthz` (the process serves) and `/readyz` (the farm takes
-//! work). Metrics need the admin token whenever the farm has tokens — the same tokens as
+//! The farm's HTTP side (axum): the live dashboard at `/` (its endpoints under `/api`,
+//! in `dashboard`), Prometheus metrics at `/metrics`, and health for orchestrators'
+//! probes at `/healthz` (the process serves) and `/readyz` (the farm takes work). Metrics need the admin token whenever the farm has tokens — the same tokens as
 //! the gRPC API, sent as `Authorization: Bearer …`; the health endpoints say nothing
 //! about the farm and need none.
 
@@ -13,19 +13,15 @@ use axum::Router;
 use axum::extract::State;
 use axum::http::{HeaderMap, StatusCode, header};
 use axum::response::{IntoResponse, Response};
-use axum::routing::get;
+use axum::routing::{get, post};
 use prometheus::{Encoder, Gauge, IntCounter, IntGauge, IntGaugeVec, Opts, Registry, TextEncoder};
 use proto::auth::{Access, Role};
 use tokio::sync::oneshot;
 
+use super::app::App;
+use super::dashboard;
 use crate::farm::Shared;
 use crate::farm::job::JobPhase;
-
-#[derive(Clone)]
-struct App {
-    shared: Arc<Shared>,
-    access: Arc<Access>,
-}
 
 pub struct HttpServer {
     pub addr: SocketAddr,
@@ -40,6 +36,13 @@ impl HttpServer {
             tokio::net::TcpListener::bind(listen).await.with_context(|| format!("--http {listen}: listening"))?;
         let addr = listener.local_addr()?;
         let app = Router::new()
+            .route("/", get(dashboard::page))
+            .route("/api/state", get(dashboard::state))
+            .route("/api/events", get(dashboard::events))
+            .route("/api/jobs/{id}/image.png", get(dashboard::image_png))
+            .route("/api/jobs/{id}/image.exr", get(dashboard::image_exr))
+            .route("/api/jobs/{id}/tiles", get(dashboard::tiles))
+            .route("/api/jobs/{id}/{action}", post(dashboard::action))
             .route("/metrics", get(metrics))
             .route("/healthz", get(|| async { "ok\n" }))
             .route("/readyz", get(ready))

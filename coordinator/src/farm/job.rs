@@ -647,6 +647,16 @@ impl Job {
     }
 
     /// Units currently leased to `worker`.
+    /// Each tile with the fraction of its samples merged (0 to 1).
+    pub fn tile_progress(&self) -> Vec<(Tile, f32)> {
+        let mut done = vec![0u64; self.tiles.len()];
+        for u in self.units.iter().filter(|u| u.state == UnitState::Done) {
+            done[u.tile_index] += u64::from(u.samples.len());
+        }
+        let spp = f64::from(self.spp.max(1));
+        self.tiles.iter().zip(done).map(|(a, d)| (a.tile, (d as f64 / spp).min(1.0) as f32)).collect()
+    }
+
     /// Units waiting for a worker: pending, or under check and waiting for a second answer.
     pub fn queued(&self) -> usize {
         self.pending.len() + self.checking.len()

@@ -1,0 +1,338 @@
+//! The live dashboard: one page (HTML, JS and CSS in `dashboard/index.html`, embedded in
+//! the binary) and the JSON, image and event endpoints it reads. Jobs and workers come
+//! from `/api/state`; `/api/events` (Server-Sent Events) says when a job's image changed,
+//! and the page then loads `/api/jobs/ID/image.png` (the current merge, tone-mapped at
+//! the page's exposure) and `/tiles` (each tile's progress, for the overlay). Actions are
+//! POSTs that carry an `X-Tilefarm` header (a page of another site cannot add one).
+//!
+//! Who may see what is the gRPC API's rule: a token from `Authorization: Bearer …` or
+//! the page's `tilefarm_token` cookie; a user sees and acts on their own jobs only.
+
+use std::convert::Infallible;
+use std::time::{Duration, Instant};
+
+use axum::Json;
+use axum::extract::{Path, Query, State};
+use axum::http::{HeaderMap, StatusCode, header};
+use axum::response::sse::{Event, KeepAlive, Sse};
+use axum::response::{Html, IntoResponse, Response};
+use proto::auth::{Caller, Role};
+use serde::{Deserialize, Serialize};
+
+use super::app::App;
+use crate::farm::state::JobChange;
+use crate::farm::status::JobStatus;
+
+const PAGE: &str = include_str!("dashboard/index.html");
+
+/// How often the event stream looks for merged batches: well within the second the page
+/// promises between a batch landing and its image.
+const EVENT_POLL: Duration = Duration::from_millis(150);
+
+pub(super) async fn page() -> Html<&'static str> {
+    Html(PAGE)
+}
+
+/// Why a request is refused: its status and a line of text.
+struct Refused(StatusCode, String);
+
+impl IntoResponse for Refused {
+    fn into_response(self) -> Response {
+        (self.0, self.1).into_response()
+    }
+}
+
+/// The caller, from the header or the cookie; or the refusal.
+fn caller(app: &App, headers: &HeaderMap) -> Result<Caller, Refused> {
+    let cookie = headers.get_all(header::COOKIE).iter().filter_map(|v| v.to_str().ok()).find_map(|c| {
+        c.split(';').find_map(|kv| kv.trim().strip_prefix("tilefarm_token=").map(|t| format!("Bearer {t}")))
+    });
+    let bearer = headers.get(header::AUTHORIZATION).and_then(|v| v.to_str().ok()).map(str::to_string).or(cookie);
+    app.access
+        .identify(bearer.as_deref(), None)
+        .map_err(|e| Refused(StatusCode::UNAUTHORIZED, format!("{}\n", e.message())))
+        .and_then(|c| match c.role {
+            Role::Worker => Err(Refused(StatusCode::FORBIDDEN, "a worker certificate has no dashboard\n".into())),
+            _ => Ok(c),
+        })
+}
+
+#[derive(Serialize)]
+struct JobRow {
+    id: String,
+    name: String,
+    owner: String,
+    state: &'static str,
+    paused: bool,
+    priority: u32,
+    width: u32,
+    height: u32,
+    units_done: u64,
+    units_total: u64,
+    samples_done: u64,
+    samples_total: u64,
+    samples_per_s: f64,
+    submitted_unix_s: f64,
+    error: String,
+}
+
+impl From<JobStatus> for JobRow {
+    fn from(s: JobStatus) -> Self {
+        Self {
+            id: s.job_id,
+            name: s.scene,
+            owner: s.owner,
+            state: s.state.name(),
+            paused: s.paused,
+            priority: s.priority,
+            width: s.width,
+            height: s.height,
+            units_done: s.units_done,
+            units_total: s.units_total,
+            samples_done: s.samples_done,
+            samples_total: s.samples_total,
+            samples_per_s: s.samples_per_s,
+            submitted_unix_s: s.submitted_unix_s,
+            error: s.error,
+        }
+    }
+}
+
+#[derive(Serialize)]
+struct WorkerRow {
+    id: u64,
+    host: String,
+    threads: u32,
+    units_held: usize,
+    units_done: u64,
+    last_seen_s: f64,
+    quarantined: bool,
+}
+
+#[derive(Serialize)]
+struct FarmState {
+    jobs: Vec<JobRow>,
+    workers: Vec<WorkerRow>,
+}
+
+pub(super) async fn state(State(app): State<App>, headers: HeaderMap) -> Response {
+    let who = match caller(&app, &headers) {
+        Ok(c) => c,
+        Err(r) => return r.into_response(),
+    };
+    let farm = app.shared.farm();
+    let now = Instant::now();
+    let jobs = farm.statuses_of(now, |owner| who.may_touch(owner)).into_iter().map(JobRow::from).collect();
+    let workers = farm
+        .workers
+        .values()
+        .map(|w| WorkerRow {
+            id: w.id,
+            host: w.hostname.clone(),
+            threads: w.threads,
+            units_held: farm.jobs.iter().map(|e| e.job.held_by(w.id)).sum(),
+            units_done: w.units_done,
+            last_seen_s: now.saturating_duration_since(w.last_seen).as_secs_f64(),
+            quarantined: w.quarantined,
+        })
+        .collect();
+    Json(FarmState { jobs, workers }).into_response()
+}
+
+/// `(job, units merged, state)` of the jobs `who` may see: what the event stream watches.
+fn versions(app: &App, who: &Caller) -> Vec<(String, u64, &'static str)> {
+    let farm = app.shared.farm();
+    let visible = farm.jobs.iter().filter(|e| who.may_touch(e.job.owner.as_deref()));
+    visible.map(|e| (e.job.id.clone(), e.job.merged, crate::farm::status::status_of(&e.job, 0).state.name())).collect()
+}
+
+/// Server-Sent Events: `job` (data: `{"id":…,"merged":…,"state":…}`) whenever a job
+/// the caller may see merged a batch or changed state, checked every [`EVENT_POLL`].
+pub(super) async fn events(State(app): State<App>, headers: HeaderMap) -> Response {
+    let who = match caller(&app, &headers) {
+        Ok(c) => c,
+        Err(r) => return r.into_response(),
+    };
+    let stream = async_stream(app, who);
+    Sse::new(stream).keep_alive(KeepAlive::default()).into_response()
+}
+
+fn async_stream(app: App, who: Caller) -> impl tokio_stream::Stream<Item = Result<Event, Infallible>> {
+    let (tx, rx) = tokio::sync::mpsc::channel(16);
+    tokio::spawn(async move {
+        let mut seen: std::collections::HashMap<String, (u64, &'static str)> = Default::default();
+        loop {
+            for (id, merged, state) in versions(&app, &who) {
+                if seen.get(&id) != Some(&(merged, state)) {
+                    let data = serde_json::json!({ "id": id, "merged": merged, "state": state }).to_string();
+                    if tx.send(Ok(Event::default().event("job").data(data))).await.is_err() {
+                        return;
+                    }
+                    seen.insert(id, (merged, state));
+                }
+            }
+            tokio::time::sleep(EVENT_POLL).await;
+        }
+    });
+    tokio_stream::wrappers::ReceiverStream::new(rx)
+}
+
+/// The job `id` if `who` may see it, else the refusal.
+fn visible(app: &App, who: &Caller, id: &str) -> Result<(), Refused> {
+    let farm = app.shared.farm();
+    match farm.entry(id) {
+        Ok(e) if who.may_touch(e.job.owner.as_deref()) => Ok(()),
+        Ok(_) => Err(Refused(StatusCode::FORBIDDEN, format!("{id} is not one of your jobs\n"))),
+        Err(e) => Err(Refused(StatusCode::NOT_FOUND, format!("{e}\n"))),
+    }
+}
+
+#[derive(Deserialize)]
+pub(super) struct Exposure {
+    #[serde(default)]
+    exposure: f32,
+}
+
+/// The current merge, tone-mapped after scaling by 2^exposure (stops, −20 to 20).
+pub(super) async fn image_png(
+    State(app): State<App>,
+    headers: HeaderMap,
+    Path(id): Path<String>,
+    Query(q): Query<Exposure>,
+) -> Response {
+    let who = match caller(&app, &headers) {
+        Ok(c) => c,
+        Err(r) => return r.into_response(),
+    };
+    if let Err(r) = visible(&app, &who, &id) {
+        return r.into_response();
+    }
+    let tiles = {
+        let farm = app.shared.farm();
+        match farm.entry(&id) {
+            Ok(e) if e.job.width > 0 && !e.job.is_evicted() => e.job.image_tiles(),
+            _ => return (StatusCode::NOT_FOUND, "no image in memory for this job\n").into_response(),
+        }
+    };
+    let scale = 2f32.powf(if q.exposure.is_finite() { q.exposure.clamp(-20.0, 20.0) } else { 0.0 });
+    match tokio::task::spawn_blocking(move || tracer::output::png_bytes(&tiles.mosaic(), scale)).await {
+        Ok(Ok(png)) => {
+            ([(header::CONTENT_TYPE, "image/png"), (header::CACHE_CONTROL, "no-store")], png).into_response()
+        }
+        Ok(Err(e)) => (StatusCode::INTERNAL_SERVER_ERROR, e).into_response(),
+        Err(e) => (StatusCode::INTERNAL_SERVER_ERROR, e.to_string()).into_response(),
+    }
+}
+
+/// The finished (or so far) image as the EXR `fetch` writes.
+pub(super) async fn image_exr(State(app): State<App>, headers: HeaderMap, Path(id): Path<String>) -> Response {
+    let who = match caller(&app, &headers) {
+        Ok(c) => c,
+        Err(r) => return r.into_response(),
+    };
+    if let Err(r) = visible(&app, &who, &id) {
+        return r.into_response();
+    }
+    let stored = app.shared.farm().entry(&id).ok().and_then(|e| e.stored.clone());
+    let bytes = match stored {
+        Some(path) => tokio::fs::read(&path).await.map_err(|e| e.to_string()),
+        None => {
+            let image = {
+                let farm = app.shared.farm();
+                match farm.entry(&id) {
+                    Ok(e) if e.job.width > 0 => (e.job.image_tiles(), e.render_info()),
+                    _ => return (StatusCode::NOT_FOUND, "no image for this job\n").into_response(),
+                }
+            };
+            tokio::task::spawn_blocking(move || tracer::output::exr_bytes(&image.0.mosaic(), image.1.as_ref()))
+                .await
+                .map_err(|e| e.to_string())
+                .and_then(|r| r)
+        }
+    };
+    match bytes {
+        Ok(b) => {
+            app.shared.meters.bytes_out.inc_by(b.len() as u64);
+            let disposition = format!("attachment; filename=\"{id}.exr\"");
+            ([(header::CONTENT_TYPE, "image/x-exr".to_string()), (header::CONTENT_DISPOSITION, disposition)], b)
+                .into_response()
+        }
+        Err(e) => (StatusCode::INTERNAL_SERVER_ERROR, e).into_response(),
+    }
+}
+
+#[derive(Serialize)]
+struct TileRow {
+    x: u32,
+    y: u32,
+    w: u32,
+    h: u32,
+    /// Samples merged over samples wanted, 0 to 1.
+    done: f32,
+}
+
+/// Each tile's progress, for the page's overlay.
+pub(super) async fn tiles(State(app): State<App>, headers: HeaderMap, Path(id): Path<String>) -> Response {
+    let who = match caller(&app, &headers) {
+        Ok(c) => c,
+        Err(r) => return r.into_response(),
+    };
+    if let Err(r) = visible(&app, &who, &id) {
+        return r.into_response();
+    }
+    let farm = app.shared.farm();
+    let Ok(e) = farm.entry(&id) else { return StatusCode::NOT_FOUND.into_response() };
+    let rows: Vec<TileRow> = e
+        .job
+        .tile_progress()
+        .into_iter()
+        .map(|(t, done)| TileRow { x: t.x0, y: t.y0, w: t.width, h: t.height, done })
+        .collect();
+    Json(rows).into_response()
+}
+
+#[derive(Deserialize)]
+pub(super) struct Value {
+    value: Option<u32>,
+}
+
+/// `POST /api/jobs/ID/{cancel,pause,resume,priority,spp}` (the last two with `?value=N`).
+pub(super) async fn action(
+    State(app): State<App>,
+    headers: HeaderMap,
+    Path((id, what)): Path<(String, String)>,
+    Query(v): Query<Value>,
+) -> Response {
+    let who = match caller(&app, &headers) {
+        Ok(c) => c,
+        Err(r) => return r.into_response(),
+    };
+    if headers.get("x-tilefarm").is_none() {
+        return (StatusCode::FORBIDDEN, "actions need the X-Tilefarm header (sent by the dashboard)\n").into_response();
+    }
+    if let Err(r) = visible(&app, &who, &id) {
+        return r.into_response();
+    }
+    let change = match what.as_str() {
+        "cancel" => {
+            return match app.shared.cancel(&id) {
+                Ok(s) => Json(JobRow::from(s)).into_response(),
+                Err(e) => (StatusCode::BAD_REQUEST, format!("{e}\n")).into_response(),
+            };
+        }
+        "pause" => JobChange { paused: Some(true), ..JobChange::default() },
+        "resume" => JobChange { paused: Some(false), ..JobChange::default() },
+        "priority" => JobChange { priority: Some(v.value.unwrap_or(0)), ..JobChange::default() },
+        "spp" => JobChange { spp: Some(v.value.unwrap_or(0)), ..JobChange::default() },
+        _ => return (StatusCode::NOT_FOUND, format!("no action {what}\n")).into_response(),
+    };
+    let mut farm = app.shared.farm();
+    if let Err(e) = farm.update_job(&id, &change) {
+        return (StatusCode::BAD_REQUEST, format!("{e}\n")).into_response();
+    }
+    tracing::info!(job = %id, ?change, by = %who.name, "job changed from the dashboard");
+    match farm.status(&id, Instant::now()) {
+        Ok(s) => Json(JobRow::from(s)).into_response(),
+        Err(e) => (StatusCode::NOT_FOUND, format!("{e}\n")).into_response(),
+    }
+}
