@@ -52,7 +52,7 @@ fn the_dashboard_shows_the_render_live_and_cancels_it() {
     println!("browser: {said}");
     assert!(std::fs::metadata(&shot).map(|m| m.len() > 10_000).unwrap_or(false), "a screenshot at {}", shot.display());
 
-    // The page's latencies: from a batch's event to its image shown.
+    // The page's latencies: from a batch merged on the coordinator to its image shown.
     let latencies: Vec<f64> = said
         .split("\"latencies_ms\":[")
         .nth(1)
@@ -60,7 +60,7 @@ fn the_dashboard_shows_the_render_live_and_cancels_it() {
         .map(|s| s.split(',').filter_map(|x| x.trim().parse().ok()).collect())
         .unwrap_or_default();
     assert!(!latencies.is_empty(), "the page measured no update");
-    assert!(latencies.iter().all(|&ms| ms < 850.0), "an image came later than 1 s after its batch: {latencies:?}");
+    assert!(latencies.iter().all(|&ms| ms < 1000.0), "an image came later than 1 s after its batch: {latencies:?}");
 
     let status = list_jobs(&coord.url).into_iter().find(|j| j.job_id == job).expect("the job is listed");
     assert_eq!(status.state, proto::JobState::Cancelled as i32, "the page's cancel reached the farm");

@@ -97,3 +97,28 @@ fn deployment_files_use_only_real_flags() {
     check("workers.yaml", flags(&args(&k8s("workers.yaml"))), &worker);
     assert!(checked >= 20, "{checked} flags checked");
 }
+
+#[test]
+fn systemd_units_verify() {
+    if Command::new("systemd-analyze").arg("--version").output().is_err() {
+        println!("SKIPPED: systemd-analyze is not installed (Debian's systemd; .ci/run installs it)");
+        return;
+    }
+    let dir = TempDir::new("units");
+    // The units name /usr/local/bin; verify checks that the programs exist, so point
+    // them at the binaries just built. The worker template as one of its instances.
+    for (unit, as_name) in [
+        ("tilefarm-coordinator.service", "tilefarm-coordinator.service"),
+        ("tilefarm-worker@.service", "tilefarm-worker@worker-3.service"),
+    ] {
+        let text = std::fs::read_to_string(deploy().join("systemd").join(unit)).unwrap();
+        let text = text
+            .replace("/usr/local/bin/coordinator", bin("coordinator").to_str().unwrap())
+            .replace("/usr/local/bin/worker", bin("worker").to_str().unwrap());
+        let path = dir.path(as_name);
+        std::fs::write(&path, text).unwrap();
+        let out = run(Command::new("systemd-analyze").arg("verify").arg(&path), LIMIT);
+        let said = String::from_utf8_lossy(&out.stderr).to_string() + &String::from_utf8_lossy(&out.stdout);
+        assert!(out.status.success() && said.trim().is_empty(), "{unit}: {said}");
+    }
+}

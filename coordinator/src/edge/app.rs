@@ -1,6 +1,7 @@
 //! What every handler of the HTTP side shares: the farm and who may call.
 
-use std::sync::Arc;
+use std::collections::VecDeque;
+use std::sync::{Arc, Mutex};
 
 use proto::auth::Access;
 
@@ -10,4 +11,31 @@ use crate::farm::Shared;
 pub(super) struct App {
     pub(super) shared: Arc<Shared>,
     pub(super) access: Arc<Access>,
+    /// The dashboard's latest PNGs, shared by every page that shows the same merge at
+    /// the same exposure (each is encoded once, however many pages are open).
+    pub(super) images: Arc<Mutex<ImageCache>>,
+}
+
+/// Which image: (job, results merged, the exposure's bits).
+pub(super) type ImageKey = (String, u64, u32);
+
+/// A few recent tone-mapped images, by [`ImageKey`].
+#[derive(Default)]
+pub(super) struct ImageCache {
+    entries: VecDeque<(ImageKey, Arc<Vec<u8>>)>,
+}
+
+impl ImageCache {
+    const KEPT: usize = 8;
+
+    pub(super) fn get(&self, key: &ImageKey) -> Option<Arc<Vec<u8>>> {
+        self.entries.iter().find(|(k, _)| k == key).map(|(_, v)| Arc::clone(v))
+    }
+
+    pub(super) fn put(&mut self, key: ImageKey, png: Arc<Vec<u8>>) {
+        if self.entries.len() == Self::KEPT {
+            self.entries.pop_front();
+        }
+        self.entries.push_back((key, png));
+    }
 }

@@ -9,6 +9,7 @@
 //! the page's `tilefarm_token` cookie; a user sees and acts on their own jobs only.
 
 use std::convert::Infallible;
+use std::sync::Arc;
 use std::time::{Duration, Instant};
 
 use axum::Json;
@@ -139,14 +140,25 @@ pub(super) async fn state(State(app): State<App>, headers: HeaderMap) -> Respons
     Json(FarmState { jobs, workers }).into_response()
 }
 
-/// `(job, units merged, state)` of the jobs `who` may see: what the event stream watches.
-fn versions(app: &App, who: &Caller) -> Vec<(String, u64, &'static str)> {
+/// What the event stream watches of a job: results merged, the last one's time (ms
+/// since the Unix epoch), and its state.
+type Version = (u64, u64, &'static str);
+
+/// The jobs `who` may see, with their [`Version`].
+fn versions(app: &App, who: &Caller) -> Vec<(String, Version)> {
     let farm = app.shared.farm();
     let visible = farm.jobs.iter().filter(|e| who.may_touch(e.job.owner.as_deref()));
-    visible.map(|e| (e.job.id.clone(), e.job.merged, crate::farm::status::status_of(&e.job, 0).state.name())).collect()
+    visible
+        .map(|e| {
+            let j = &e.job;
+            let at = j.last_merged_at.and_then(|t| t.duration_since(std::time::UNIX_EPOCH).ok());
+            let at = at.map_or(0, |d| d.as_millis() as u64);
+            (j.id.clone(), (j.merged, at, crate::farm::status::status_of(j, 0).state.name()))
+        })
+        .collect()
 }
 
-/// Server-Sent Events: `job` (data: `{"id":…,"merged":…,"state":…}`) whenever a job
+/// Server-Sent Events: `job` (data: `{"id":…,"merged":…,"merged_at_ms":…,"state":…}`) whenever a job
 /// the caller may see merged a batch or changed state, checked every [`EVENT_POLL`].
 pub(super) async fn events(State(app): State<App>, headers: HeaderMap) -> Response {
     let who = match caller(&app, &headers) {
@@ -160,15 +172,16 @@ pub(super) async fn events(State(app): State<App>, headers: HeaderMap) -> Respon
 fn async_stream(app: App, who: Caller) -> impl tokio_stream::Stream<Item = Result<Event, Infallible>> {
     let (tx, rx) = tokio::sync::mpsc::channel(16);
     tokio::spawn(async move {
-        let mut seen: std::collections::HashMap<String, (u64, &'static str)> = Default::default();
+        let mut seen: std::collections::HashMap<String, Version> = Default::default();
         loop {
-            for (id, merged, state) in versions(&app, &who) {
-                if seen.get(&id) != Some(&(merged, state)) {
-                    let data = serde_json::json!({ "id": id, "merged": merged, "state": state }).to_string();
-                    if tx.send(Ok(Event::default().event("job").data(data))).await.is_err() {
+            for (id, v) in versions(&app, &who) {
+                if seen.get(&id) != Some(&v) {
+                    let (merged, at, state) = v;
+                    let data = serde_json::json!({ "id": id, "merged": merged, "merged_at_ms": at, "state": state });
+                    if tx.send(Ok(Event::default().event("job").data(data.to_string()))).await.is_err() {
                         return;
                     }
-                    seen.insert(id, (merged, state));
+                    seen.insert(id, v);
                 }
             }
             tokio::time::sleep(EVENT_POLL).await;
@@ -207,21 +220,33 @@ pub(super) async fn image_png(
     if let Err(r) = visible(&app, &who, &id) {
         return r.into_response();
     }
-    let tiles = {
+    let (tiles, merged) = {
         let farm = app.shared.farm();
         match farm.entry(&id) {
-            Ok(e) if e.job.width > 0 && !e.job.is_evicted() => e.job.image_tiles(),
+            Ok(e) if e.job.width > 0 && !e.job.is_evicted() => (e.job.image_tiles(), e.job.merged),
             _ => return (StatusCode::NOT_FOUND, "no image in memory for this job\n").into_response(),
         }
     };
-    let scale = 2f32.powf(if q.exposure.is_finite() { q.exposure.clamp(-20.0, 20.0) } else { 0.0 });
-    match tokio::task::spawn_blocking(move || tracer::output::png_bytes(&tiles.mosaic(), scale)).await {
-        Ok(Ok(png)) => {
-            ([(header::CONTENT_TYPE, "image/png"), (header::CACHE_CONTROL, "no-store")], png).into_response()
+    let stops = if q.exposure.is_finite() { q.exposure.clamp(-20.0, 20.0) } else { 0.0 };
+    let key = (id, merged, stops.to_bits());
+    let cached = app.images.lock().unwrap_or_else(|p| p.into_inner()).get(&key);
+    let png = match cached {
+        Some(png) => png,
+        None => {
+            let encoded =
+                tokio::task::spawn_blocking(move || tracer::output::png_bytes(&tiles.mosaic(), 2f32.powf(stops))).await;
+            match encoded {
+                Ok(Ok(png)) => {
+                    let png = Arc::new(png);
+                    app.images.lock().unwrap_or_else(|p| p.into_inner()).put(key, Arc::clone(&png));
+                    png
+                }
+                Ok(Err(e)) => return (StatusCode::INTERNAL_SERVER_ERROR, e).into_response(),
+                Err(e) => return (StatusCode::INTERNAL_SERVER_ERROR, e.to_string()).into_response(),
+            }
         }
-        Ok(Err(e)) => (StatusCode::INTERNAL_SERVER_ERROR, e).into_response(),
-        Err(e) => (StatusCode::INTERNAL_SERVER_ERROR, e.to_string()).into_response(),
-    }
+    };
+    ([(header::CONTENT_TYPE, "image/png"), (header::CACHE_CONTROL, "no-store")], png.as_ref().clone()).into_response()
 }
 
 /// The finished (or so far) image as the EXR `fetch` writes.

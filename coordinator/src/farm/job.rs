@@ -110,6 +110,8 @@ pub struct Job {
     pub share: super::schedule::Share,
     /// Results merged, ever (a tile thrown away and rendered again counts again).
     pub merged: u64,
+    /// When the last result was merged, on the wall clock (the dashboard's latency).
+    pub last_merged_at: Option<std::time::SystemTime>,
     /// Checks whose answers disagreed.
     pub units_mismatched: u64,
 }
@@ -187,6 +189,7 @@ impl Job {
             units_discarded: 0,
             share: super::schedule::Share::default(),
             merged: 0,
+            last_merged_at: None,
             units_mismatched: 0,
         }
     }
@@ -616,6 +619,7 @@ impl Job {
         self.pending.remove(&r.unit);
         self.units_done += 1;
         self.merged += 1;
+        self.last_merged_at = Some(std::time::SystemTime::now());
         self.samples_done += n as u64 * expected as u64;
         self.rays += r.rays;
         self.nonfinite += r.nonfinite;
@@ -647,14 +651,12 @@ impl Job {
     }
 
     /// Units currently leased to `worker`.
-    /// Each tile with the fraction of its samples merged (0 to 1).
+    /// Each tile with the fraction of its samples merged (0 to 1): a unit covers its
+    /// whole tile, so the tile's first pixel's count is every pixel's.
     pub fn tile_progress(&self) -> Vec<(Tile, f32)> {
-        let mut done = vec![0u64; self.tiles.len()];
-        for u in self.units.iter().filter(|u| u.state == UnitState::Done) {
-            done[u.tile_index] += u64::from(u.samples.len());
-        }
         let spp = f64::from(self.spp.max(1));
-        self.tiles.iter().zip(done).map(|(a, d)| (a.tile, (d as f64 / spp).min(1.0) as f32)).collect()
+        let done = |a: &Accumulation| f64::from(a.counts.first().copied().unwrap_or(0));
+        self.tiles.iter().map(|a| (a.tile, (done(a) / spp).min(1.0) as f32)).collect()
     }
 
     /// Units waiting for a worker: pending, or under check and waiting for a second answer.
@@ -662,10 +664,14 @@ impl Job {
         self.pending.len() + self.checking.len()
     }
 
+    /// Units `worker` holds a lease on (primary or spare). Only units out are looked at
+    /// (the lease clock lists them; a spare only ever rides on a unit out), not every
+    /// unit of the job: the dashboard and the metrics ask often.
     pub fn held_by(&self, worker: WorkerId) -> usize {
-        self.units
-            .iter()
-            .filter(|u| {
+        self.clock
+            .oldest_out()
+            .filter(|&(_, id)| {
+                let u = &self.units[id as usize];
                 matches!(u.state, UnitState::Leased { worker: w, .. } if w == worker)
                     || u.spare.is_some_and(|s| s.worker == worker)
             })
