@@ -116,3 +116,37 @@ fn metrics_need_the_admin_token_and_plain_http_stays_on_loopback() {
     let err = String::from_utf8_lossy(&o.stderr);
     assert!(!o.status.success() && err.contains("--http 0.0.0.0:0") && err.contains("--insecure"), "{err}");
 }
+
+/// The dashboard's event streams poll the farm, so their number is bounded; a stream
+/// whose page went away ends (and frees its place) even when nothing changes.
+#[test]
+fn dashboard_event_streams_are_bounded_and_end_with_their_page() {
+    use std::io::{Read, Write};
+    let dir = TempDir::new("events");
+    let http = format!("127.0.0.1:{}", free_port());
+    let _coord = Coordinator::start(&dir.path("store"), &["--http", &http]);
+    eventually("the HTTP side answering", LIMIT, || std::net::TcpStream::connect(&http).is_ok());
+    let open = |n: usize| -> Vec<std::net::TcpStream> {
+        (0..n)
+            .map(|_| {
+                let mut s = std::net::TcpStream::connect(&http).unwrap();
+                write!(s, "GET /api/events HTTP/1.1\r\nHost: {http}\r\n\r\n").unwrap();
+                s.set_read_timeout(Some(LIMIT)).unwrap();
+                let mut head = [0u8; 12];
+                s.read_exact(&mut head).unwrap();
+                assert_eq!(&head, b"HTTP/1.1 200", "an event stream opens");
+                s
+            })
+            .collect()
+    };
+    let pages = open(256);
+    assert_eq!(http_get(&http, "/api/events", None, LIMIT).0, 503, "the 257th is refused");
+    drop(pages);
+    // The streams notice within their poll (150 ms) and give their places back.
+    eventually("closed streams freeing their places", LIMIT, || {
+        let mut s = std::net::TcpStream::connect(&http).unwrap();
+        write!(s, "GET /api/events HTTP/1.1\r\nHost: {http}\r\nConnection: close\r\n\r\n").unwrap();
+        let mut head = [0u8; 12];
+        s.read_exact(&mut head).is_ok() && &head == b"HTTP/1.1 200"
+    });
+}

@@ -1,6 +1,7 @@
 //! What every handler of the HTTP side shares: the farm and who may call.
 
 use std::collections::VecDeque;
+use std::sync::atomic::AtomicUsize;
 use std::sync::{Arc, Mutex};
 
 use proto::auth::Access;
@@ -14,6 +15,8 @@ pub(super) struct App {
     /// The dashboard's latest PNGs, shared by every page that shows the same merge at
     /// the same exposure (each is encoded once, however many pages are open).
     pub(super) images: Arc<Mutex<ImageCache>>,
+    /// Event streams open now (each polls the farm; bounded).
+    pub(super) event_streams: Arc<AtomicUsize>,
 }
 
 /// Which image: (job, results merged, the exposure's bits).

@@ -10,6 +10,7 @@
 
 use std::convert::Infallible;
 use std::sync::Arc;
+use std::sync::atomic::Ordering;
 use std::time::{Duration, Instant};
 
 use axum::Json;
@@ -165,27 +166,42 @@ pub(super) async fn events(State(app): State<App>, headers: HeaderMap) -> Respon
         Ok(c) => c,
         Err(r) => return r.into_response(),
     };
+    // Each stream polls the farm: their number is bounded.
+    let open = app.event_streams.fetch_add(1, Ordering::SeqCst);
+    if open >= MAX_EVENT_STREAMS {
+        app.event_streams.fetch_sub(1, Ordering::SeqCst);
+        return (StatusCode::SERVICE_UNAVAILABLE, format!("more than {MAX_EVENT_STREAMS} dashboards are open\n"))
+            .into_response();
+    }
     let stream = async_stream(app, who);
     Sse::new(stream).keep_alive(KeepAlive::default()).into_response()
 }
+
+/// Most event streams (open dashboard pages) at once.
+const MAX_EVENT_STREAMS: usize = 256;
 
 fn async_stream(app: App, who: Caller) -> impl tokio_stream::Stream<Item = Result<Event, Infallible>> {
     let (tx, rx) = tokio::sync::mpsc::channel(16);
     tokio::spawn(async move {
         let mut seen: std::collections::HashMap<String, Version> = Default::default();
-        loop {
+        // A first line at once: the response (and the page's `open`) does not wait for
+        // the first change.
+        let _ = tx.send(Ok(Event::default().comment("tilefarm"))).await;
+        // Ends when the page goes (the receiver is dropped), changes or not.
+        while !tx.is_closed() {
             for (id, v) in versions(&app, &who) {
                 if seen.get(&id) != Some(&v) {
                     let (merged, at, state) = v;
                     let data = serde_json::json!({ "id": id, "merged": merged, "merged_at_ms": at, "state": state });
                     if tx.send(Ok(Event::default().event("job").data(data.to_string()))).await.is_err() {
-                        return;
+                        break;
                     }
                     seen.insert(id, v);
                 }
             }
             tokio::time::sleep(EVENT_POLL).await;
         }
+        app.event_streams.fetch_sub(1, Ordering::SeqCst);
     });
     tokio_stream::wrappers::ReceiverStream::new(rx)
 }

@@ -46,7 +46,12 @@ impl HttpServer {
             .route("/metrics", get(metrics))
             .route("/healthz", get(|| async { "ok\n" }))
             .route("/readyz", get(ready))
-            .with_state(App { shared, access: Arc::new(access), images: Default::default() });
+            .with_state(App {
+                shared,
+                access: Arc::new(access),
+                images: Default::default(),
+                event_streams: Default::default(),
+            });
         let (stop, stopped) = oneshot::channel::<()>();
         let task = tokio::spawn(async move {
             axum::serve(listener, app)
