@@ -22,6 +22,7 @@ use proto::auth::{Caller, Role};
 use serde::{Deserialize, Serialize};
 
 use super::app::App;
+use crate::farm::lifecycle::ImageError;
 use crate::farm::state::JobChange;
 use crate::farm::status::JobStatus;
 
@@ -216,6 +217,13 @@ fn visible(app: &App, who: &Caller, id: &str) -> Result<(), Refused> {
     }
 }
 
+/// The caller, if they may see job `id`; else the refusal.
+fn caller_of_job(app: &App, headers: &HeaderMap, id: &str) -> Result<Caller, Refused> {
+    let who = caller(app, headers)?;
+    visible(app, &who, id)?;
+    Ok(who)
+}
+
 #[derive(Deserialize)]
 pub(super) struct Exposure {
     #[serde(default)]
@@ -229,11 +237,7 @@ pub(super) async fn image_png(
     Path(id): Path<String>,
     Query(q): Query<Exposure>,
 ) -> Response {
-    let who = match caller(&app, &headers) {
-        Ok(c) => c,
-        Err(r) => return r.into_response(),
-    };
-    if let Err(r) = visible(&app, &who, &id) {
+    if let Err(r) = caller_of_job(&app, &headers, &id) {
         return r.into_response();
     }
     let (tiles, merged) = {
@@ -267,38 +271,21 @@ pub(super) async fn image_png(
 
 /// The finished (or so far) image as the EXR `fetch` writes.
 pub(super) async fn image_exr(State(app): State<App>, headers: HeaderMap, Path(id): Path<String>) -> Response {
-    let who = match caller(&app, &headers) {
-        Ok(c) => c,
-        Err(r) => return r.into_response(),
-    };
-    if let Err(r) = visible(&app, &who, &id) {
+    if let Err(r) = caller_of_job(&app, &headers, &id) {
         return r.into_response();
     }
-    let stored = app.shared.farm().entry(&id).ok().and_then(|e| e.stored.clone());
-    let bytes = match stored {
-        Some(path) => tokio::fs::read(&path).await.map_err(|e| e.to_string()),
-        None => {
-            let image = {
-                let farm = app.shared.farm();
-                match farm.entry(&id) {
-                    Ok(e) if e.job.width > 0 => (e.job.image_tiles(), e.render_info()),
-                    _ => return (StatusCode::NOT_FOUND, "no image for this job\n").into_response(),
-                }
-            };
-            tokio::task::spawn_blocking(move || tracer::output::exr_bytes(&image.0.mosaic(), image.1.as_ref()))
-                .await
-                .map_err(|e| e.to_string())
-                .and_then(|r| r)
-        }
-    };
-    match bytes {
-        Ok(b) => {
-            app.shared.meters.bytes_out.inc_by(b.len() as u64);
+    let shared = Arc::clone(&app.shared);
+    let name = id.clone();
+    match tokio::task::spawn_blocking(move || shared.image_exr(&name)).await {
+        Ok(Ok(b)) => {
             let disposition = format!("attachment; filename=\"{id}.exr\"");
             ([(header::CONTENT_TYPE, "image/x-exr".to_string()), (header::CONTENT_DISPOSITION, disposition)], b)
                 .into_response()
         }
-        Err(e) => (StatusCode::INTERNAL_SERVER_ERROR, e).into_response(),
+        Ok(Err(ImageError::Unknown(e))) => (StatusCode::NOT_FOUND, format!("{e}\n")).into_response(),
+        Ok(Err(ImageError::None(m))) => (StatusCode::NOT_FOUND, format!("{m}\n")).into_response(),
+        Ok(Err(ImageError::Failed(m))) => (StatusCode::INTERNAL_SERVER_ERROR, m).into_response(),
+        Err(e) => (StatusCode::INTERNAL_SERVER_ERROR, e.to_string()).into_response(),
     }
 }
 
@@ -314,11 +301,7 @@ struct TileRow {
 
 /// Each tile's progress, for the page's overlay.
 pub(super) async fn tiles(State(app): State<App>, headers: HeaderMap, Path(id): Path<String>) -> Response {
-    let who = match caller(&app, &headers) {
-        Ok(c) => c,
-        Err(r) => return r.into_response(),
-    };
-    if let Err(r) = visible(&app, &who, &id) {
+    if let Err(r) = caller_of_job(&app, &headers, &id) {
         return r.into_response();
     }
     let farm = app.shared.farm();

@@ -16,6 +16,7 @@ use proto::auth::{Caller, Role};
 use super::wire::{error_to_status, status_to_proto};
 use crate::farm::Shared;
 use crate::farm::job::UnitResult;
+use crate::farm::lifecycle::ImageError;
 
 /// Longest hostname or version a worker may register with.
 const MAX_NAME_BYTES: usize = 255;
@@ -318,33 +319,15 @@ impl proto::jobs_server::Jobs for JobsService {
         let caller = proto::auth::caller(&req);
         let job = req.into_inner().job_id;
         self.may_touch(&caller, &job)?;
-        // A finished job's image lives in the store (also once the job is forgotten).
-        let known = self.0.farm().entry(&job).ok().map(|e| e.stored.clone());
-        let stored = match known {
-            Some(stored) => stored,
-            None => self.0.store().stored_image(&job).filter(|p| p.is_file()),
-        };
-        if let Some(path) = stored {
-            let bytes =
-                tokio::fs::read(&path).await.map_err(|e| Status::internal(format!("reading the stored image: {e}")))?;
-            self.0.meters.bytes_out.inc_by(bytes.len() as u64);
-            let chunks: Vec<Result<proto::ImageChunk, Status>> =
-                bytes.chunks(proto::ASSET_CHUNK_BYTES).map(|c| Ok(proto::ImageChunk { exr: c.to_vec() })).collect();
-            return Ok(Response::new(Box::pin(tokio_stream::iter(chunks))));
-        }
-        let image = {
-            let farm = self.0.farm();
-            let e = farm.entry(&job).map_err(error_to_status)?;
-            if e.job.width == 0 {
-                return Err(Status::failed_precondition(format!("job {job} has no image (its scene did not load)")));
-            }
-            (e.job.image_tiles(), e.render_info())
-        };
-        let bytes = tokio::task::spawn_blocking(move || tracer::output::exr_bytes(&image.0.mosaic(), image.1.as_ref()))
+        let shared = Arc::clone(&self.0);
+        let bytes = tokio::task::spawn_blocking(move || shared.image_exr(&job))
             .await
             .map_err(|e| Status::internal(e.to_string()))?
-            .map_err(Status::internal)?;
-        self.0.meters.bytes_out.inc_by(bytes.len() as u64);
+            .map_err(|e| match e {
+                ImageError::Unknown(e) => error_to_status(e),
+                ImageError::None(m) => Status::failed_precondition(m),
+                ImageError::Failed(m) => Status::internal(m),
+            })?;
         let chunks: Vec<Result<proto::ImageChunk, Status>> =
             bytes.chunks(proto::ASSET_CHUNK_BYTES).map(|c| Ok(proto::ImageChunk { exr: c.to_vec() })).collect();
         Ok(Response::new(Box::pin(tokio_stream::iter(chunks))))

@@ -299,6 +299,47 @@ fn write_durably(
     Ok(())
 }
 
+/// Why a job's image cannot be given.
+pub enum ImageError {
+    /// No such job, listed or stored.
+    Unknown(FarmError),
+    /// The job has no image (its scene did not load).
+    None(String),
+    /// Reading the stored file or encoding failed.
+    Failed(String),
+}
+
+impl Shared {
+    /// A job's image as an EXR file's bytes: the stored file once finished (also after
+    /// the job is forgotten), else encoded from its tiles now; counted as bytes out.
+    /// Blocking: run it off the async threads.
+    pub fn image_exr(&self, job: &str) -> Result<Vec<u8>, ImageError> {
+        let known = self.farm().entry(job).ok().map(|e| e.stored.clone());
+        let stored = match known {
+            Some(stored) => stored,
+            None => self.store().stored_image(job).filter(|p| p.is_file()),
+        };
+        let bytes = match stored {
+            Some(path) => {
+                std::fs::read(&path).map_err(|e| ImageError::Failed(format!("reading the stored image: {e}")))?
+            }
+            None => {
+                let (tiles, info) = {
+                    let farm = self.farm();
+                    let e = farm.entry(job).map_err(ImageError::Unknown)?;
+                    if e.job.width == 0 {
+                        return Err(ImageError::None(format!("job {job} has no image (its scene did not load)")));
+                    }
+                    (e.job.image_tiles(), e.render_info())
+                };
+                tracer::output::exr_bytes(&tiles.mosaic(), info.as_ref()).map_err(ImageError::Failed)?
+            }
+        };
+        self.meters.bytes_out.inc_by(bytes.len() as u64);
+        Ok(bytes)
+    }
+}
+
 /// What a unit result carries on the wire, about: its sums (3 × 16 bytes a pixel) and
 /// counts (4 bytes a pixel).
 fn result_bytes(r: &UnitResult) -> u64 {
