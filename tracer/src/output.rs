@@ -114,15 +114,25 @@ pub struct RenderInfo {
 impl RenderInfo {
     /// Everything but the time, from the scene as it is rendered.
     pub fn of(scene: &crate::scene::Scene, name: &str, integrator: &str) -> Self {
+        Self::of_view(&scene.camera, &scene.settings, name, integrator)
+    }
+
+    /// [`RenderInfo::of`] a scene's camera and settings (a checked scene has no other).
+    pub fn of_view(
+        camera: &crate::camera::Camera,
+        settings: &crate::scene::RenderSettings,
+        name: &str,
+        integrator: &str,
+    ) -> Self {
         Self {
             scene: name.to_string(),
-            spp: scene.settings.spp,
-            max_depth: scene.settings.max_depth,
-            seed: scene.settings.seed,
+            spp: settings.spp,
+            max_depth: settings.max_depth,
+            seed: settings.seed,
             integrator: integrator.to_string(),
             seconds: 0.0,
-            world_to_camera: scene.camera.world_to_camera().to_cols_array(),
-            world_to_ndc: scene.camera.world_to_ndc().to_cols_array(),
+            world_to_camera: camera.world_to_camera().to_cols_array(),
+            world_to_ndc: camera.world_to_ndc().to_cols_array(),
         }
     }
 }

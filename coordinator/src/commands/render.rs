@@ -173,8 +173,7 @@ impl Drop for TempDir {
 /// with an error naming them.
 pub fn store_local_scene(store: &mut AssetStore, local: &LocalScene) -> anyhow::Result<(AssetRef, Vec<AssetRef>)> {
     let mut put = |p: &Path| -> anyhow::Result<AssetRef> {
-        let bytes = std::fs::read(p).with_context(|| format!("reading {}", p.display()))?;
-        let (sha256, size) = store.put(&bytes)?;
+        let (sha256, size) = store.put_file(p)?;
         Ok(AssetRef { path: local.relative(p), sha256, size })
     };
     let scene = put(&local.scene)?;
@@ -375,7 +374,6 @@ async fn execute(plan: Plan, args: &RunArgs) -> anyhow::Result<()> {
     shared.defaults.confine_scenes = false;
     // Rendering in process needs the scene the coordinator loads; workers load their own.
     shared.defaults.keep_scenes = workers == 0;
-    shared.defaults.prepare_early = false;
     if workers > 0 {
         // The scene it loads for its checks is freed at once: give it back to the system.
         tracer::memory::return_large_buffers_when_freed();

@@ -22,7 +22,8 @@ use crate::farm::lifecycle::ImageError;
 const MAX_NAME_BYTES: usize = 255;
 /// Most units one heartbeat may renew (a worker leases twice its threads).
 const MAX_HELD_PER_HEARTBEAT: usize = 65_536;
-/// Loading jobs named in one lease reply (see `JobDefaults::prepare_early`).
+/// Loading jobs named in one lease reply with no units: an idle worker loads their
+/// scenes while the coordinator checks them.
 const PREPARE_EARLY: usize = 4;
 
 pub struct FarmService(pub Arc<Shared>);
@@ -72,8 +73,7 @@ impl proto::farm_server::Farm for FarmService {
         let units: Vec<proto::Unit> =
             leased.iter().map(|l| proto::wire::unit_to_proto(&l.spec, l.unit, l.tile, l.samples)).collect();
         let retry_after_ms = if units.is_empty() { 250 } else { 0 };
-        let early =
-            if units.is_empty() && self.0.defaults.prepare_early { farm.loading(PREPARE_EARLY) } else { vec![] };
+        let early = if units.is_empty() { farm.loading(PREPARE_EARLY) } else { vec![] };
         let prepare = early.iter().map(|s| proto::wire::job_to_proto(s)).collect();
         Ok(Response::new(proto::LeaseReply { units, retry_after_ms, shutdown: false, prepare }))
     }

@@ -156,6 +156,22 @@ impl AssetStore {
         Ok((sha, bytes.len() as u64))
     }
 
+    /// Stores the file at `path` as [`AssetStore::put`] stores bytes, read in pieces
+    /// (a scene's OBJ may be gigabytes) through an upload.
+    pub fn put_file(&mut self, path: &Path) -> anyhow::Result<(String, u64)> {
+        let mut file = std::fs::File::open(path).with_context(|| format!("reading {}", path.display()))?;
+        let mut up = self.begin_upload()?;
+        let mut buf = vec![0u8; 1 << 20];
+        loop {
+            let n = std::io::Read::read(&mut file, &mut buf).with_context(|| format!("reading {}", path.display()))?;
+            if n == 0 {
+                break;
+            }
+            up.write(&buf[..n])?;
+        }
+        self.finish_upload(up)
+    }
+
     /// Lays out a job's files under `job_dir` by their relative paths and returns the
     /// scene file's path there.
     pub fn materialize(&self, job_dir: &Path, scene: &AssetRef, assets: &[AssetRef]) -> anyhow::Result<PathBuf> {

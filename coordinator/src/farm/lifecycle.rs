@@ -34,16 +34,11 @@ pub struct JobDefaults {
     /// the coordinator renders in process (`render --local-workers 0`). A farm's workers
     /// load their own, and the coordinator's copy would be memory for nothing.
     pub keep_scenes: bool,
-    /// Tell idle workers about jobs still loading, so that they load the scene at the
-    /// same time as the coordinator checks it. Not for `render`'s local workers: they
-    /// share the coordinator's prepared scenes, and on the same cores three loads at
-    /// once would only slow each other down.
-    pub prepare_early: bool,
 }
 
 impl Default for JobDefaults {
     fn default() -> Self {
-        Self { tile: 64, batch_spp: 16, confine_scenes: true, keep_scenes: false, prepare_early: true }
+        Self { tile: 64, batch_spp: 16, confine_scenes: true, keep_scenes: false }
     }
 }
 
@@ -391,23 +386,26 @@ pub fn submit_job(
     Ok(id)
 }
 
+/// Where a job's scene file lies in the store's folder for the job. `fresh` lays the
+/// folder out anew from the store (a job's first load); otherwise the folder its first
+/// load made is read as it is, so that loads running at once never see it half made.
+fn scene_path_of(shared: &Shared, job: &str, spec: &JobSpec, fresh: bool) -> anyhow::Result<std::path::PathBuf> {
+    let store = shared.store();
+    let dir = store.dir().join("jobs").join(job);
+    let laid_out = dir.join(super::assets::safe_relative_path(&spec.scene.path)?);
+    let scene_path =
+        if fresh || !laid_out.is_file() { store.materialize(&dir, &spec.scene, &spec.assets)? } else { laid_out };
+    if shared.defaults.confine_scenes {
+        tracer::scene::assets::check_within(&scene_path, &dir)?;
+    }
+    Ok(scene_path)
+}
+
 /// Loads a job's scene from its files (in the store's folder for the job), with the
-/// job's overrides applied. `fresh` lays the folder out anew from the store (a job's
-/// first load); otherwise the folder its first load made is read as it is, so that
-/// loads running at once never see it half made.
+/// job's overrides applied; `fresh` as for [`scene_path_of`].
 pub fn load_scene_of(shared: &Shared, job: &str, fresh: bool) -> anyhow::Result<tracer::scene::Scene> {
     let spec = Arc::clone(&shared.farm().entry(job)?.spec);
-    let scene_path = {
-        let store = shared.store();
-        let dir = store.dir().join("jobs").join(job);
-        let laid_out = dir.join(super::assets::safe_relative_path(&spec.scene.path)?);
-        let scene_path =
-            if fresh || !laid_out.is_file() { store.materialize(&dir, &spec.scene, &spec.assets)? } else { laid_out };
-        if shared.defaults.confine_scenes {
-            tracer::scene::assets::check_within(&scene_path, &dir)?;
-        }
-        scene_path
-    };
+    let scene_path = scene_path_of(shared, job, &spec, fresh)?;
     // Named as the user named them (`quad.mtl`), not as the job folder's copies.
     let (key, what) = (spec.scene_key(shared.defaults.confine_scenes), format!("job {job}"));
     if let Some(scene) = shared.prepared.as_ref().and_then(|p| p.get(&key, &what)) {
@@ -422,21 +420,50 @@ pub fn load_scene_of(shared: &Shared, job: &str, fresh: bool) -> anyhow::Result<
     Ok(loaded)
 }
 
+/// What starting a job needs of its scene: the whole scene when the coordinator renders
+/// it in process, else only a check (its errors and warnings, camera and settings; the
+/// files are read in blocks and no geometry is kept), while the workers load it.
+enum Prepared {
+    Loaded(Box<tracer::scene::Scene>),
+    Checked(tracer::scene::SceneCheck),
+}
+
+impl Prepared {
+    fn of(shared: &Shared, job: &str) -> anyhow::Result<Self> {
+        if shared.defaults.keep_scenes {
+            return Ok(Self::Loaded(Box::new(load_scene_of(shared, job, true)?)));
+        }
+        let spec = Arc::clone(&shared.farm().entry(job)?.spec);
+        let scene_path = scene_path_of(shared, job, &spec, true)?;
+        let mut checked = tracer::scene::check_scene_as(&scene_path, &spec.scene.path, spec.overrides.up)?;
+        checked.apply(&spec.overrides).map_err(anyhow::Error::msg)?;
+        Ok(Self::Checked(checked))
+    }
+
+    fn view(&self) -> (&tracer::camera::Camera, &tracer::scene::RenderSettings, &[String]) {
+        match self {
+            Self::Loaded(s) => (&s.camera, &s.settings, &s.warnings),
+            Self::Checked(c) => (&c.camera, &c.settings, &c.warnings),
+        }
+    }
+}
+
 /// Loads a job's scene from its files and starts the job (or restores its checkpoint).
 fn load_job(shared: &Arc<Shared>, job: &str, restore: Option<Restored>) -> anyhow::Result<()> {
     let spec = Arc::clone(&shared.farm().entry(job)?.spec);
-    let loaded = load_scene_of(shared, job, true)?;
+    let prepared = Prepared::of(shared, job)?;
+    let (camera, settings, scene_warnings) = prepared.view();
     // The one report of the scene's problems: in the job's status, which whoever follows
     // the job prints (workers keep theirs quiet), and the farm's log.
-    for w in &loaded.warnings {
+    for w in scene_warnings {
         tracing::info!(job = %job, "scene warning: {w}");
     }
-    let warnings = super::job::bounded_warnings(&loaded.warnings);
+    let warnings = super::job::bounded_warnings(scene_warnings);
     let non_negative =
         matches!(spec.integrator, Integrator::Path | Integrator::PathLightOnly | Integrator::PathBsdfOnly);
     let tile = spec.tile_size.unwrap_or(shared.defaults.tile);
     let batch = spec.batch_spp.unwrap_or(shared.defaults.batch_spp);
-    let (w, h, spp) = (loaded.camera.width, loaded.camera.height, loaded.settings.spp);
+    let (w, h, spp) = (camera.width, camera.height, settings.spp);
     let max_bytes = shared.farm().config.max_job_bytes;
     super::job::Job::check_size(w, h, spp, tile, batch, max_bytes).map_err(anyhow::Error::msg)?;
     let mut farm = shared.farm();
@@ -461,21 +488,21 @@ fn load_job(shared: &Arc<Shared>, job: &str, restore: Option<Restored>) -> anyho
             }
         }
     }
-    e.info = Some(tracer::output::RenderInfo::of(&loaded, &spec.scene.path, spec.integrator.name()));
-    e.scene_warnings = loaded.warnings.len();
+    e.info = Some(tracer::output::RenderInfo::of_view(camera, settings, &spec.scene.path, spec.integrator.name()));
+    e.scene_warnings = scene_warnings.len();
     e.job.warnings = warnings;
     let units = e.job.units.len();
-    let unkept = if shared.defaults.keep_scenes {
-        e.scene = Some(Arc::new(loaded));
-        None
-    } else {
-        Some(loaded)
+    let checked = match prepared {
+        Prepared::Loaded(scene) => {
+            e.scene = Some(Arc::from(scene));
+            None
+        }
+        Prepared::Checked(c) => Some(c),
     };
     drop(farm);
-    // Unless kept, its geometry and tree go here, outside the lock (a large scene takes a
-    // while to free).
-    if let Some(scene) = unkept {
-        drop(scene);
+    // What the check read (materials' textures, the positions) is given back.
+    if checked.is_some() {
+        drop(checked);
         tracer::memory::return_free_memory();
     }
     tracing::info!(job = %job, width = w, height = h, spp, tile, batch, units, "job started");

@@ -10,6 +10,14 @@ use crate::accel::instances::{Instance, InstancedMesh};
 use crate::material::{Material, MaterialDesc};
 use crate::texture::Texture;
 
+/// How far a load goes: the whole scene, or only what checking it needs (see
+/// [`super::check`]): the OBJ files are checked, not built.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub(super) enum Depth {
+    Build,
+    Check,
+}
+
 #[derive(Default)]
 pub(super) struct Builder {
     pub(super) mesh: TriangleMesh,
@@ -21,6 +29,10 @@ pub(super) struct Builder {
     /// Meshes stored once, and their placed copies.
     pub(super) instanced: Vec<InstancedMesh>,
     pub(super) copies: Vec<Instance>,
+    /// Triangles placed flat, and in copies: what the scene will hold, counted while
+    /// its files are only checked (the meshes above are then empty).
+    pub(super) flat_triangles: u64,
+    pub(super) copy_triangles: u64,
 }
 
 impl Builder {

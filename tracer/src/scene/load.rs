@@ -6,6 +6,7 @@ use std::path::Path;
 use glam::Vec3;
 
 use super::builder::Builder;
+pub(super) use super::builder::Depth;
 use super::file::{LightDesc, SceneFile, SphereDesc, UpAxis};
 use super::obj::{ObjError, ObjModel, load_obj_as};
 use super::{Geometry, Scene, Sphere};
@@ -64,17 +65,22 @@ pub fn load_scene_as(path: &Path, display: &str, up: UpAxis) -> Result<Scene, Sc
         let model = load_obj_as(path, &display)?;
         return Ok(scene_from_bare_obj(model, up));
     }
-    if up != UpAxis::Y {
-        return Err(SceneError::Invalid {
-            path: display,
-            field: "up".into(),
-            message: "an up axis is given for a bare .obj; in a scene file, set up = \"z\" in its [[mesh]] tables"
-                .into(),
-        });
-    }
+    refuse_up_for_scene_file(&display, up)?;
     let text = read_scene_text(path, &display)?;
     let base = path.parent().unwrap_or(Path::new(".")).to_path_buf();
     scene_from_toml(&text, &display, &base)
+}
+
+/// An up axis belongs to a bare `.obj`; a scene file sets each mesh's own.
+pub(super) fn refuse_up_for_scene_file(display: &str, up: UpAxis) -> Result<(), SceneError> {
+    if up == UpAxis::Y {
+        return Ok(());
+    }
+    Err(SceneError::Invalid {
+        path: display.to_string(),
+        field: "up".into(),
+        message: "an up axis is given for a bare .obj; in a scene file, set up = \"z\" in its [[mesh]] tables".into(),
+    })
 }
 
 /// The two kinds of scene input.
@@ -119,16 +125,52 @@ fn vec3(v: [f32; 3]) -> Vec3 {
     Vec3::from_array(v)
 }
 
-// Long on purpose: One scene assembled in order (camera, materials, meshes, spheres, lights), each step short and commented; the order is the file's.
 fn assemble(file: &SceneFile, text: &str, name: &str, base: &Path) -> Result<Scene, SceneError> {
-    // Errors name the file and the field's line, as TOML's own errors do.
-    let invalid = |field: String, message: String| {
+    let Assembled { mut b, camera, settings, lights, background } =
+        assemble_parts(file, text, name, base, Depth::Build)?;
+    // The copies' triangles are numbered after the scene's own primitives.
+    let instances = match std::mem::take(&mut b.copies) {
+        copies if copies.is_empty() => None,
+        copies => {
+            let first = u32::try_from(b.mesh.tris.len() + b.spheres.len()).unwrap_or(u32::MAX);
+            let meshes = std::mem::take(&mut b.instanced);
+            let made = Instances::new(meshes, copies, first);
+            Some(made.map_err(|e| invalid_in(text, name)("mesh".into(), e.to_string()))?)
+        }
+    };
+    Ok(finish(b, camera, settings, lights, background, instances))
+}
+
+/// A scene file's parts before its geometry is built.
+pub(super) struct Assembled {
+    pub b: Builder,
+    pub camera: Camera,
+    pub settings: RenderSettings,
+    pub lights: Vec<Light>,
+    pub background: Vec3,
+}
+
+/// An error about `field` of the scene file `name`, at the field's line in `text`.
+pub(super) fn invalid_in<'a>(text: &'a str, name: &'a str) -> impl Fn(String, String) -> SceneError + 'a {
+    move |field: String, message: String| {
         let path = match super::file::line_of(text, &field) {
             Some(line) => format!("{name}:{line}"),
             None => name.to_string(),
         };
         SceneError::Invalid { path, field, message }
-    };
+    }
+}
+
+// Long on purpose: One scene assembled in order (camera, materials, meshes, spheres, lights), each step short and commented; the order is the file's.
+pub(super) fn assemble_parts(
+    file: &SceneFile,
+    text: &str,
+    name: &str,
+    base: &Path,
+    depth: Depth,
+) -> Result<Assembled, SceneError> {
+    // Errors name the file and the field's line, as TOML's own errors do.
+    let invalid = invalid_in(text, name);
     let finite3 = |field: String, v: [f32; 3]| {
         if v.iter().all(|x| x.is_finite()) { Ok(vec3(v)) } else { Err(invalid(field, "must be finite".into())) }
     };
@@ -170,7 +212,7 @@ fn assemble(file: &SceneFile, text: &str, name: &str, base: &Path) -> Result<Sce
 
     // Meshes, each OBJ read once (see `place_meshes`).
     let mut b = Builder::default();
-    super::placement::place_meshes(&mut b, &file.mesh, name, base, &invalid)?;
+    super::placement::place_meshes(&mut b, &file.mesh, name, base, depth, &invalid)?;
     // Spheres, each with its inline material.
     for (i, s) in file.sphere.iter().enumerate() {
         let field = |k: &str| format!("sphere[{i}].{k}");
@@ -220,17 +262,7 @@ fn assemble(file: &SceneFile, text: &str, name: &str, base: &Path) -> Result<Sce
         });
     }
     let background = non_negative3("background.radiance".into(), file.background.radiance)?;
-
-    // The copies' triangles are numbered after the scene's own primitives.
-    let instances = match std::mem::take(&mut b.copies) {
-        copies if copies.is_empty() => None,
-        copies => {
-            let first = u32::try_from(b.mesh.tris.len() + b.spheres.len()).unwrap_or(u32::MAX);
-            let meshes = std::mem::take(&mut b.instanced);
-            Some(Instances::new(meshes, copies, first).map_err(|e| invalid("mesh".into(), e.to_string()))?)
-        }
-    };
-    Ok(finish(b, camera, settings, lights, background, instances))
+    Ok(Assembled { b, camera, settings, lights, background })
 }
 
 fn sphere_material(
@@ -378,7 +410,13 @@ pub fn scene_from_bare_obj(model: ObjModel, up: UpAxis) -> Scene {
     let any_emitter = model.materials.iter().any(|m| m.ke.max_element() > 0.0);
     let mut b = Builder::default();
     b.add_model(model, up.to_y_up(), Vec3::ZERO);
-    let bounds = crate::geometry::Aabb::from_points(&b.mesh.positions);
+    let (camera, lights, background) =
+        bare_obj_view(crate::geometry::Aabb::from_points(&b.mesh.positions), any_emitter);
+    finish(b, camera, RenderSettings::default(), lights, background, None)
+}
+
+/// A bare OBJ's camera, framing its placed bounds, and its lights and background.
+pub(super) fn bare_obj_view(bounds: crate::geometry::Aabb, any_emitter: bool) -> (Camera, Vec<Light>, Vec3) {
     let (center, radius) = if bounds.is_empty() {
         (Vec3::ZERO, 1.0)
     } else {
@@ -401,7 +439,7 @@ pub fn scene_from_bare_obj(model: ObjModel, up: UpAxis) -> Scene {
             Vec3::splat(0.25),
         )
     };
-    finish(b, camera, RenderSettings::default(), lights, background, None)
+    (camera, lights, background)
 }
 
 #[cfg(test)]

@@ -3,6 +3,7 @@
 
 pub mod assets;
 mod builder;
+pub mod check;
 pub mod file;
 pub mod files;
 pub mod generate;
@@ -13,6 +14,7 @@ pub mod placement;
 pub mod prepared;
 
 pub use crate::shapes::{Geometry, GeometryBytes, NONE, PrimRef, Sphere, Tri, TriangleMesh};
+pub use check::{SceneCheck, check_scene_as};
 pub use file::UpAxis;
 pub use load::{
     RenderSettings, SceneError, load_scene, load_scene_as, load_scene_up, scene_from_bare_obj, scene_from_toml,

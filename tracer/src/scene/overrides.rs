@@ -1,7 +1,8 @@
 //! Command-line and job overrides of a scene's own camera and render settings, applied
 //! identically by every process that renders the scene.
 
-use super::Scene;
+use super::{RenderSettings, Scene};
+use crate::camera::Camera;
 
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
 pub struct Overrides {
@@ -17,7 +18,11 @@ pub struct Overrides {
 
 impl Overrides {
     pub fn apply(&self, scene: &mut Scene) -> Result<(), String> {
-        let cam = &mut scene.camera;
+        self.apply_to(&mut scene.camera, &mut scene.settings)
+    }
+
+    /// [`Overrides::apply`] to a camera and settings.
+    pub fn apply_to(&self, cam: &mut Camera, settings: &mut RenderSettings) -> Result<(), String> {
         let aspect = cam.width as f64 / cam.height as f64;
         let (w, h) = match (self.width, self.height) {
             (Some(w), Some(h)) => (w, h),
@@ -33,16 +38,16 @@ impl Overrides {
             if spp == 0 {
                 return Err("spp must be at least 1".into());
             }
-            scene.settings.spp = spp;
+            settings.spp = spp;
         }
         if let Some(d) = self.max_depth {
             if d != -1 && d < 1 {
                 return Err("max_depth must be -1 (unlimited) or ≥ 1".into());
             }
-            scene.settings.max_depth = d;
+            settings.max_depth = d;
         }
         if let Some(s) = self.seed {
-            scene.settings.seed = s;
+            settings.seed = s;
         }
         Ok(())
     }

@@ -7,6 +7,7 @@ use std::path::Path;
 
 use glam::{Affine3A, Mat3, Vec3};
 
+use super::builder::Depth;
 use super::file::{InstanceDesc, MeshDesc, RotateDesc, Scale, UpAxis};
 use super::obj::ObjModel;
 use crate::accel::instances;
@@ -167,6 +168,7 @@ pub(super) fn place_meshes<E: From<super::obj::ObjError>>(
     meshes: &[MeshDesc],
     name: &str,
     base: &Path,
+    depth: Depth,
     invalid: &dyn Fn(String, String) -> E,
 ) -> Result<(), E> {
     let mut uses: HashMap<&str, usize> = HashMap::new();
@@ -180,6 +182,7 @@ pub(super) fn place_meshes<E: From<super::obj::ObjError>>(
         }
     }
     let mut loaded: HashMap<&str, ObjModel> = HashMap::new();
+    let mut triangles: HashMap<&str, u64> = HashMap::new();
     let mut instanced: HashMap<&str, u32> = HashMap::new();
     for (i, m) in meshes.iter().enumerate() {
         let field = |k: &str| format!("mesh[{i}].{k}");
@@ -193,7 +196,16 @@ pub(super) fn place_meshes<E: From<super::obj::ObjError>>(
         };
         let obj = m.obj.as_str();
         if !loaded.contains_key(obj) && !instanced.contains_key(obj) {
-            let model = super::obj::load_obj_as(&base.join(obj), &super::obj::shown_beside(name, obj))?;
+            let (path, shown) = (base.join(obj), super::obj::shown_beside(name, obj));
+            let model = match depth {
+                Depth::Build => super::obj::load_obj_as(&path, &shown)?,
+                Depth::Check => {
+                    let checked = super::obj::check_obj_as(&path, &shown)?;
+                    triangles.insert(obj, checked.triangles as u64);
+                    checked.model
+                }
+            };
+            triangles.entry(obj).or_insert(model.mesh.tris.len() as u64);
             let times = uses[obj];
             if times > 1 && model.materials.iter().any(|d| d.ke.max_element() > 0.0) {
                 b.warnings.push(format!(
@@ -220,11 +232,13 @@ pub(super) fn place_meshes<E: From<super::obj::ObjError>>(
                         invalid(table, e.to_string())
                     })?;
                     b.copies.push(copy);
+                    b.copy_triangles += triangles[obj];
                 }
             }
             None => {
                 for p in copies {
                     *remaining -= 1;
+                    b.flat_triangles += triangles[obj];
                     let model = if *remaining == 0 {
                         loaded.remove(obj).expect("kept until its last use")
                     } else {

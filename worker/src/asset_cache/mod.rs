@@ -410,14 +410,24 @@ fn load_from_files(cache: &AssetCache, job: &JobSpec) -> anyhow::Result<LoadedJo
     }
     let loaded = |scene, prepared| LoadedJob { spec: job.clone(), scene, integrator: job.integrator, prepared };
     let (key, what) = (job.scene_key(cache.confine), format!("job {}", job.job_id));
+    // Workers sharing the folder build a scene once: while one builds, the others wait,
+    // then read what it kept.
+    let building = cache.prepared.as_ref().and_then(|p| p.building(&key));
+    if let Some(scene) = building.as_ref().and_then(|_| cache.prepared.as_ref()?.get(&key, &what)) {
+        return Ok(loaded(Arc::new(scene), true));
+    }
     let mut scene =
         tracer::scene::load_scene_as(&scene_path, &job.scene.path, job.overrides.up).map_err(|e| anyhow!("{e}"))?;
     job.overrides.apply(&mut scene).map_err(|e| anyhow!("{}: settings: {e}", job.scene.path))?;
     let scene = Arc::new(scene);
     if let Some(p) = &cache.prepared {
-        // Kept in the background: rendering need not wait for the disk.
+        // Kept in the background: rendering need not wait for the disk. The others wait
+        // until it is kept.
         let (p, scene) = (Arc::clone(p), Arc::clone(&scene));
-        std::thread::spawn(move || p.put(&key, &scene, &what));
+        std::thread::spawn(move || {
+            p.put(&key, &scene, &what);
+            drop(building);
+        });
     }
     Ok(loaded(scene, false))
 }

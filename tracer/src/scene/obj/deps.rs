@@ -4,8 +4,8 @@
 use std::path::{Path, PathBuf};
 
 use super::ObjError;
-use super::mtl::{decode_utf8, parse_mtl_str, read_text, resolve_path};
-use super::parallel::scan;
+use super::check::{BLOCK_BYTES, scan_blocks};
+use super::mtl::{decode_utf8, parse_mtl_str, resolve_path};
 
 /// The MTL files and `map_Kd` textures `obj_path` refers to, whether or not they exist
 /// (a missing one is the loader's warning to give, not an error here). Errors are those
@@ -18,11 +18,15 @@ pub fn obj_dependencies(obj_path: &Path) -> Result<Vec<PathBuf>, ObjError> {
 /// listed, not read).
 pub fn obj_dependencies_where(obj_path: &Path, readable: &dyn Fn(&Path) -> bool) -> Result<Vec<PathBuf>, ObjError> {
     let display = obj_path.display().to_string();
-    let text = read_text(obj_path, &display, crate::scene::files::MAX_OBJ_BYTES)?;
-    let scanned = scan(&text, &display)?;
+    // Read in blocks, as a check reads it: only the `mtllib` statements are kept.
+    let mut mtllibs = Vec::new();
+    scan_blocks(obj_path, &display, BLOCK_BYTES, |mut c| {
+        mtllibs.append(&mut c.mtllibs);
+        c.error
+    })?;
     let base = obj_path.parent().unwrap_or(Path::new(""));
     let mut out = Vec::new();
-    for (_, arg) in &scanned.mtllibs {
+    for (_, arg) in &mtllibs {
         // The same rule as the loader: one name with spaces if that file exists, else several.
         let files: Vec<&str> =
             if resolve_path(base, arg).is_file() { vec![arg.as_str()] } else { arg.split_whitespace().collect() };

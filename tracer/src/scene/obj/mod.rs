@@ -6,6 +6,7 @@
 //! order kept), all groups are merged into one [`TriangleMesh`], and shading normals
 //! come from `vn`, from smoothing groups, or are left flat.
 
+mod check;
 mod deps;
 mod mtl;
 mod parallel;
@@ -19,6 +20,7 @@ use std::path::Path;
 
 use glam::Vec3;
 
+pub use self::check::{ObjCheck, check_obj_as};
 pub use self::deps::{obj_dependencies, obj_dependencies_where};
 pub use self::mtl::{MtlLibrary, load_mtl};
 use self::mtl::{RawMaterial, TextureCache};
@@ -86,6 +88,21 @@ pub fn load_obj_from_str(text: &str, base_dir: &Path, display_name: &str) -> Res
     let model = Builder::new(&scan, display_name, library, warnings).build();
     tracing::debug!("{display_name}: {} triangles made in {:.2?}", model.mesh.tris.len(), t.elapsed());
     Ok(model)
+}
+
+/// A triangle's unnormalised normal and its length, or `None` when it has no area (it
+/// is dropped).
+fn area_normal(p: [Vec3; 3]) -> Option<(Vec3, f32)> {
+    let cross = (p[1] - p[0]).cross(p[2] - p[0]);
+    let len = cross.length();
+    (len > 0.0 && len.is_finite()).then_some((cross, len))
+}
+
+/// A `vn` normal that cannot shade (zero length, or not finite once normalised): its
+/// faces get computed normals.
+fn unusable_normal(n: Vec3) -> bool {
+    let n = n.normalize_or_zero();
+    n == Vec3::ZERO || !n.is_finite()
 }
 
 /// The materials of all `mtllib` files, by name (a later definition wins).
@@ -213,6 +230,21 @@ impl<'a> Builder<'a> {
         i
     }
 
+    fn note_zero_vn(&mut self, faces: usize) {
+        if faces > 0 {
+            self.warnings.push(format!(
+                "{}: {faces} faces refer to zero-length vn normals; their normals are computed instead",
+                self.display
+            ));
+        }
+    }
+
+    fn note_degenerate(&mut self, triangles: usize) {
+        if triangles > 0 {
+            self.warnings.push(format!("{}: dropped {triangles} degenerate (zero-area) triangles", self.display));
+        }
+    }
+
     fn push_material(&mut self, desc: MaterialDesc) -> u32 {
         self.materials.push(desc);
         self.materials.len() as u32 - 1
@@ -266,11 +298,11 @@ impl<'a> Builder<'a> {
                 if vn_ok {
                     let slot = &mut normal_map[c.vn as usize];
                     if slot.is_none() {
-                        let n = scan.normals[c.vn as usize].normalize_or_zero();
-                        *slot = Some(if n == Vec3::ZERO || !n.is_finite() {
+                        let n = scan.normals[c.vn as usize];
+                        *slot = Some(if unusable_normal(n) {
                             NONE
                         } else {
-                            self.mesh.normals.push(n);
+                            self.mesh.normals.push(n.normalize_or_zero());
                             self.mesh.normals.len() as u32 - 1
                         });
                     }
@@ -286,12 +318,7 @@ impl<'a> Builder<'a> {
             }
             polygons.push(poly);
         }
-        if zero_vn_faces > 0 {
-            self.warnings.push(format!(
-                "{}: {zero_vn_faces} faces refer to zero-length vn normals; their normals are computed instead",
-                self.display
-            ));
-        }
+        self.note_zero_vn(zero_vn_faces);
 
         // Smoothing groups: accumulate per (group, position).
         let mut smooth = SmoothNormals::default();
@@ -311,13 +338,10 @@ impl<'a> Builder<'a> {
             for i in 1..poly.len.saturating_sub(1) {
                 let c = [poly.first, poly.first + i, poly.first + i + 1];
                 let v = c.map(|k| out.v[k]);
-                let p = v.map(|k| self.mesh.positions[k as usize]);
-                let cross = (p[1] - p[0]).cross(p[2] - p[0]);
-                let len = cross.length();
-                if !(len > 0.0 && len.is_finite()) {
+                let Some((cross, len)) = area_normal(v.map(|k| self.mesh.positions[k as usize])) else {
                     degenerate += 1;
                     continue;
-                }
+                };
                 let uv = if poly.has_uv { c.map(|k| out.uv[k]) } else { [NONE; 3] };
                 let n = if poly.has_n {
                     c.map(|k| out.n[k])
@@ -350,9 +374,7 @@ impl<'a> Builder<'a> {
                 self.mesh.tris.push(Tri { v, n, uv, material });
             }
         }
-        if degenerate > 0 {
-            self.warnings.push(format!("{}: dropped {degenerate} degenerate (zero-area) triangles", self.display));
-        }
+        self.note_degenerate(degenerate);
         ObjModel {
             mesh: self.mesh,
             materials: self.materials,

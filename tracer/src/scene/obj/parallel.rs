@@ -17,23 +17,36 @@ const MIN_CHUNK_BYTES: usize = 1 << 20;
 
 /// Scans `text` (already valid UTF-8). Errors name `display` and the line.
 pub(super) fn scan(text: &str, display: &str) -> Result<ObjScan, ObjError> {
-    let pieces = (rayon::current_num_threads() * 4).min(text.len() / MIN_CHUNK_BYTES).max(1);
-    scan_in(text, display, text.len().div_ceil(pieces))
+    scan_in(text, display, chunk_bytes_for(text.len()))
 }
 
 /// [`scan`], cut into chunks of about `chunk_bytes`.
 pub(super) fn scan_in(text: &str, display: &str, chunk_bytes: usize) -> Result<ObjScan, ObjError> {
+    let (chunks, _) = scan_from(text, Start { line: 1, ..Start::default() }, display, chunk_bytes);
+    join(chunks, display)
+}
+
+/// The chunks of `text`, which begins at `start` (its first line's number and the
+/// elements before it), scanned at once, in file order; and where the text after
+/// `text` starts.
+pub(super) fn scan_from(text: &str, start: Start, display: &str, chunk_bytes: usize) -> (Vec<Chunk>, Start) {
     let chunks = cut(text, chunk_bytes.max(1));
     let counts: Vec<Start> = chunks.par_iter().map(|c| count(c)).collect();
     let mut starts = Vec::with_capacity(chunks.len());
-    let mut at = Start { line: 1, ..Start::default() };
+    let mut at = start;
     for c in &counts {
         starts.push(at);
         at = Start { line: at.line + c.line, v: at.v + c.v, vt: at.vt + c.vt, vn: at.vn + c.vn };
     }
-    let scanned: Vec<Chunk> =
-        chunks.par_iter().zip(&starts).map(|(text, &start)| scan_chunk(text, start, display)).collect();
-    join(scanned, display)
+    let scanned = chunks.par_iter().zip(&starts).map(|(text, &start)| scan_chunk(text, start, display)).collect();
+    (scanned, at)
+}
+
+/// Chunk size for [`scan_from`] on `bytes` of text: a few pieces per thread, none
+/// smaller than [`MIN_CHUNK_BYTES`].
+pub(super) fn chunk_bytes_for(bytes: usize) -> usize {
+    let pieces = (rayon::current_num_threads() * 4).min(bytes / MIN_CHUNK_BYTES).max(1);
+    bytes.div_ceil(pieces)
 }
 
 /// `text` cut into runs of whole lines of about `bytes` each (each but the last ends
@@ -73,10 +86,12 @@ fn count(text: &str) -> Start {
     n
 }
 
-/// What carries from chunk to chunk while they are joined.
+/// What carries from chunk to chunk while they are joined: the settled state of the
+/// file so far (`out` holds its names, libraries and warnings, and — when joining — its
+/// vertex data and faces).
 #[derive(Default)]
-struct Joined {
-    out: ObjScan,
+pub(super) struct Joined {
+    pub out: ObjScan,
     smoothing_ids: HashMap<u64, u32>,
     material_ids: HashMap<String, u32>,
     /// The smoothing group and material in force.
@@ -88,7 +103,7 @@ struct Joined {
 
 /// The chunks' parts in file order, as one pass would have made them.
 fn join(chunks: Vec<Chunk>, display: &str) -> Result<ObjScan, ObjError> {
-    let mut j = Joined { material: NONE, ..Joined::default() };
+    let mut j = Joined::new();
     let total = |f: fn(&Chunk) -> usize| chunks.iter().map(f).sum::<usize>();
     j.out.positions.reserve_exact(total(|c| c.positions.len()));
     j.out.texcoords.reserve_exact(total(|c| c.texcoords.len()));
@@ -100,27 +115,35 @@ fn join(chunks: Vec<Chunk>, display: &str) -> Result<ObjScan, ObjError> {
             return Err(e);
         }
     }
-    let Joined { mut out, ignored, arealess, .. } = j;
-    if let (faces, lines, Some(first)) = arealess {
-        out.warnings.push(format!(
-            "{display}: skipped {faces} faces with fewer than 3 vertices and {lines} line or point elements \
-             (l, p), which have no area to render (first on line {first})"
-        ));
-    }
-    if !ignored.is_empty() {
-        let list: Vec<String> = ignored.iter().map(|(k, n, l)| format!("'{k}' ({n}x, first on line {l})")).collect();
-        out.warnings.push(format!("{display}: ignored unsupported statements: {}", list.join(", ")));
-    }
-    Ok(out)
+    Ok(j.finish(display))
 }
 
 /// Unsupported keywords listed in the warning; later ones are not named.
 const IGNORED_LISTED: usize = 16;
 
 impl Joined {
+    pub fn new() -> Self {
+        Self { material: NONE, ..Self::default() }
+    }
+
     /// Appends a chunk; its error, if it has one (the file's first, as the chunks before
     /// it had none).
-    fn add(&mut self, c: Chunk) -> Option<ObjError> {
+    fn add(&mut self, mut c: Chunk) -> Option<ObjError> {
+        let corner_base = self.out.corners.len();
+        let faces = self.settle(&mut c, corner_base);
+        self.out.faces.extend(faces);
+        self.out.positions.extend_from_slice(&c.positions);
+        self.out.texcoords.extend_from_slice(&c.texcoords);
+        self.out.normals.extend_from_slice(&c.normals);
+        self.out.corners.extend_from_slice(&c.corners);
+        c.error
+    }
+
+    /// Settles a chunk's state against the file's so far: its faces with the file's
+    /// smoothing group and material numbers (and their first corner counted from
+    /// `corner_base`); its libraries, warnings and summaries join the file's. The chunk
+    /// keeps its vertex data, corners and error.
+    pub fn settle(&mut self, c: &mut Chunk, corner_base: usize) -> Vec<super::scan::FaceInfo> {
         // Smoothing groups are numbered, and materials listed, in order of first use.
         let smoothing: Vec<u32> = c
             .smoothing
@@ -130,8 +153,7 @@ impl Joined {
                 if g == 0 { 0 } else { *self.smoothing_ids.entry(g).or_insert(next) }
             })
             .collect();
-        let materials: Vec<u32> = c
-            .materials
+        let materials: Vec<u32> = std::mem::take(&mut c.materials)
             .into_iter()
             .map(|m| match m {
                 None => NONE,
@@ -145,23 +167,22 @@ impl Joined {
             })
             .collect();
         let at = |own: &[u32], k: u32, before: u32| if k == 0 { before } else { own[k as usize - 1] };
-        let corner_base = self.out.corners.len();
         let (smoothing_before, material_before) = (self.smoothing, self.material);
-        self.out.faces.extend(c.faces.iter().map(|f| super::scan::FaceInfo {
-            first: corner_base + f.first,
-            smoothing: at(&smoothing, f.smoothing, smoothing_before),
-            material: at(&materials, f.material, material_before),
-            ..*f
-        }));
+        let faces = c
+            .faces
+            .iter()
+            .map(|f| super::scan::FaceInfo {
+                first: corner_base + f.first,
+                smoothing: at(&smoothing, f.smoothing, smoothing_before),
+                material: at(&materials, f.material, material_before),
+                ..*f
+            })
+            .collect();
         self.smoothing = smoothing.last().copied().unwrap_or(self.smoothing);
         self.material = materials.last().copied().unwrap_or(self.material);
-        self.out.positions.extend_from_slice(&c.positions);
-        self.out.texcoords.extend_from_slice(&c.texcoords);
-        self.out.normals.extend_from_slice(&c.normals);
-        self.out.corners.extend_from_slice(&c.corners);
-        self.out.mtllibs.extend(c.mtllibs);
-        self.out.warnings.extend(c.warnings);
-        for (key, n, line) in c.ignored {
+        self.out.mtllibs.append(&mut c.mtllibs);
+        self.out.warnings.append(&mut c.warnings);
+        for (key, n, line) in c.ignored.drain(..) {
             match self.ignored.iter().position(|(k, _, _)| *k == key) {
                 Some(i) => self.ignored[i].1 += n,
                 None if self.ignored.len() < IGNORED_LISTED => self.ignored.push((key, n, line)),
@@ -171,7 +192,24 @@ impl Joined {
         self.arealess.0 += c.arealess.0;
         self.arealess.1 += c.arealess.1;
         self.arealess.2 = self.arealess.2.or(c.arealess.2);
-        c.error
+        faces
+    }
+
+    /// The whole file's scan, with its summary warnings.
+    pub fn finish(self, display: &str) -> ObjScan {
+        let Joined { mut out, ignored, arealess, .. } = self;
+        if let (faces, lines, Some(first)) = arealess {
+            out.warnings.push(format!(
+                "{display}: skipped {faces} faces with fewer than 3 vertices and {lines} line or point elements \
+                 (l, p), which have no area to render (first on line {first})"
+            ));
+        }
+        if !ignored.is_empty() {
+            let list: Vec<String> =
+                ignored.iter().map(|(k, n, l)| format!("'{k}' ({n}x, first on line {l})")).collect();
+            out.warnings.push(format!("{display}: ignored unsupported statements: {}", list.join(", ")));
+        }
+        out
     }
 }
 

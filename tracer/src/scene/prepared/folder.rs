@@ -97,6 +97,18 @@ impl PreparedScenes {
         }
     }
 
+    /// Waits until no other process is building `key`'s entry, then holds that right
+    /// until the value returned is dropped: processes sharing the folder (`render`'s
+    /// local workers) build a scene once, and the others read what it kept. The system
+    /// lets go of the lock if the holder dies. `None` when no lock can be taken there
+    /// (the caller builds anyway).
+    pub fn building(&self, key: &[u8; 32]) -> Option<Building> {
+        let path = self.entry(key).with_extension("lock");
+        let file = fs::OpenOptions::new().create(true).truncate(false).write(true).open(path).ok()?;
+        file.lock().ok()?;
+        Some(Building { _file: file })
+    }
+
     /// Keeps `scene` under `key` for the next load of the same scene, then trims the
     /// folder to its limit.
     pub fn put(&self, key: &[u8; 32], scene: &Scene, what: &str) {
@@ -136,11 +148,18 @@ impl PreparedScenes {
         for e in dir.flatten() {
             let stale =
                 e.metadata().and_then(|m| m.modified()).is_ok_and(|t| t.elapsed().unwrap_or_default() > STALE_PART);
-            if e.file_name().to_string_lossy().ends_with(".part") && stale {
+            let name = e.file_name().to_string_lossy().into_owned();
+            if (name.ends_with(".part") || name.ends_with(".lock")) && stale {
                 let _ = fs::remove_file(e.path());
             }
         }
     }
+}
+
+/// The right to build one entry ([`PreparedScenes::building`]), held until dropped.
+#[derive(Debug)]
+pub struct Building {
+    _file: fs::File,
 }
 
 /// Creates `dir` readable and writable by this user alone, or checks that an existing
@@ -178,6 +197,25 @@ mod tests {
 
     fn temp(name: &str) -> PathBuf {
         std::env::temp_dir().join(format!("tilefarm-prepared-{name}-{}", std::process::id()))
+    }
+
+    /// One builder per key at a time; other keys do not wait.
+    #[test]
+    fn one_process_at_a_time_builds_an_entry() {
+        let dir = temp("building");
+        let p = std::sync::Arc::new(PreparedScenes::open(&dir, 1 << 30).unwrap());
+        let first = p.building(&[7; 32]).expect("a lock in a private folder");
+        assert!(p.building(&[8; 32]).is_some(), "another key is free");
+        let (q, (tx, rx)) = (std::sync::Arc::clone(&p), std::sync::mpsc::channel());
+        let waiter = std::thread::spawn(move || {
+            let held = q.building(&[7; 32]);
+            tx.send(held.is_some()).unwrap();
+        });
+        assert!(rx.recv_timeout(Duration::from_millis(300)).is_err(), "the second builder waits");
+        drop(first);
+        assert_eq!(rx.recv_timeout(Duration::from_secs(10)), Ok(true), "and goes on once the first is done");
+        waiter.join().unwrap();
+        fs::remove_dir_all(&dir).unwrap();
     }
 
     #[test]

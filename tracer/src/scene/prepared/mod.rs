@@ -9,7 +9,7 @@
 
 mod folder;
 
-pub use folder::{DEFAULT_MAX_BYTES, PreparedScenes, user_dir};
+pub use folder::{Building, DEFAULT_MAX_BYTES, PreparedScenes, user_dir};
 
 use std::fs::File;
 use std::io::{BufWriter, Read, Seek, SeekFrom, Write};
