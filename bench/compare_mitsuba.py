@@ -299,7 +299,11 @@ def mi_bsdf(mat: Material):
 
 
 def with_material(shape: dict, mat: Material) -> dict:
-    shape["bsdf"] = mi_bsdf(mat)
+    bsdf = mi_bsdf(mat)
+    # tilefarm's reflective BSDFs are two-sided (they shade the side a ray arrives
+    # from); Mitsuba's are one-sided and black from behind unless wrapped. Glass is
+    # oriented in both.
+    shape["bsdf"] = bsdf if bsdf["type"] == "dielectric" else {"type": "twosided", "bsdf": bsdf}
     if max(mat.ke) > 0.0:
         shape["emitter"] = {"type": "area", "radiance": {"type": "rgb", "value": list(mat.ke)}}
     if mat.d < 1.0 and mat.ni == 1.0 and mat.illum not in (4, 6, 7):

@@ -31,7 +31,8 @@ def main():
     out.mkdir(parents=True, exist_ok=True)
     for f in ["cbox.obj", "cbox.mtl"]:
         shutil.copy(ROOT / "scenes/cornell-box" / f, out / f)
-    # rings × segments quads, two triangles each.
+    # rings × segments quads, two triangles each, counter-clockwise seen from outside
+    # (front faces out, as OBJ expects).
     segments = max(8, int(math.sqrt(args.triangles)))
     rings = max(4, args.triangles // (2 * segments))
     centre, radius = ((0.0, 0.0, 0.0), 1.0) if args.copies else ((278.0, 160.0, 279.5), 140.0)
@@ -51,7 +52,7 @@ def main():
                 a = i * segments + j + 1
                 b = i * segments + (j + 1) % segments + 1
                 c, d = a + segments, b + segments
-                f.write(f"f {a} {c} {b}\nf {b} {c} {d}\n")
+                f.write(f"f {a} {b} {c}\nf {b} {d} {c}\n")
     (out / "sphere.mtl").write_text("newmtl sphere\nKd 0.6 0.6 0.6\n")
     text = (ROOT / "scenes/cornell-box/scene.toml").read_text()
     n = 2 * rings * segments
