@@ -17,6 +17,10 @@
 //! the median build) and then answers lines on stdin, `closest` or `any`, with one
 //! timed pass over the rays each: `closest SECONDS HITS`. `bench/embree_compare.py`
 //! drives it, alternating pass by pass with Embree in its own process.
+//! `KDTREE_PACKETS=TRIANGLES[,ROUNDS]` times the eight-ray packet queries against one ray
+//! at a time on the mesh, in interleaved rounds (medians): a pinhole camera's rays in
+//! packets of 4×2 pixels, the shadow rays from their hits towards a point light, and
+//! incoherent rays eight at a time.
 //! `KDTREE_RAYS=surface|camera` makes `KDTREE_QUICK` trace other rays than the incoherent
 //! ones: from points on the mesh in uniform directions (as bounces leave a surface), or a
 //! pinhole camera's in scanline order (coherent). `KDTREE_SCENE=scene.toml` with
@@ -27,6 +31,7 @@ use std::time::Instant;
 
 use criterion::{Criterion, Throughput, criterion_group, criterion_main};
 use glam::Vec3;
+use tracer::accel::ray_packets::RayPacket;
 use tracer::accel::{BuildParams, KdTree};
 use tracer::geometry::{Aabb, Ray};
 use tracer::scene::generate::displaced_sphere;
@@ -384,7 +389,132 @@ fn serve(spec: &str) {
     }
 }
 
+/// A pinhole camera's rays (as [`camera_rays`]) in packets of 4×2 pixels, closest hit.
+fn camera_packets(b: Aabb, side: usize) -> Vec<RayPacket> {
+    let (c, size) = (b.center(), b.diagonal().length());
+    let eye = c + Vec3::new(0.3, 0.4, 3.0).normalize() * (1.5 * size);
+    let fwd = (c - eye).normalize();
+    let right = fwd.cross(Vec3::Y).normalize();
+    let up = right.cross(fwd);
+    let mut out = Vec::new();
+    for by in (0..side).step_by(2) {
+        for bx in (0..side).step_by(4) {
+            let mut p = RayPacket::default();
+            for l in 0..8 {
+                let (px, py) = (bx + l % 4, by + l / 4);
+                let (x, y) = (px as f32 / side as f32 - 0.5, py as f32 / side as f32 - 0.5);
+                let d = (fwd + (right * x + up * y) * 0.7).normalize();
+                p.set(l, &Ray::new(eye, d), f32::INFINITY);
+            }
+            out.push(p);
+        }
+    }
+    out
+}
+
+/// The shadow rays of `camera`'s hits towards a point light above and beside the
+/// camera, packet by packet (lanes that missed stay inactive), nudged off the surface.
+fn shadow_packets(tree: &KdTree, geo: &Geometry, camera: &[RayPacket]) -> Vec<RayPacket> {
+    let b = tree.bounds();
+    let light = b.center() + Vec3::new(-1.0, 2.0, 1.5).normalize() * b.diagonal().length();
+    camera
+        .iter()
+        .map(|p| {
+            let hits = tree.intersect8(geo, p);
+            let mut s = RayPacket::default();
+            for l in 0..8 {
+                if let Some(h) = hits.get(l) {
+                    let ray = p.ray(l);
+                    let x = ray.origin + ray.dir * h.t;
+                    let to = light - x;
+                    let d = to.normalize();
+                    let eps = 1e-4 * b.diagonal().length();
+                    s.set(l, &Ray::new(x + d * eps, d), to.length() - 2.0 * eps);
+                }
+            }
+            s
+        })
+        .collect()
+}
+
+fn packets_of(rays: &[(Ray, f32)]) -> Vec<RayPacket> {
+    rays.chunks(8)
+        .map(|c| {
+            let mut p = RayPacket::default();
+            for (l, (r, len)) in c.iter().enumerate() {
+                p.set(l, r, *len);
+            }
+            p
+        })
+        .collect()
+}
+
+/// `KDTREE_PACKETS=TRIANGLES[,ROUNDS]`: see the module comment.
+fn packets(spec: &str) {
+    let mut parts = spec.split(',').map(|x| x.parse::<usize>().ok());
+    let n = parts.next().flatten().unwrap_or(1_000_000);
+    let rounds = parts.next().flatten().unwrap_or(9);
+    let mut geo = Geometry::new(displaced_sphere(n, 0), vec![]);
+    let (mut tree, _) = timed_build(&geo, &BuildParams::default());
+    geo.store_in_leaf_order(&mut tree);
+    let camera = camera_packets(tree.bounds(), 512);
+    let shadow = shadow_packets(&tree, &geo, &camera);
+    let random = packets_of(&random_rays(tree.bounds(), RAYS, 1));
+    let lanes = |ps: &[RayPacket]| ps.iter().map(|p| p.active.count_ones() as usize).sum::<usize>();
+    println!("{} triangles, one thread, Mrays/s, medians of {rounds} interleaved rounds:", geo.triangle_count());
+    println!("{:<28}{:>10}{:>10}{:>8}", "rays", "one", "packets", "ratio");
+    for (name, ps, any_hit) in [
+        ("camera, closest hit", &camera, false),
+        ("shadow to a point, any hit", &shadow, true),
+        ("incoherent, closest hit", &random, false),
+        ("incoherent, any hit", &random, true),
+    ] {
+        let n = lanes(ps) as f64;
+        let one = || {
+            ps.iter()
+                .map(|p| {
+                    (0..8)
+                        .filter(|&l| p.active & (1 << l) != 0)
+                        .filter(|&l| {
+                            let r = p.ray(l);
+                            if any_hit {
+                                tree.occluded(&geo, &r, p.tmax[l])
+                            } else {
+                                tree.intersect(&geo, &r, p.tmax[l]).is_some()
+                            }
+                        })
+                        .count()
+                })
+                .sum::<usize>()
+        };
+        let eight = || {
+            ps.iter()
+                .map(|p| {
+                    (if any_hit { tree.occluded8(&geo, p) } else { tree.intersect8(&geo, p).found }).count_ones()
+                        as usize
+                })
+                .sum::<usize>()
+        };
+        assert_eq!(one(), eight(), "{name}: packets and single rays disagree");
+        let (mut a, mut b) = (Vec::new(), Vec::new());
+        for _ in 0..rounds {
+            let t = Instant::now();
+            black_box(one());
+            a.push(n / t.elapsed().as_secs_f64() / 1e6);
+            let t = Instant::now();
+            black_box(eight());
+            b.push(n / t.elapsed().as_secs_f64() / 1e6);
+        }
+        let ratios: Vec<f64> = a.iter().zip(&b).map(|(x, y)| y / x).collect();
+        println!("{name:<28}{:>10.3}{:>10.3}{:>8.2}", median(a), median(b), median(ratios));
+    }
+}
+
 fn bench(c: &mut Criterion) {
+    if let Ok(spec) = std::env::var("KDTREE_PACKETS") {
+        packets(&spec);
+        return;
+    }
     if std::env::var_os("KDTREE_TUNE").is_some() {
         tune();
         return;

@@ -6,6 +6,7 @@
 //! (`accel/block_test.rs`).
 
 mod build;
+mod packet;
 mod traverse;
 mod treelet;
 

@@ -497,3 +497,88 @@ fn scene_parameters_follow_size_and_composition() {
     assert_eq!(ci(20_000, 10_000), super::OTHER_PRIMS_INTERSECTION_COST);
     assert!(BuildParams::default().intersection_cost < super::OTHER_PRIMS_INTERSECTION_COST);
 }
+
+/// Eight rays for a packet: scattered (mixed direction signs), or coherent (one origin,
+/// directions in a narrow cone, as a tile's camera rays), some lanes inactive; each
+/// lane's `tmax` infinite, random, or its brute-force hit's own `t`.
+fn random_packet<P: Primitives>(prims: &P, r: &mut Rng) -> crate::accel::ray_packets::RayPacket {
+    let mut p = crate::accel::ray_packets::RayPacket::default();
+    let coherent = r.below(2) == 0;
+    let base = random_ray(r);
+    for l in 0..8 {
+        if r.below(8) == 0 {
+            continue;
+        }
+        let ray = if coherent {
+            let d = base.dir + r.v(-0.05, 0.05) * base.dir.length();
+            Ray::new(base.origin, if d.length_squared() > 0.0 { d } else { base.dir })
+        } else {
+            random_ray(r)
+        };
+        let tmax = match r.below(3) {
+            0 => f32::INFINITY,
+            1 => r.range(0.0, 4.0),
+            _ => brute_force_intersect(prims, &ray, f32::INFINITY).map_or(f32::INFINITY, |h| h.t),
+        };
+        p.set(l, &ray, tmax);
+    }
+    p
+}
+
+/// Every active lane of a packet query is its one-ray query's answer (and so brute
+/// force's), bit for bit, whatever the other lanes hold.
+fn check_packets<P: Primitives>(prims: &P, tree: &KdTree, r: &mut Rng, packets: usize) -> Result<(), TestCaseError> {
+    for _ in 0..packets {
+        let p = random_packet(prims, r);
+        let hits = tree.intersect8(prims, &p);
+        let occluded = tree.occluded8(prims, &p);
+        prop_assert_eq!(hits.found & !p.active, 0);
+        prop_assert_eq!(occluded & !p.active, 0);
+        for l in (0..8).filter(|l| p.active & (1 << l) != 0) {
+            let (ray, tmax) = (p.ray(l), p.tmax[l]);
+            prop_assert_eq!(
+                key(hits.get(l)),
+                key(brute_force_intersect(prims, &ray, tmax)),
+                "lane {} ray {:?} tmax {}",
+                l,
+                ray,
+                tmax
+            );
+            prop_assert_eq!(
+                occluded & (1 << l) != 0,
+                brute_force_occluded(prims, &ray, tmax),
+                "lane {} ray {:?} tmax {}",
+                l,
+                ray,
+                tmax
+            );
+        }
+    }
+    Ok(())
+}
+
+proptest! {
+    #![proptest_config(pinned(120))]
+
+    #[test]
+    fn packets_agree_with_brute_force_on_random_scenes(seed in any::<u64>(), size in 0usize..4, rays_seed in any::<u64>()) {
+        let n = [0, 1 + (seed % 16) as usize, 50 + (seed % 200) as usize, 500 + (seed % 2500) as usize][size];
+        let geo = random_scene(seed, n);
+        let mut r = Rng(rays_seed);
+        let tree = KdTree::build(&geo, &random_params(&mut r));
+        check_packets(&geo, &tree, &mut r, 40)?;
+    }
+}
+
+/// Packets on a closed mesh with spheres: coherent packets hit neighbouring triangles
+/// and share most node steps.
+#[test]
+fn packets_agree_with_brute_force_on_displaced_sphere() {
+    let mesh = displaced_sphere(20_000, 3);
+    let mut r = Rng(11);
+    let spheres =
+        (0..300).map(|_| Sphere { center: r.v(-1.5, 1.5), radius: r.range(0.01, 0.15), material: 0 }).collect();
+    let geo = Geometry::new(mesh, spheres);
+    let tree = KdTree::build(&geo, &BuildParams::default());
+    check_packets(&geo, &tree, &mut r, 400).unwrap();
+}

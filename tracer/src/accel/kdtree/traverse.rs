@@ -66,16 +66,16 @@ const TINY: f32 = 1e-30;
 /// to the brute-force loop.
 const CANDIDATES: usize = 16;
 
-struct Setup {
-    lo: f32,
-    hi: f32,
-    slack: f32,
+pub(super) struct Setup {
+    pub(super) lo: f32,
+    pub(super) hi: f32,
+    pub(super) slack: f32,
 }
 
 impl KdTree {
     /// Clips the ray to the root cell, widened by the slack.
     #[inline(always)]
-    fn setup(&self, ray: &Ray, inv: Vec3, tmax: f32) -> Option<Setup> {
+    pub(super) fn setup(&self, ray: &Ray, inv: Vec3, tmax: f32) -> Option<Setup> {
         if self.root & 3 == EMPTY {
             return None;
         }
@@ -231,60 +231,103 @@ impl KdTree {
     ) -> Option<Hit> {
         let pre = RayPrecomp::new(ray);
         let s = self.setup(ray, pre.inv_dir, tmax)?;
-        let mut c = Candidates::new(tmax, s.slack);
-        let mut mb = Mailbox::new();
+        let mut c = Closest::new(tmax, s.slack);
         let corners = gatherable(prims);
-        let leaf = |ids: &[u32]| {
-            if AVX2 && ids.len() >= GATHER_MIN_PRIMS && !corners.is_empty() {
-                // Eight at a time; a hit already recorded comes back the same and is
-                // dropped by `record`, so the mailbox is not needed here.
-                leaf_lanes(prims, corners, ids, ray, &pre, c.bound, |g, h| {
-                    c.record(g, h);
-                    if c.overflow { f32::NAN } else { c.bound }
-                });
-            } else {
-                prefetch_all(prims, ids);
-                for &g in ids {
-                    if mb.seen(g) {
-                        continue;
-                    }
-                    if let Some(h) = prims.intersect(g, ray, &pre, c.bound) {
-                        c.record(g, h);
-                    }
-                }
-            }
-            if c.overflow { f32::NAN } else { c.bound }
-        };
-        self.walk::<AVX2>(ray, pre.inv_dir, &s, tmax, leaf);
-        if c.overflow {
-            return brute_force_intersect(prims, ray, tmax);
-        }
-        c.resolve(prims, ray, &pre, tmax)
+        self.walk::<AVX2>(ray, pre.inv_dir, &s, tmax, |ids| c.leaf::<P, AVX2>(prims, corners, ids, ray, &pre));
+        c.finish(prims, ray, &pre, tmax)
     }
 
     #[inline(always)]
     pub(super) fn occluded_impl<P: Primitives, const AVX2: bool>(&self, prims: &P, ray: &Ray, tmax: f32) -> bool {
         let pre = RayPrecomp::new(ray);
         let Some(s) = self.setup(ray, pre.inv_dir, tmax) else { return false };
-        let mut hit = false;
         let corners = gatherable(prims);
-        // No mailbox here: the query ends at its first hit, so few primitives come up
-        // twice and the bookkeeping would not pay.
-        let leaf = |ids: &[u32]| {
-            if AVX2 && ids.len() >= GATHER_MIN_PRIMS && !corners.is_empty() {
-                leaf_lanes(prims, corners, ids, ray, &pre, tmax, |_, _| {
-                    hit = true;
-                    f32::NAN
-                });
-            } else {
-                prefetch_all(prims, ids);
-                hit = ids.iter().any(|&g| prims.occludes(g, ray, &pre, tmax));
-            }
-            if hit { f32::NAN } else { tmax }
-        };
-        self.walk::<AVX2>(ray, pre.inv_dir, &s, tmax, leaf);
+        let mut hit = false;
+        self.walk::<AVX2>(ray, pre.inv_dir, &s, tmax, |ids| {
+            any_leaf::<P, AVX2>(prims, corners, ids, ray, &pre, tmax, &mut hit)
+        });
         hit
     }
+}
+
+/// One ray's closest-hit query across the leaves a walk visits: the candidates and the
+/// mailbox.
+pub(super) struct Closest {
+    c: Candidates,
+    mb: Mailbox,
+}
+
+impl Closest {
+    #[inline(always)]
+    pub(super) fn new(tmax: f32, slack: f32) -> Self {
+        Self { c: Candidates::new(tmax, slack), mb: Mailbox::new() }
+    }
+
+    /// Tests a leaf's primitives `ids`; returns the walk's new bound, or NaN to stop.
+    #[inline(always)]
+    pub(super) fn leaf<P: Primitives, const AVX2: bool>(
+        &mut self,
+        prims: &P,
+        corners: &[[glam::Vec3; 3]],
+        ids: &[u32],
+        ray: &Ray,
+        pre: &RayPrecomp,
+    ) -> f32 {
+        let c = &mut self.c;
+        if AVX2 && ids.len() >= GATHER_MIN_PRIMS && !corners.is_empty() {
+            // Eight at a time; a hit already recorded comes back the same and is
+            // dropped by `record`, so the mailbox is not needed here.
+            leaf_lanes(prims, corners, ids, ray, pre, c.bound, |g, h| {
+                c.record(g, h);
+                if c.overflow { f32::NAN } else { c.bound }
+            });
+        } else {
+            prefetch_all(prims, ids);
+            for &g in ids {
+                if self.mb.seen(g) {
+                    continue;
+                }
+                if let Some(h) = prims.intersect(g, ray, pre, c.bound) {
+                    c.record(g, h);
+                }
+            }
+        }
+        if c.overflow { f32::NAN } else { c.bound }
+    }
+
+    /// The answer once the walk is over.
+    #[inline(always)]
+    pub(super) fn finish<P: Primitives>(self, prims: &P, ray: &Ray, pre: &RayPrecomp, tmax: f32) -> Option<Hit> {
+        if self.c.overflow {
+            return brute_force_intersect(prims, ray, tmax);
+        }
+        self.c.resolve(prims, ray, pre, tmax)
+    }
+}
+
+/// Tests a leaf's primitives `ids` for an any-hit query: sets `hit` and returns NaN (stop)
+/// at the first hit, else `tmax`. No mailbox: the query ends at its first hit, so few
+/// primitives come up twice and the bookkeeping would not pay.
+#[inline(always)]
+pub(super) fn any_leaf<P: Primitives, const AVX2: bool>(
+    prims: &P,
+    corners: &[[glam::Vec3; 3]],
+    ids: &[u32],
+    ray: &Ray,
+    pre: &RayPrecomp,
+    tmax: f32,
+    hit: &mut bool,
+) -> f32 {
+    if AVX2 && ids.len() >= GATHER_MIN_PRIMS && !corners.is_empty() {
+        leaf_lanes(prims, corners, ids, ray, pre, tmax, |_, _| {
+            *hit = true;
+            f32::NAN
+        });
+    } else {
+        prefetch_all(prims, ids);
+        *hit = ids.iter().any(|&g| prims.occludes(g, ray, pre, tmax));
+    }
+    if *hit { f32::NAN } else { tmax }
 }
 
 /// Leaves with at least this many primitives test their triangles eight at a time.
@@ -293,7 +336,7 @@ const GATHER_MIN_PRIMS: usize = 2;
 /// The set's triangles for the eight-lane leaf test, or nothing if it has none or too
 /// many to address.
 #[inline(always)]
-fn gatherable<P: Primitives>(prims: &P) -> &[[glam::Vec3; 3]] {
+pub(super) fn gatherable<P: Primitives>(prims: &P) -> &[[glam::Vec3; 3]] {
     let c = prims.triangle_corners();
     if c.len() <= crate::accel::block_test::GATHER_MAX_TRIANGLES { c } else { &[] }
 }

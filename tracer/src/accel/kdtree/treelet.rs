@@ -157,7 +157,7 @@ pub(super) struct Stack {
 
 /// The path of grandchild `c` (0..8): its ancestor at level `l` is node `PATH[l][c]` and
 /// it lies on that node's above side when bit `2 - l` of `c` is set.
-const PATH: [[usize; 8]; 3] = [[0; 8], [1, 1, 1, 1, 2, 2, 2, 2], [3, 3, 4, 4, 5, 5, 6, 6]];
+pub(super) const PATH: [[usize; 8]; 3] = [[0; 8], [1, 1, 1, 1, 2, 2, 2, 2], [3, 3, 4, 4, 5, 5, 6, 6]];
 
 /// `a.min(b)` for a non-NaN `b`, and `b` when `a` is NaN (as `minps`).
 #[inline(always)]
@@ -175,7 +175,7 @@ fn fmax(a: f32, b: f32) -> f32 {
 /// `neg` have a negative direction along their axis: at each level the near side comes
 /// first.
 #[inline(always)]
-const fn child_of_rank(k: usize, neg: usize) -> usize {
+pub(super) const fn child_of_rank(k: usize, neg: usize) -> usize {
     let hi = (k >> 2) ^ (neg & 1);
     let mid = ((k >> 1) & 1) ^ ((neg >> (1 + hi)) & 1);
     let lo = (k & 1) ^ ((neg >> (3 + 2 * hi + mid)) & 1);
@@ -249,7 +249,7 @@ impl Stack {
 }
 
 #[cfg(target_arch = "x86_64")]
-pub(super) use avx2::{RayLanes, step_avx2};
+pub(super) use avx2::{RayLanes, prefetch_children, step_avx2};
 
 #[cfg(target_arch = "x86_64")]
 mod avx2 {
@@ -354,7 +354,7 @@ mod avx2 {
     /// # Safety
     /// The CPU must have AVX2.
     #[inline(always)]
-    unsafe fn prefetch_children(child: __m256i, tb: usize, lb: usize) {
+    pub(in crate::accel::kdtree) unsafe fn prefetch_children(child: __m256i, tb: usize, lb: usize) {
         // SAFETY: AVX2 (the caller's promise); a prefetch is a hint, it never faults,
         // whatever the address.
         unsafe {
