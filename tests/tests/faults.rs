@@ -23,6 +23,22 @@ fn reference(dir: &TempDir, args: &[&str]) -> tracer::film::Image {
     read_exr(&out)
 }
 
+/// Every file below `dir` with its size, for failure messages.
+fn files_under(dir: &Path) -> Vec<(std::path::PathBuf, u64)> {
+    let mut found = Vec::new();
+    let mut todo = vec![dir.to_path_buf()];
+    while let Some(d) = todo.pop() {
+        for e in std::fs::read_dir(&d).into_iter().flatten().flatten() {
+            match e.metadata() {
+                Ok(m) if m.is_dir() => todo.push(e.path()),
+                Ok(m) => found.push((e.path(), m.len())),
+                Err(_) => {}
+            }
+        }
+    }
+    found
+}
+
 fn signal(pid: u32, sig: &str) {
     let ok = Command::new("kill").args([sig, &pid.to_string()]).status().unwrap().success();
     assert!(ok, "kill {sig} {pid}");
@@ -246,7 +262,16 @@ fn a_farm_stopped_with_ctrl_c_checkpoints_and_continues_after_restart() {
     let second = Coordinator::serve(&serve_args);
     let start = Instant::now();
     let restored = loop {
-        let j = list_jobs(&second.url).into_iter().find(|j| j.job_id == job).expect("job restored");
+        let Some(j) = list_jobs(&second.url).into_iter().find(|j| j.job_id == job) else {
+            // Say what the stop left behind, so that a failure here can be told apart
+            // (no checkpoint written, or one the restart refused: its error is above).
+            panic!(
+                "{job} was not restored ({} of {} units done at the stop); the checkpoint folder holds {:?}",
+                at_stop.units_done,
+                at_stop.units_total,
+                files_under(&ckpt.join("job-checkpoints"))
+            );
+        };
         if j.state() != proto::JobState::Loading {
             break j;
         }
