@@ -266,12 +266,39 @@ fn the_exr_header_records_how_the_image_was_made() {
     assert_eq!(attr("tilefarm/integrator"), Some(AttributeValue::Text("path".into())));
     assert_eq!(attr("tilefarm/scene"), Some(AttributeValue::Text("scene.toml".into())));
     assert!(matches!(attr("tilefarm/renderSeconds"), Some(AttributeValue::F64(s)) if s > 0.0));
+    assert_eq!(attr("tilefarm/clamp"), None, "no clamp unless asked for");
     // The camera matrix maps the camera's own position to the origin of camera space.
     // (The built-in scene is the bundled Cornell box.)
     let bundled = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../scenes/cornell-box/scene.toml");
     let cam = tracer::scene::load_scene(&bundled).unwrap().camera;
     let m = glam::Mat4::from_cols_array(&w2c);
     assert!(m.transform_point3(cam.position).length() < 1e-3);
+}
+
+/// `--clamp` reaches the workers, bounds every pixel and is recorded in the EXR; a limit
+/// that is not a positive number is refused before anything starts.
+#[test]
+fn clamp_bounds_the_image_and_is_recorded() {
+    let dir = TempDir::new("clamp");
+    let exr_path = dir.0.join("clamped.exr");
+    let out = coordinator()
+        .args(["render", "-q", "--spp", "4", "--width", "24", "--local-workers", "1", "--clamp", "0.5", "-o"])
+        .arg(&exr_path)
+        .output()
+        .unwrap();
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    let img = tracer::output::read_exr(&exr_path).unwrap();
+    let brightest = img.pixels.iter().map(|p| p.max_element()).fold(0.0, f32::max);
+    assert!(brightest <= 0.5 + 1e-6 && brightest > 0.25, "brightest pixel {brightest}");
+    let meta = exr::meta::MetaData::read_from_file(&exr_path, false).unwrap();
+    let key = exr::meta::attribute::Text::from("tilefarm/clamp");
+    assert_eq!(meta.headers[0].own_attributes.other.get(&key), Some(&exr::meta::attribute::AttributeValue::F32(0.5)));
+    for bad in ["0", "-1", "nan", "inf", "abc"] {
+        let out = coordinator().args(["render", "-q", "--clamp", bad, "-o"]).arg(dir.0.join("x.exr")).output().unwrap();
+        let err = String::from_utf8_lossy(&out.stderr);
+        assert!(!out.status.success() && err.contains("--clamp"), "{bad}: {err}");
+        assert!(!dir.0.join("x.exr").exists());
+    }
 }
 
 /// A render that was killed never ran its cleanup: the next render removes its folder.

@@ -43,6 +43,7 @@ pub fn settings_to_proto(j: &JobSpec) -> crate::RenderSettings {
         height: o.height.unwrap_or(0),
         max_depth: o.max_depth,
         seed: o.seed,
+        clamp: o.clamp,
         integrator: j.integrator.name().to_string(),
         tile_size: j.tile_size.unwrap_or(0),
         batch_spp: j.batch_spp.unwrap_or(0),
@@ -107,6 +108,7 @@ pub fn settings_from_proto(s: Option<&crate::RenderSettings>) -> Result<(Overrid
         height: nonzero(s.height),
         max_depth: s.max_depth,
         seed: s.seed,
+        clamp: s.clamp,
         up: if s.up.is_empty() { tracer::scene::UpAxis::Y } else { s.up.parse()? },
     };
     let integrator = if s.integrator.is_empty() { Integrator::Path } else { s.integrator.parse()? };
@@ -275,6 +277,7 @@ mod tests {
                     tile_size: 32,
                     batch_spp: 4,
                     up: "z".into(),
+                    clamp: Some(0.5),
                 }),
             }),
             unit_id: 7,
@@ -299,7 +302,8 @@ mod tests {
                 height: Some(120),
                 max_depth: Some(4),
                 seed: None,
-                up: tracer::scene::UpAxis::Z
+                up: tracer::scene::UpAxis::Z,
+                clamp: Some(0.5),
             }
         );
     }

@@ -103,6 +103,8 @@ pub struct RenderInfo {
     pub spp: u32,
     pub max_depth: i32,
     pub seed: u64,
+    /// The firefly clamp, if one was on (the image is then biased).
+    pub clamp: Option<f32>,
     pub integrator: String,
     /// Wall-clock time of the render so far.
     pub seconds: f64,
@@ -129,6 +131,7 @@ impl RenderInfo {
             spp: settings.spp,
             max_depth: settings.max_depth,
             seed: settings.seed,
+            clamp: settings.clamp,
             integrator: integrator.to_string(),
             seconds: 0.0,
             world_to_camera: camera.world_to_camera().to_cols_array(),
@@ -146,6 +149,8 @@ pub mod keys {
     pub const INTEGRATOR: &str = "tilefarm/integrator";
     pub const RENDER_SECONDS: &str = "tilefarm/renderSeconds";
     pub const SCENE: &str = "tilefarm/scene";
+    /// Present only when a clamp was on: its limit.
+    pub const CLAMP: &str = "tilefarm/clamp";
 }
 
 /// Linear float32 R, G, B, A (= 1) and `samples` (u32) channels, lossless ZIP.
@@ -213,6 +218,9 @@ fn write_exr_to(
             (keys::SCENE, text(&info.scene)),
         ] {
             attributes.other.insert(Text::from(name), value);
+        }
+        if let Some(c) = info.clamp {
+            attributes.other.insert(Text::from(keys::CLAMP), AttributeValue::F32(c));
         }
     }
     let layer = Layer::new((w as usize, h as usize), attributes, Encoding::SMALL_LOSSLESS, channels);

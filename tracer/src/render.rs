@@ -400,6 +400,16 @@ radiance = [0.05, 0.06, 0.08]
                 }
                 assert!(base.0.sums.iter().any(|s| *s != [0; 3]), "nothing rendered in {name}");
             }
+            // Firefly control clamps the same samples on both routes.
+            scene.settings.clamp = Some(0.25);
+            let base = render_unit_loop(&scene, Integrator::Path, tile, samples);
+            // SAFETY: AVX2 was detected above.
+            let avx2 = unsafe { render_unit_avx2(&scene, Integrator::Path, tile, samples) };
+            assert_eq!(base, avx2, "{name} clamped");
+            for i in 0..tile.pixel_count() {
+                let m = base.0.mean(i).max_element();
+                assert!(m <= 0.25 + 1e-6 || !m.is_finite(), "{name}: pixel {i} at {m} above the clamp");
+            }
         }
         assert!(in_packets >= 7, "only {in_packets} scenes traced in packets");
     }

@@ -155,3 +155,41 @@ fn same_seed_same_bits_and_sample_ranges_merge_exactly() {
     other.settings.seed = 1;
     assert_ne!(render_unit(&other, Integrator::Path, tile, SampleRange::new(0, 16)), whole);
 }
+
+/// `clamp` bounds every pixel (the mean of samples each at most the limit), leaves
+/// pixels whose samples stay below it alone, and a limit no sample reaches changes no bits.
+#[test]
+fn clamp_bounds_samples_and_changes_nothing_below_it() {
+    let tile = Tile::new(0, 0, 24, 24);
+    let samples = SampleRange::new(0, 8);
+    let mut s = small_cornell();
+    let free = render_unit(&s, Integrator::Path, tile, samples);
+    let brightest = (0..tile.pixel_count()).map(|i| free.mean(i).max_element()).fold(0.0, f32::max);
+    assert!(brightest > 2.0, "the lamp is in view ({brightest})");
+    s.settings.clamp = Some(1e30);
+    assert_eq!(render_unit(&s, Integrator::Path, tile, samples), free, "a limit no sample reaches");
+    s.settings.clamp = Some(1.0);
+    let clamped = render_unit(&s, Integrator::Path, tile, samples);
+    let mut unchanged = 0;
+    for i in 0..tile.pixel_count() {
+        let (c, f) = (clamped.mean(i), free.mean(i));
+        assert!(c.max_element() <= 1.0 + 1e-6, "pixel {i}: {c} above the clamp");
+        assert!(c.cmple(f + 1e-6).all(), "pixel {i}: clamping brightened {f} to {c}");
+        unchanged += usize::from(f.max_element() < 0.2 && clamped.sums[i] == free.sums[i]);
+    }
+    assert!(unchanged > 0, "dim pixels whose samples never reach the limit keep their bits");
+}
+
+#[test]
+fn a_clamp_must_be_positive_and_names_its_field() {
+    let dir = TempDir::new("clamp-field");
+    dir.write("plane.obj", PLANE_OBJ);
+    dir.write("plane.mtl", "newmtl white\nKd 0.8 0.8 0.8\n");
+    for bad in ["0.0", "-1.0", "nan", "inf"] {
+        let toml = format!(
+            "[render]\nclamp = {bad}\n[camera]\nposition = [0.0, 3.0, -4.0]\nlook_at = [0.0, 0.0, 0.5]\nfov = 50\nwidth = 8\nheight = 8\n[[mesh]]\nobj = \"plane.obj\"\n"
+        );
+        let err = scene_from_toml(&toml, "test.toml", &dir.0).err().expect(bad).to_string();
+        assert!(err.contains("render.clamp") && err.contains("above 0"), "{bad}: {err}");
+    }
+}

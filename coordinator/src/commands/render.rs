@@ -45,6 +45,11 @@ pub struct JobArgs {
     /// Override the scene's seed.
     #[arg(long, value_name = "N")]
     pub seed: Option<u64>,
+    /// Firefly control (biased, off by default): a sample whose brightest channel exceeds
+    /// L is scaled down to L, keeping its colour. The EXR header records the limit
+    /// (`tilefarm/clamp`). Overrides the scene's [render] clamp.
+    #[arg(long, value_name = "L", value_parser = clamp_limit, allow_hyphen_values = true)]
+    pub clamp: Option<f32>,
     /// path (default: NEE + MIS); path-light or path-bsdf (one strategy only, to compare
     /// estimators); or an AOV: normals, albedo, depth.
     #[arg(long, default_value = "path")]
@@ -62,6 +67,12 @@ pub struct JobArgs {
     pub up: tracer::scene::UpAxis,
 }
 
+/// `--clamp`'s value: a finite number above zero.
+fn clamp_limit(s: &str) -> Result<f32, String> {
+    let v: f32 = s.parse().map_err(|_| format!("{s:?} is not a number"))?;
+    tracer::scene::check_clamp(v).map(|()| v)
+}
+
 impl JobArgs {
     /// The job these options ask for, of a scene and its files.
     pub fn spec(&self, scene: AssetRef, assets: Vec<AssetRef>) -> JobSpec {
@@ -75,6 +86,7 @@ impl JobArgs {
                 height: self.height,
                 max_depth: self.max_depth,
                 seed: self.seed,
+                clamp: self.clamp,
                 up: self.up,
             },
             integrator: self.integrator,

@@ -94,6 +94,11 @@ pub fn scene_key(spec: &JobSpec) -> String {
     let o = &spec.overrides;
     let size = (o.width.unwrap_or(0), o.height.unwrap_or(0));
     h.update(format!("{}|{}|{:?}|{:?}|{}", size.0, size.1, o.max_depth, o.seed, spec.integrator.name()).as_bytes());
+    // Added after the fields above, and only when set, so that checkpoints written
+    // before the clamp existed keep their keys.
+    if let Some(c) = o.clamp {
+        h.update(format!("|clamp {:08x}", c.to_bits()).as_bytes());
+    }
     hex::encode(h.finalize())
 }
 
@@ -442,5 +447,12 @@ mod tests {
         let mut wider = s.clone();
         wider.overrides.width = Some(99);
         assert_ne!(scene_key(&s), scene_key(&wider));
+        // A clamp changes the image: its checkpoint is another render's.
+        let mut clamped = s.clone();
+        clamped.overrides.clamp = Some(4.0);
+        assert_ne!(scene_key(&s), scene_key(&clamped));
+        let mut other_limit = s.clone();
+        other_limit.overrides.clamp = Some(8.0);
+        assert_ne!(scene_key(&clamped), scene_key(&other_limit));
     }
 }

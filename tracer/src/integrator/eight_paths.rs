@@ -307,7 +307,7 @@ pub(crate) fn render_unit(
 
         let ended = live & !go_on;
         for l in each(ended) {
-            acc.add_sample(pixels[l], paths.l.get(l));
+            acc.add_sample(pixels[l], opt.limit(paths.l.get(l)));
         }
         live &= go_on;
     }

@@ -71,7 +71,7 @@ pub struct RayCount {
 #[inline(always)]
 pub fn li(integrator: Integrator, scene: &Scene, ray: Ray, sampler: &mut Sampler, count: &mut RayCount) -> Vec3 {
     match path_options(integrator, scene) {
-        Some(options) => path::li(scene, ray, sampler, count, &options),
+        Some(options) => options.limit(path::li(scene, ray, sampler, count, &options)),
         None => aov::li(integrator, scene, ray, count),
     }
 }

@@ -41,11 +41,25 @@ pub struct Options {
     pub strategy: Strategy,
     /// Russian roulette starts once this many segments have been traced.
     pub rr_depth: u32,
+    /// The largest channel value a sample may add ([`RenderSettings::clamp`]); infinite
+    /// when off, so that [`Options::limit`] changes no bits.
+    ///
+    /// [`RenderSettings::clamp`]: crate::scene::RenderSettings::clamp
+    pub clamp: f32,
 }
 
 impl Options {
     pub fn from_scene(scene: &Scene) -> Self {
-        Self { max_depth: scene.settings.max_depth, strategy: Strategy::Mis, rr_depth: 5 }
+        let clamp = scene.settings.clamp.unwrap_or(f32::INFINITY);
+        Self { max_depth: scene.settings.max_depth, strategy: Strategy::Mis, rr_depth: 5, clamp }
+    }
+
+    /// A sample's radiance as the film takes it: scaled down, hue kept, so that its largest
+    /// channel is at most the clamp. Non-finite samples pass, for the film to count.
+    #[inline(always)]
+    pub fn limit(&self, l: Vec3) -> Vec3 {
+        let m = l.max_element();
+        if m > self.clamp && m.is_finite() { l * (self.clamp / m) } else { l }
     }
 }
 

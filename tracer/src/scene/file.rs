@@ -63,6 +63,9 @@ pub struct RenderDesc {
     pub max_depth: i32,
     #[serde(default)]
     pub seed: u64,
+    /// Largest channel value one sample may add (biased firefly control); absent: none.
+    #[serde(default)]
+    pub clamp: Option<f32>,
 }
 
 fn default_spp() -> u32 {
@@ -74,7 +77,7 @@ fn default_max_depth() -> i32 {
 
 impl Default for RenderDesc {
     fn default() -> Self {
-        Self { spp: default_spp(), max_depth: default_max_depth(), seed: 0 }
+        Self { spp: default_spp(), max_depth: default_max_depth(), seed: 0, clamp: None }
     }
 }
 

@@ -32,17 +32,25 @@ pub enum SceneError {
 }
 
 /// Render settings from the `[render]` table.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+#[derive(Clone, Copy, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct RenderSettings {
     pub spp: u32,
     /// Mitsuba 3 `path` semantics: path segments from the camera, -1 = unlimited.
     pub max_depth: i32,
     pub seed: u64,
+    /// Firefly control: a path sample whose largest channel exceeds this is scaled down to
+    /// it (biased, so off unless asked for; recorded in the EXR). Finite and positive.
+    pub clamp: Option<f32>,
+}
+
+/// A clamp limit is a finite number above zero (zero would blank the image).
+pub fn check_clamp(limit: f32) -> Result<(), String> {
+    if limit.is_finite() && limit > 0.0 { Ok(()) } else { Err(format!("must be a finite number above 0, not {limit}")) }
 }
 
 impl Default for RenderSettings {
     fn default() -> Self {
-        Self { spp: 64, max_depth: 8, seed: 0 }
+        Self { spp: 64, max_depth: 8, seed: 0, clamp: None }
     }
 }
 
@@ -208,7 +216,10 @@ pub(super) fn assemble_parts(
     if r.max_depth == 0 || r.max_depth < -1 {
         return Err(invalid("render.max_depth".into(), "must be -1 (unlimited) or ≥ 1".into()));
     }
-    let settings = RenderSettings { spp: r.spp, max_depth: r.max_depth, seed: r.seed };
+    if let Some(c) = r.clamp {
+        check_clamp(c).map_err(|e| invalid("render.clamp".into(), e))?;
+    }
+    let settings = RenderSettings { spp: r.spp, max_depth: r.max_depth, seed: r.seed, clamp: r.clamp };
 
     // Meshes, each OBJ read once (see `place_meshes`).
     let mut b = Builder::default();

@@ -4,7 +4,7 @@
 use super::{RenderSettings, Scene};
 use crate::camera::Camera;
 
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
 pub struct Overrides {
     pub spp: Option<u32>,
     /// Width alone keeps the aspect ratio; so does height alone.
@@ -12,6 +12,8 @@ pub struct Overrides {
     pub height: Option<u32>,
     pub max_depth: Option<i32>,
     pub seed: Option<u64>,
+    /// `--clamp`: see [`RenderSettings::clamp`].
+    pub clamp: Option<f32>,
     /// The up axis of a bare `.obj` (used when loading: [`super::load_scene_up`]).
     pub up: super::UpAxis,
 }
@@ -48,6 +50,10 @@ impl Overrides {
         }
         if let Some(s) = self.seed {
             settings.seed = s;
+        }
+        if let Some(c) = self.clamp {
+            super::load::check_clamp(c).map_err(|e| format!("clamp {e}"))?;
+            settings.clamp = Some(c);
         }
         Ok(())
     }
