@@ -301,6 +301,62 @@ fn clamp_bounds_the_image_and_is_recorded() {
     }
 }
 
+/// `--aovs` writes the AOV layers into the same EXR, through a worker process, under the
+/// names compositors read; the beauty channels are the same bits as without them.
+#[test]
+fn aovs_are_layers_of_the_same_exr() {
+    let dir = TempDir::new("aovs");
+    let render = |name: &str, extra: &[&str]| {
+        let path = dir.0.join(name);
+        let out = coordinator()
+            .args(["render", "-q", "--spp", "4", "--width", "24", "--local-workers", "1"])
+            .args(extra)
+            .arg("-o")
+            .arg(&path)
+            .output()
+            .unwrap();
+        assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+        path
+    };
+    let layered = render("layered.exr", &["--aovs"]);
+    let plain = render("plain.exr", &[]);
+    let meta = exr::meta::MetaData::read_from_file(&layered, false).unwrap();
+    let mut names: Vec<String> = meta.headers[0].channels.list.iter().map(|c| c.name.to_string()).collect();
+    names.sort();
+    let mut expected = [
+        "A",
+        "B",
+        "G",
+        "N.X",
+        "N.Y",
+        "N.Z",
+        "R",
+        "Z",
+        "albedo.B",
+        "albedo.G",
+        "albedo.R",
+        "samples",
+        "variance.B",
+        "variance.G",
+        "variance.R",
+    ]
+    .map(String::from)
+    .to_vec();
+    expected.sort();
+    assert_eq!(names, expected);
+    let (a, b) = (tracer::output::read_exr(&layered).unwrap(), tracer::output::read_exr(&plain).unwrap());
+    assert_eq!((&a.pixels, &a.counts), (&b.pixels, &b.counts), "the beauty pass is unchanged by the layers");
+    assert!(b.layers.is_empty() && a.layers.len() == a.pixels.len());
+    // The Cornell box is closed: every camera ray hits a wall at a finite distance, with
+    // an albedo in [0, 1] and a unit normal.
+    for (i, l) in a.layers.iter().enumerate() {
+        assert!(l.depth.is_finite() && l.depth > 0.0, "pixel {i}: Z {}", l.depth);
+        assert!(l.albedo.min_element() >= 0.0 && l.albedo.max_element() <= 1.0, "pixel {i}: {}", l.albedo);
+        assert!(l.normal.length() <= 1.0 + 1e-5 && l.variance.min_element() >= 0.0, "pixel {i}: {l:?}");
+    }
+    assert!(a.layers.iter().any(|l| l.normal.length() > 0.99), "flat walls have unit normals");
+}
+
 /// A render that was killed never ran its cleanup: the next render removes its folder.
 #[test]
 fn a_killed_renders_temporary_folder_is_removed_by_the_next_render() {

@@ -79,6 +79,8 @@ pub struct UnitResult {
     pub samples: SampleRange,
     pub sums: Vec<[i128; 3]>,
     pub counts: Vec<u32>,
+    /// The AOV layers' sums per pixel (empty unless the job keeps layers).
+    pub layers: Vec<tracer::film::LayerSums>,
     pub nonfinite: u64,
     pub rays: u64,
     /// Seconds its worker spent rendering it (0 when unknown): not part of the image.

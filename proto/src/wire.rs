@@ -44,6 +44,7 @@ pub fn settings_to_proto(j: &JobSpec) -> crate::RenderSettings {
         max_depth: o.max_depth,
         seed: o.seed,
         clamp: o.clamp,
+        aovs: o.aovs,
         integrator: j.integrator.name().to_string(),
         tile_size: j.tile_size.unwrap_or(0),
         batch_spp: j.batch_spp.unwrap_or(0),
@@ -109,6 +110,7 @@ pub fn settings_from_proto(s: Option<&crate::RenderSettings>) -> Result<(Overrid
         max_depth: s.max_depth,
         seed: s.seed,
         clamp: s.clamp,
+        aovs: s.aovs,
         up: if s.up.is_empty() { tracer::scene::UpAxis::Y } else { s.up.parse()? },
     };
     let integrator = if s.integrator.is_empty() { Integrator::Path } else { s.integrator.parse()? };
@@ -190,6 +192,9 @@ pub fn result_from_proto(r: crate::UnitResult) -> Result<ReceivedResult, String>
     let samples = samples_from_proto(r.sample_start, r.sample_end).map_err(|e| format!("unit {key}: {e}"))?;
     let sums = Accumulation::sums_from_bytes(&r.sums)
         .ok_or_else(|| format!("unit {key}: sums are not a whole number of pixels (48 bytes each)"))?;
+    let layers = Accumulation::layers_from_bytes(&r.layers).ok_or_else(|| {
+        format!("unit {key}: layers are not a whole number of pixels ({} bytes each)", tracer::film::LAYER_BYTES)
+    })?;
     if !(r.render_seconds.is_finite() && (0.0..=MAX_RENDER_SECONDS).contains(&r.render_seconds)) {
         return Err(format!(
             "unit {key}: render_seconds must be between 0 and {MAX_RENDER_SECONDS}, got {}",
@@ -202,6 +207,7 @@ pub fn result_from_proto(r: crate::UnitResult) -> Result<ReceivedResult, String>
         samples,
         sums,
         counts: r.counts,
+        layers,
         nonfinite: r.nonfinite,
         rays: r.rays,
         render_seconds: r.render_seconds,
@@ -238,6 +244,7 @@ pub fn result_to_proto(
         sample_end: samples.end,
         sums: acc.sums_to_bytes(),
         counts: acc.counts.clone(),
+        layers: acc.layers_to_bytes(),
         nonfinite: acc.nonfinite,
         rays,
         render_seconds,
@@ -278,6 +285,7 @@ mod tests {
                     batch_spp: 4,
                     up: "z".into(),
                     clamp: Some(0.5),
+                    aovs: true,
                 }),
             }),
             unit_id: 7,
@@ -304,6 +312,7 @@ mod tests {
                 seed: None,
                 up: tracer::scene::UpAxis::Z,
                 clamp: Some(0.5),
+                aovs: true,
             }
         );
     }
@@ -378,6 +387,17 @@ mod tests {
         assert_eq!(m.render_seconds, 0.5);
         // Radiance 1.0 is 2^32 in fixed point, little-endian.
         assert_eq!(i128::from_le_bytes(m.sums[0..16].try_into().unwrap()), 1i128 << 32);
+        assert!(m.layers.is_empty(), "no layers unless the job keeps them");
+
+        // With layers: they travel, and come back as they were.
+        let mut layered = Accumulation::with_layers(tile, true);
+        let hit = tracer::film::FirstHit { albedo: glam::Vec3::ONE, normal: glam::Vec3::Y, depth: Some(3.5) };
+        layered.add_sample_at(0, glam::Vec3::new(1.0, 0.5, 0.25), &hit);
+        layered.add_sample_at(1, glam::Vec3::splat(2.0), &tracer::film::FirstHit::default());
+        let m = result_to_proto(3, &key, SampleRange::new(10, 11), &layered, 1, 0.5);
+        assert_eq!(m.layers.len(), 2 * tracer::film::LAYER_BYTES);
+        let back = result_from_proto(m).unwrap().result;
+        assert_eq!(back.layers, layered.layers);
     }
 
     /// What a worker sends is checked once, here, for the coordinator too: a bad tile, an
@@ -397,6 +417,7 @@ mod tests {
             crate::UnitResult { tile: Some(crate::Tile { x0: u32::MAX, y0: 0, width: 2, height: 1 }), ..good.clone() },
             crate::UnitResult { sample_start: 4, sample_end: 4, ..good.clone() },
             crate::UnitResult { sums: vec![0; 47], ..good.clone() },
+            crate::UnitResult { layers: vec![0; tracer::film::LAYER_BYTES + 1], ..good.clone() },
             crate::UnitResult { render_seconds: -1.0, ..good.clone() },
             crate::UnitResult { render_seconds: f64::NAN, ..good.clone() },
             crate::UnitResult { render_seconds: 1e300, ..good.clone() },

@@ -251,6 +251,7 @@ pub fn forged_result(worker: u64, job: &str, unit: &proto::Unit, value: i128) ->
         sample_end: unit.sample_end,
         sums: value.to_le_bytes().repeat(3 * n),
         counts: vec![unit.sample_end - unit.sample_start; n],
+        layers: Vec::new(),
         nonfinite: 0,
         rays: 0,
         render_seconds: 0.0,

@@ -6,7 +6,10 @@
 //! accumulators) before it is added: integer addition is associative, so the film of
 //! samples [0,a) merged with that of [a,b) is bit-identical to the film of [0,b).
 
+pub mod layers;
+
 use glam::Vec3;
+pub use layers::{FirstHit, LayerSums, PixelLayers};
 
 /// Fixed-point scale: radiance 1.0 is 2^32. Resolution 2.3e-10; the i128 range
 /// (±1.7e38 / 2^32 ≈ 4e28) cannot overflow from finite f32 samples within a pixel.
@@ -64,6 +67,9 @@ impl SampleRange {
     }
 }
 
+/// Bytes of one pixel's layer sums on the wire.
+pub const LAYER_BYTES: usize = layers::CHANNELS * 16;
+
 /// Converts one channel of one sample to fixed point. Exact and deterministic: the f32
 /// widens to f64 exactly, the multiplication by 2^32 is exact, and `round` is exact.
 ///
@@ -86,6 +92,9 @@ pub struct Accumulation {
     pub counts: Vec<u32>,
     /// Samples that were NaN or infinite and were replaced by zero.
     pub nonfinite: u64,
+    /// The AOV layers' sums per pixel ([`layers`]), row-major; empty unless the render
+    /// keeps layers.
+    pub layers: Vec<LayerSums>,
 }
 
 #[derive(Debug, thiserror::Error, PartialEq, Eq)]
@@ -94,6 +103,8 @@ pub enum MergeError {
     TileMismatch(Tile, Tile),
     #[error("malformed accumulation: {0} sums and {1} counts for {2} pixels")]
     Malformed(usize, usize, usize),
+    #[error("malformed accumulation: {0} pixels of layers for {1} pixels")]
+    Layers(usize, usize),
     #[error("sample count overflow")]
     Overflow,
 }
@@ -101,12 +112,43 @@ pub enum MergeError {
 impl Accumulation {
     pub fn new(tile: Tile) -> Self {
         let n = tile.pixel_count();
-        Self { tile, sums: vec![[0; 3]; n], counts: vec![0; n], nonfinite: 0 }
+        Self { tile, sums: vec![[0; 3]; n], counts: vec![0; n], nonfinite: 0, layers: Vec::new() }
+    }
+
+    /// An empty accumulation that also keeps the AOV layers (`with_layers`) or not.
+    pub fn with_layers(tile: Tile, with_layers: bool) -> Self {
+        let mut a = Self::new(tile);
+        if with_layers {
+            a.layers = vec![[0; layers::CHANNELS]; tile.pixel_count()];
+        }
+        a
+    }
+
+    /// Whether this accumulation keeps the AOV layers.
+    pub fn has_layers(&self) -> bool {
+        !self.layers.is_empty()
     }
 
     /// Adds one sample to pixel `i` (index within the tile).
     #[inline]
     pub fn add_sample(&mut self, i: usize, radiance: Vec3) {
+        self.add_beauty(i, radiance);
+    }
+
+    /// [`Accumulation::add_sample`], with the sample's first hit for the layers (ignored
+    /// unless the accumulation keeps layers).
+    #[inline(always)]
+    pub fn add_sample_at(&mut self, i: usize, radiance: Vec3, first: &FirstHit) {
+        let v = self.add_beauty(i, radiance);
+        if let Some(s) = self.layers.get_mut(i) {
+            layers::add(s, v, first);
+        }
+    }
+
+    /// Adds the beauty pass's part of a sample; returns the radiance as added (zero for a
+    /// non-finite sample).
+    #[inline]
+    fn add_beauty(&mut self, i: usize, radiance: Vec3) -> Vec3 {
         let v = if radiance.is_finite() {
             radiance
         } else {
@@ -118,12 +160,16 @@ impl Accumulation {
         s[1] += to_fixed(v.y);
         s[2] += to_fixed(v.z);
         self.counts[i] += 1;
+        v
     }
 
     fn check(&self) -> Result<(), MergeError> {
         let n = self.tile.pixel_count();
         if self.sums.len() != n || self.counts.len() != n {
             return Err(MergeError::Malformed(self.sums.len(), self.counts.len(), n));
+        }
+        if !self.layers.is_empty() && self.layers.len() != n {
+            return Err(MergeError::Layers(self.layers.len(), n));
         }
         Ok(())
     }
@@ -135,6 +181,9 @@ impl Accumulation {
         }
         self.check()?;
         other.check()?;
+        if self.layers.len() != other.layers.len() {
+            return Err(MergeError::Layers(other.layers.len(), self.layers.len()));
+        }
         for (c, o) in self.counts.iter().zip(&other.counts) {
             c.checked_add(*o).ok_or(MergeError::Overflow)?;
         }
@@ -146,8 +195,38 @@ impl Accumulation {
         for (c, o) in self.counts.iter_mut().zip(&other.counts) {
             *c += o;
         }
+        for (s, o) in self.layers.iter_mut().zip(&other.layers) {
+            layers::merge(s, o);
+        }
         self.nonfinite += other.nonfinite;
         Ok(())
+    }
+
+    /// The layer sums as bytes: per pixel [`layers::CHANNELS`] little-endian i128 (the
+    /// wire format); empty without layers.
+    pub fn layers_to_bytes(&self) -> Vec<u8> {
+        let mut out = Vec::with_capacity(self.layers.len() * LAYER_BYTES);
+        for s in &self.layers {
+            for v in s {
+                out.extend_from_slice(&v.to_le_bytes());
+            }
+        }
+        out
+    }
+
+    /// Inverse of [`Accumulation::layers_to_bytes`]; `None` unless the length is a whole
+    /// number of pixels.
+    pub fn layers_from_bytes(bytes: &[u8]) -> Option<Vec<LayerSums>> {
+        if !bytes.len().is_multiple_of(LAYER_BYTES) {
+            return None;
+        }
+        let read = |c: &[u8]| i128::from_le_bytes(c.try_into().expect("16-byte chunk"));
+        Some(bytes.chunks_exact(LAYER_BYTES).map(|p| std::array::from_fn(|k| read(&p[16 * k..16 * k + 16]))).collect())
+    }
+
+    /// The layers of pixel `i`, if this accumulation keeps them.
+    pub fn layers_at(&self, i: usize) -> Option<PixelLayers> {
+        self.layers.get(i).map(|s| PixelLayers::of(self.counts[i], &self.sums[i], s))
     }
 
     /// The sums as bytes: per pixel three little-endian i128 (the wire format).
@@ -192,6 +271,10 @@ pub trait Pixels: Sync {
     fn pixel(&self, x: u32, y: u32) -> (Vec3, u32);
     /// The sample count alone (no mean computed).
     fn count(&self, x: u32, y: u32) -> u32;
+    /// Whether the pixels carry AOV layers.
+    fn has_layers(&self) -> bool;
+    /// The AOV layers of pixel (x, y) (default values where there are none).
+    fn layers(&self, x: u32, y: u32) -> PixelLayers;
 }
 
 /// A whole image as its tiles' accumulations (laid out by [`Tile::grid`]), read in
@@ -240,6 +323,15 @@ impl<A: std::borrow::Borrow<Accumulation> + Sync> Pixels for Mosaic<'_, A> {
         let (acc, i) = self.at(x, y);
         acc.counts[i]
     }
+
+    fn has_layers(&self) -> bool {
+        self.tiles.first().is_some_and(|a| a.borrow().has_layers())
+    }
+
+    fn layers(&self, x: u32, y: u32) -> PixelLayers {
+        let (acc, i) = self.at(x, y);
+        acc.layers_at(i).unwrap_or_default()
+    }
 }
 
 impl Pixels for Image {
@@ -255,6 +347,14 @@ impl Pixels for Image {
     fn count(&self, x: u32, y: u32) -> u32 {
         self.counts[(y * self.width + x) as usize]
     }
+
+    fn has_layers(&self) -> bool {
+        !self.layers.is_empty()
+    }
+
+    fn layers(&self, x: u32, y: u32) -> PixelLayers {
+        self.layers.get((y * self.width + x) as usize).copied().unwrap_or_default()
+    }
 }
 
 /// A whole image assembled from tiles: mean radiance and sample count per pixel.
@@ -264,16 +364,22 @@ pub struct Image {
     pub height: u32,
     pub pixels: Vec<Vec3>,
     pub counts: Vec<u32>,
+    /// Per-pixel AOV layers; empty when the render kept none.
+    pub layers: Vec<PixelLayers>,
 }
 
 impl Image {
     pub fn new(width: u32, height: u32) -> Self {
         let n = width as usize * height as usize;
-        Self { width, height, pixels: vec![Vec3::ZERO; n], counts: vec![0; n] }
+        Self { width, height, pixels: vec![Vec3::ZERO; n], counts: vec![0; n], layers: Vec::new() }
     }
 
-    /// Writes a tile's means into the image (the tile must lie inside it).
+    /// Writes a tile's means (and layers, if it has them) into the image (the tile must
+    /// lie inside it).
     pub fn put(&mut self, acc: &Accumulation) {
+        if acc.has_layers() && self.layers.is_empty() {
+            self.layers = vec![PixelLayers::default(); self.pixels.len()];
+        }
         let t = acc.tile;
         for ty in 0..t.height {
             for tx in 0..t.width {
@@ -281,6 +387,9 @@ impl Image {
                 let o = ((t.y0 + ty) * self.width + t.x0 + tx) as usize;
                 self.pixels[o] = acc.mean(i);
                 self.counts[o] = acc.counts[i];
+                if let Some(l) = acc.layers_at(i) {
+                    self.layers[o] = l;
+                }
             }
         }
     }
@@ -294,11 +403,17 @@ impl Image {
     pub fn of(p: &impl Pixels) -> Self {
         let (w, h) = p.size();
         let mut img = Image::new(w, h);
+        if p.has_layers() {
+            img.layers = vec![PixelLayers::default(); img.pixels.len()];
+        }
         for y in 0..h {
             for x in 0..w {
                 let (v, n) = p.pixel(x, y);
                 let i = (y * w + x) as usize;
                 (img.pixels[i], img.counts[i]) = (v, n);
+                if let Some(l) = img.layers.get_mut(i) {
+                    *l = p.layers(x, y);
+                }
             }
         }
         img

@@ -189,16 +189,63 @@ fn write_exr_to(
 ) -> Result<(), String> {
     use exr::prelude::*;
     let (w, h) = image.size();
+    let attributes = exr_attributes(image, info);
+    let size = (w as usize, h as usize);
+    if !image.has_layers() {
+        let channels = SpecificChannels::build()
+            .with_channel("R")
+            .with_channel("G")
+            .with_channel("B")
+            .with_channel("A")
+            .with_channel("samples")
+            .with_pixel_fn(|Vec2(x, y): Vec2<usize>| {
+                let (p, n) = image.pixel(x as u32, y as u32);
+                (p.x, p.y, p.z, 1.0f32, n)
+            });
+        let mut exr = Image::from_layer(Layer::new(size, attributes, Encoding::SMALL_LOSSLESS, channels));
+        exr.attributes.chromaticities = Some(REC709);
+        return exr.write().to_buffered(out).map_err(|e| e.to_string());
+    }
+    // The AOV layers, named as compositors (Nuke, Blender) and OIDN's tools expect.
     let channels = SpecificChannels::build()
         .with_channel("R")
         .with_channel("G")
         .with_channel("B")
         .with_channel("A")
         .with_channel("samples")
+        .with_channel("albedo.R")
+        .with_channel("albedo.G")
+        .with_channel("albedo.B")
+        .with_channel("N.X")
+        .with_channel("N.Y")
+        .with_channel("N.Z")
+        .with_channel("Z")
+        .with_channel("variance.R")
+        .with_channel("variance.G")
+        .with_channel("variance.B")
         .with_pixel_fn(|Vec2(x, y): Vec2<usize>| {
             let (p, n) = image.pixel(x as u32, y as u32);
-            (p.x, p.y, p.z, 1.0f32, n)
+            let l = image.layers(x as u32, y as u32);
+            let (a, nn, v) = (l.albedo, l.normal, l.variance);
+            (p.x, p.y, p.z, 1.0f32, n, a.x, a.y, a.z, nn.x, nn.y, nn.z, l.depth, v.x, v.y, v.z)
         });
+    let mut exr = Image::from_layer(Layer::new(size, attributes, Encoding::SMALL_LOSSLESS, channels));
+    exr.attributes.chromaticities = Some(REC709);
+    exr.write().to_buffered(out).map_err(|e| e.to_string())
+}
+
+/// Rec. 709 / sRGB primaries and D65 white: what the linear RGB values mean.
+const REC709: exr::meta::attribute::Chromaticities = exr::meta::attribute::Chromaticities {
+    red: exr::math::Vec2(0.64, 0.33),
+    green: exr::math::Vec2(0.30, 0.60),
+    blue: exr::math::Vec2(0.15, 0.06),
+    white: exr::math::Vec2(0.3127, 0.3290),
+};
+
+/// The layer's header attributes: the software, and with `info` what made the image.
+fn exr_attributes(image: &impl Pixels, info: Option<&RenderInfo>) -> exr::meta::header::LayerAttributes {
+    use exr::prelude::*;
+    let (w, h) = image.size();
     let mut attributes = LayerAttributes::named("tilefarm");
     attributes.software_name = Some(Text::from(concat!("tilefarm ", env!("CARGO_PKG_VERSION"))));
     if let Some(info) = info {
@@ -223,19 +270,11 @@ fn write_exr_to(
             attributes.other.insert(Text::from(keys::CLAMP), AttributeValue::F32(c));
         }
     }
-    let layer = Layer::new((w as usize, h as usize), attributes, Encoding::SMALL_LOSSLESS, channels);
-    let mut exr = Image::from_layer(layer);
-    // Rec. 709 / sRGB primaries and D65 white: what the linear RGB values mean.
-    exr.attributes.chromaticities = Some(exr::meta::attribute::Chromaticities {
-        red: Vec2(0.64, 0.33),
-        green: Vec2(0.30, 0.60),
-        blue: Vec2(0.15, 0.06),
-        white: Vec2(0.3127, 0.3290),
-    });
-    exr.write().to_buffered(out).map_err(|e| e.to_string())
+    attributes
 }
 
-/// Reads back what [`write_exr`] wrote (RGB and the sample counts, if present).
+/// Reads back what [`write_exr`] wrote (RGB, the sample counts and the AOV layers, where
+/// present).
 pub fn read_exr(path: &Path) -> Result<Image, OutputError> {
     use exr::prelude::*;
     let err = |e: exr::error::Error| OutputError::Read { path: path.display().to_string(), message: e.to_string() };
@@ -243,15 +282,29 @@ pub fn read_exr(path: &Path) -> Result<Image, OutputError> {
     let layer = &img.layer_data;
     let (w, h) = (layer.size.width() as u32, layer.size.height() as u32);
     let mut out = crate::film::Image::new(w, h);
+    if layer.channel_data.list.iter().any(|c| c.name.to_string() == "albedo.R") {
+        out.layers = vec![crate::film::PixelLayers::default(); out.pixels.len()];
+    }
     for ch in &layer.channel_data.list {
         let name = ch.name.to_string();
         let values: Vec<f32> = ch.sample_data.values_as_f32().collect();
         for (i, v) in values.into_iter().enumerate() {
-            match name.as_str() {
-                "R" => out.pixels[i].x = v,
-                "G" => out.pixels[i].y = v,
-                "B" => out.pixels[i].z = v,
-                "samples" => out.counts[i] = v as u32,
+            let l = out.layers.get_mut(i);
+            match (name.as_str(), l) {
+                ("R", _) => out.pixels[i].x = v,
+                ("G", _) => out.pixels[i].y = v,
+                ("B", _) => out.pixels[i].z = v,
+                ("samples", _) => out.counts[i] = v as u32,
+                ("albedo.R", Some(l)) => l.albedo.x = v,
+                ("albedo.G", Some(l)) => l.albedo.y = v,
+                ("albedo.B", Some(l)) => l.albedo.z = v,
+                ("N.X", Some(l)) => l.normal.x = v,
+                ("N.Y", Some(l)) => l.normal.y = v,
+                ("N.Z", Some(l)) => l.normal.z = v,
+                ("Z", Some(l)) => l.depth = v,
+                ("variance.R", Some(l)) => l.variance.x = v,
+                ("variance.G", Some(l)) => l.variance.y = v,
+                ("variance.B", Some(l)) => l.variance.z = v,
                 _ => {}
             }
         }
@@ -319,6 +372,16 @@ mod tests {
         write_image(&img, &path).unwrap();
         let back = read_exr(&path).unwrap();
         assert_eq!(back, img);
+        img.layers = (0..6)
+            .map(|i| crate::film::PixelLayers {
+                albedo: Vec3::new(0.5, 0.25, i as f32 / 8.0),
+                normal: Vec3::new(0.0, -1.0, i as f32 / 6.0),
+                depth: if i == 5 { f32::INFINITY } else { 1.5 * i as f32 },
+                variance: Vec3::new(1e-4, 2e-4, i as f32),
+            })
+            .collect();
+        write_image(&img, &path).unwrap();
+        assert_eq!(read_exr(&path).unwrap(), img, "the AOV layers round-trip");
         write_image(&img, &dir.join("t.png")).unwrap();
         assert!(write_image(&img, &dir.join("t.bmpx")).is_err());
         std::fs::remove_dir_all(&dir).ok();

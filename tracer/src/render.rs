@@ -7,7 +7,7 @@ use std::sync::atomic::{AtomicU64, Ordering};
 use glam::Vec2;
 use rayon::prelude::*;
 
-use crate::film::{Accumulation, Image, SampleRange, Tile};
+use crate::film::{Accumulation, FirstHit, Image, SampleRange, Tile};
 use crate::integrator::{Integrator, RayCount, li, path_options};
 use crate::sampler::Sampler;
 use crate::scene::Scene;
@@ -99,10 +99,12 @@ fn render_unit_loop(
     tile: Tile,
     samples: SampleRange,
 ) -> (Accumulation, RayCount) {
-    let mut acc = Accumulation::new(tile);
+    let layers = scene.settings.aovs;
+    let mut acc = Accumulation::with_layers(tile, layers);
     let mut count = RayCount::default();
     let cam = &scene.camera;
     let seed = scene.settings.seed;
+    let mut first = FirstHit::default();
     for ty in 0..tile.height {
         for tx in 0..tile.width {
             let (x, y) = (tile.x0 + tx, tile.y0 + ty);
@@ -113,8 +115,11 @@ fn render_unit_loop(
                 let film = Vec2::new(x as f32, y as f32) + sampler.next_2d();
                 let lens = if cam.has_lens() { sampler.next_2d() } else { Vec2::ZERO };
                 let ray = cam.generate_ray(film, lens);
-                let l = li(integrator, scene, ray, &mut sampler, &mut count);
-                acc.add_sample(i, l);
+                // The first hit only when the film keeps layers (a branch per sample, not
+                // a second copy of the inlined integrator).
+                let f = if layers { Some(&mut first) } else { None };
+                let l = li(integrator, scene, ray, &mut sampler, &mut count, f);
+                acc.add_sample_at(i, l, &first);
             }
         }
     }
@@ -410,6 +415,15 @@ radiance = [0.05, 0.06, 0.08]
                 let m = base.0.mean(i).max_element();
                 assert!(m <= 0.25 + 1e-6 || !m.is_finite(), "{name}: pixel {i} at {m} above the clamp");
             }
+            // With the AOV layers kept: the same layers on both routes, and the beauty
+            // pass's bits unchanged by keeping them.
+            scene.settings.aovs = true;
+            let layered = render_unit_loop(&scene, Integrator::Path, tile, samples);
+            // SAFETY: AVX2 was detected above.
+            let avx2 = unsafe { render_unit_avx2(&scene, Integrator::Path, tile, samples) };
+            assert_eq!(layered, avx2, "{name} with layers");
+            assert_eq!((&layered.0.sums, &layered.0.counts), (&base.0.sums, &base.0.counts), "{name}");
+            assert!(layered.0.layers.iter().any(|l| l[crate::film::layers::HITS_AT] > 0), "{name}: no hits");
         }
         assert!(in_packets >= 7, "only {in_packets} scenes traced in packets");
     }

@@ -50,6 +50,12 @@ pub struct JobArgs {
     /// (`tilefarm/clamp`). Overrides the scene's [render] clamp.
     #[arg(long, value_name = "L", value_parser = clamp_limit, allow_hyphen_values = true)]
     pub clamp: Option<f32>,
+    /// Also write the AOV layers into the EXR, from the same samples: albedo.R/G/B,
+    /// N.X/Y/Z (shading normal), Z (distance to the first hit) and variance.R/G/B (of
+    /// each pixel's value), beside R/G/B/A and samples. Costs 176 bytes of memory a pixel.
+    /// Also set by the scene's [render] aovs = true.
+    #[arg(long)]
+    pub aovs: bool,
     /// path (default: NEE + MIS); path-light or path-bsdf (one strategy only, to compare
     /// estimators); or an AOV: normals, albedo, depth.
     #[arg(long, default_value = "path")]
@@ -87,6 +93,7 @@ impl JobArgs {
                 max_depth: self.max_depth,
                 seed: self.seed,
                 clamp: self.clamp,
+                aovs: self.aovs,
                 up: self.up,
             },
             integrator: self.integrator,

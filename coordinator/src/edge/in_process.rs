@@ -67,6 +67,7 @@ impl worker::Link for InProcessLink {
                 samples: u.samples,
                 sums: u.acc.sums.clone(),
                 counts: u.acc.counts.clone(),
+                layers: u.acc.layers.clone(),
                 nonfinite: u.acc.nonfinite,
                 rays: u.rays,
                 render_seconds: u.seconds,

@@ -21,9 +21,10 @@ use tracer::film::{Accumulation, SampleRange, Tile};
 
 use super::job::{Job, Restored, UnitRecord};
 
-/// Version 2 records the job's owner after its name; version 1 files (no owner) are
-/// still read.
-const MAGIC: &[u8; 16] = b"tilefarm-ckpt-2\n";
+/// Version 3 records whether each tile keeps the AOV layers, and their sums; version 2
+/// the job's owner after its name. Versions 1 (no owner) and 2 (no layers) are still read.
+const MAGIC: &[u8; 16] = b"tilefarm-ckpt-3\n";
+const MAGIC_2: &[u8; 16] = b"tilefarm-ckpt-2\n";
 const MAGIC_1: &[u8; 16] = b"tilefarm-ckpt-1\n";
 const FILE: &str = "checkpoint.tfck";
 /// Beside a checkpoint: its job was cancelled, and must come back cancelled.
@@ -99,6 +100,11 @@ pub fn scene_key(spec: &JobSpec) -> String {
     if let Some(c) = o.clamp {
         h.update(format!("|clamp {:08x}", c.to_bits()).as_bytes());
     }
+    // Layers change what a tile's accumulation holds, not its beauty bits; but a
+    // checkpoint without them cannot continue a render that keeps them (nor back).
+    if o.aovs {
+        h.update(b"|aovs");
+    }
     hex::encode(h.finalize())
 }
 
@@ -172,9 +178,10 @@ fn encode_to(s: &Snapshot, out: &mut impl Write) -> std::io::Result<u64> {
             put_varint(&mut buf, v as u128);
         }
         put_varint(&mut buf, t.nonfinite as u128);
-        for (c, s) in t.counts.iter().zip(&t.sums) {
+        put_varint(&mut buf, u128::from(t.has_layers()));
+        for (i, (c, s)) in t.counts.iter().zip(&t.sums).enumerate() {
             put_varint(&mut buf, *c as u128);
-            for v in s {
+            for v in s.iter().chain(t.layers.get(i).into_iter().flatten()) {
                 put_i128(&mut buf, *v);
             }
         }
@@ -228,7 +235,13 @@ impl Reader<'_> {
 }
 
 pub fn decode(bytes: &[u8]) -> anyhow::Result<Snapshot> {
-    if bytes.len() < MAGIC.len() + 32 || (&bytes[..MAGIC.len()] != MAGIC && &bytes[..MAGIC.len()] != MAGIC_1) {
+    let version = match bytes.get(..MAGIC.len()) {
+        Some(m) if m == MAGIC => 3,
+        Some(m) if m == MAGIC_2 => 2,
+        Some(m) if m == MAGIC_1 => 1,
+        _ => 0,
+    };
+    if bytes.len() < MAGIC.len() + 32 || version == 0 {
         bail!("not a tilefarm checkpoint (or truncated)");
     }
     let (body, digest) = bytes.split_at(bytes.len() - 32);
@@ -238,7 +251,7 @@ pub fn decode(bytes: &[u8]) -> anyhow::Result<Snapshot> {
     let mut r = Reader { b: body, pos: MAGIC.len() };
     let spec = proto::wire::job_from_bytes(r.bytes()?).map_err(anyhow::Error::msg).context("job spec")?;
     let name = String::from_utf8(r.bytes()?.to_vec()).context("job name")?;
-    let owner = if &bytes[..MAGIC.len()] == MAGIC {
+    let owner = if version >= 2 {
         Some(String::from_utf8(r.bytes()?.to_vec()).context("job owner")?).filter(|o| !o.is_empty())
     } else {
         None
@@ -259,11 +272,18 @@ pub fn decode(bytes: &[u8]) -> anyhow::Result<Snapshot> {
     for _ in 0..n {
         let tile = Tile::new(r.u32()?, r.u32()?, r.u32()?, r.u32()?);
         anyhow::ensure!(tile.pixel_count() <= body.len(), "tile size out of range");
-        let mut acc = Accumulation::new(tile);
-        acc.nonfinite = r.u64()?;
+        let nonfinite = r.u64()?;
+        let layers = version >= 3 && r.u32()? != 0;
+        let mut acc = Accumulation::with_layers(tile, layers);
+        acc.nonfinite = nonfinite;
         for i in 0..tile.pixel_count() {
             acc.counts[i] = r.u32()?;
             acc.sums[i] = [r.i128()?, r.i128()?, r.i128()?];
+            if let Some(l) = acc.layers.get_mut(i) {
+                for v in l {
+                    *v = r.i128()?;
+                }
+            }
         }
         tiles.push(std::sync::Arc::new(acc));
     }
@@ -372,7 +392,12 @@ mod tests {
     use super::*;
 
     fn snapshot() -> Snapshot {
+        snapshot_with(false)
+    }
+
+    fn snapshot_with(layers: bool) -> Snapshot {
         let mut job = Job::loading("job-1".into(), "scene.toml".into());
+        job.layers = layers;
         job.start(5, 3, 4, 2, 2, true);
         let far = Instant::now() + Duration::from_secs(60);
         for _ in 0..4 {
@@ -385,6 +410,11 @@ mod tests {
                 samples: u.samples,
                 sums: (0..n).map(|i| [i as i128 * 1_000_000_007, 1 << 90, 0]).collect(),
                 counts: vec![u.samples.len(); n],
+                layers: if layers {
+                    (0..n).map(|i| std::array::from_fn(|k| (i * 11 + k) as i128 * -3_000_000_019)).collect()
+                } else {
+                    Vec::new()
+                },
                 nonfinite: 1,
                 rays: 77,
                 render_seconds: 0.0,
@@ -408,6 +438,47 @@ mod tests {
         let s = snapshot();
         assert_eq!(decode(&encode(&s)).unwrap(), s);
         assert_eq!(s.units_done(), 4);
+        let layered = snapshot_with(true);
+        assert!(layered.job.tiles.iter().all(|t| t.has_layers()));
+        assert!(layered.job.tiles.iter().any(|t| t.layers.iter().flatten().any(|&v| v != 0)));
+        assert_eq!(decode(&encode(&layered)).unwrap(), layered);
+    }
+
+    /// A version-2 file (before layers) still reads: the same bytes less the layers flag.
+    #[test]
+    fn version_two_checkpoints_still_read() {
+        let s = snapshot();
+        let mut buf = Vec::new();
+        buf.extend_from_slice(MAGIC_2);
+        let j = &s.job;
+        put_bytes(&mut buf, &proto::wire::job_to_bytes(&s.spec));
+        put_bytes(&mut buf, s.name.as_bytes());
+        put_bytes(&mut buf, b"");
+        for v in [j.width, j.height, j.spp, j.tile_size, j.batch_spp, j.non_negative as u32] {
+            put_varint(&mut buf, v as u128);
+        }
+        put_varint(&mut buf, j.rays as u128);
+        put_varint(&mut buf, j.nonfinite as u128);
+        put_varint(&mut buf, j.units.len() as u128);
+        for u in &j.units {
+            for v in [u.tile_index, u.samples.start, u.samples.end, u.done as u32] {
+                put_varint(&mut buf, v as u128);
+            }
+        }
+        put_varint(&mut buf, j.tiles.len() as u128);
+        for t in &j.tiles {
+            for v in [t.tile.x0, t.tile.y0, t.tile.width, t.tile.height] {
+                put_varint(&mut buf, v as u128);
+            }
+            put_varint(&mut buf, t.nonfinite as u128);
+            for (c, s) in t.counts.iter().zip(&t.sums) {
+                put_varint(&mut buf, *c as u128);
+                s.iter().for_each(|v| put_i128(&mut buf, *v));
+            }
+        }
+        let digest = Sha256::digest(&buf);
+        buf.extend_from_slice(&digest);
+        assert_eq!(decode(&buf).unwrap(), s);
     }
 
     #[test]
@@ -451,6 +522,9 @@ mod tests {
         let mut clamped = s.clone();
         clamped.overrides.clamp = Some(4.0);
         assert_ne!(scene_key(&s), scene_key(&clamped));
+        let mut layered = s.clone();
+        layered.overrides.aovs = true;
+        assert_ne!(scene_key(&s), scene_key(&layered), "a render with layers continues only one with layers");
         let mut other_limit = s.clone();
         other_limit.overrides.clamp = Some(8.0);
         assert_ne!(scene_key(&clamped), scene_key(&other_limit));

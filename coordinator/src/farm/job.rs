@@ -15,6 +15,8 @@ use crate::farm::schedule;
 pub const MAX_UNITS: u64 = 1 << 22;
 /// Bytes of a pixel's accumulation: three i128 sums and a u32 count.
 pub const ACCUMULATION_BYTES_PER_PIXEL: u64 = 52;
+/// Bytes a pixel's AOV layers add, when a job keeps them.
+pub const LAYER_BYTES_PER_PIXEL: u64 = tracer::film::LAYER_BYTES as u64;
 
 pub use crate::farm::unit::{Applied, Rejection, Spare, Unit, UnitId, UnitRecord, UnitResult, UnitState, WorkerId};
 
@@ -66,6 +68,9 @@ pub struct Job {
     /// Whether radiance must be non-negative (the path integrators; AOVs like normals
     /// are signed).
     pub non_negative: bool,
+    /// Whether the job keeps the AOV layers (`[render] aovs`): set before [`Job::start`],
+    /// and from its tiles on [`Job::restore`]; every result must carry them then.
+    pub layers: bool,
     pub units: Vec<Unit>,
     pending: BTreeSet<UnitId>,
     /// Each tile shared, so that the image can be written or checkpointed outside the
@@ -166,6 +171,7 @@ impl Job {
             tile_size: 0,
             batch_spp: 0,
             non_negative: true,
+            layers: false,
             units: Vec::new(),
             pending: BTreeSet::new(),
             tiles: Vec::new(),
@@ -197,15 +203,23 @@ impl Job {
     /// The scene loaded: lay out the units and start.
     /// Checks, before anything is allocated, that a job of this shape fits: at most
     /// [`MAX_UNITS`] units, tiles within the wire's limit, and its accumulations (52 bytes
-    /// per pixel) within `max_bytes`. The error names the setting and the limit.
-    pub fn check_size(width: u32, height: u32, spp: u32, tile: u32, batch: u32, max_bytes: u64) -> Result<(), String> {
+    /// per pixel, and 176 more with `layers`) within `max_bytes`. The error names the
+    /// setting and the limit.
+    pub fn check_size(
+        (width, height): (u32, u32),
+        spp: u32,
+        (tile, batch): (u32, u32),
+        layers: bool,
+        max_bytes: u64,
+    ) -> Result<(), String> {
         if tile == 0 || tile > proto::wire::MAX_TILE_SIDE {
             return Err(format!("tile size {tile}: must be between 1 and {}", proto::wire::MAX_TILE_SIDE));
         }
         if batch == 0 || batch > proto::wire::MAX_SAMPLES_PER_UNIT {
             return Err(format!("batch_spp {batch}: must be between 1 and {}", proto::wire::MAX_SAMPLES_PER_UNIT));
         }
-        let bytes = u64::from(width) * u64::from(height) * ACCUMULATION_BYTES_PER_PIXEL;
+        let per_pixel = ACCUMULATION_BYTES_PER_PIXEL + if layers { LAYER_BYTES_PER_PIXEL } else { 0 };
+        let bytes = u64::from(width) * u64::from(height) * per_pixel;
         if bytes > max_bytes {
             return Err(format!(
                 "a {width}×{height} image needs {} MiB of accumulation, more than this farm's limit of {} MiB \
@@ -234,7 +248,7 @@ impl Job {
             .collect();
         self.pending = (0..self.units.len() as UnitId).collect();
         self.clock.clear();
-        self.tiles = tiles.into_iter().map(|t| Arc::new(Accumulation::new(t))).collect();
+        self.tiles = tiles.into_iter().map(|t| Arc::new(Accumulation::with_layers(t, self.layers))).collect();
         (self.width, self.height, self.spp, self.non_negative) = (width, height, spp, non_negative);
         (self.tile_size, self.batch_spp) = (tile_size, batch_spp);
         self.phase = JobPhase::Running;
@@ -265,9 +279,13 @@ impl Job {
             let state = if u.done { UnitState::Done } else { UnitState::Pending };
             units.push(Unit::new(t, tiles[t], u.samples, state));
         }
+        let layers = r.tiles.first().is_some_and(|a| a.has_layers());
         for (t, acc) in r.tiles.iter().enumerate() {
             if acc.counts.len() != acc.tile.pixel_count() || acc.sums.len() != acc.tile.pixel_count() {
                 return Err(format!("tile {t} has the wrong number of pixels"));
+            }
+            if acc.has_layers() != layers || (layers && acc.layers.len() != acc.tile.pixel_count()) {
+                return Err(format!("tile {t}'s AOV layers disagree with the other tiles'"));
             }
             if acc.counts.iter().any(|&c| c as u64 != per_tile[t]) {
                 return Err(format!("tile {t}'s sample counts disagree with its finished units"));
@@ -284,6 +302,7 @@ impl Job {
             .sum();
         self.units = units;
         self.tiles = r.tiles;
+        self.layers = layers;
         (self.width, self.height, self.spp, self.tile_size, self.batch_spp) =
             (r.width, r.height, r.spp, r.tile_size, r.batch_spp);
         (self.non_negative, self.rays, self.nonfinite) = (r.non_negative, r.rays, r.nonfinite);
@@ -579,6 +598,14 @@ impl Job {
         if r.sums.len() != n || r.counts.len() != n {
             return Err(malformed(format!("{} sums and {} counts for {n} pixels", r.sums.len(), r.counts.len())));
         }
+        let layers_expected = if self.layers { n } else { 0 };
+        if r.layers.len() != layers_expected {
+            return Err(malformed(format!(
+                "{} pixels of AOV layers, expected {layers_expected} (the job {} them)",
+                r.layers.len(),
+                if self.layers { "keeps" } else { "does not keep" }
+            )));
+        }
         let expected = unit.samples.len();
         if let Some(c) = r.counts.iter().find(|&&c| c != expected) {
             return Err(malformed(format!("a pixel has {c} samples, expected {expected}")));
@@ -609,8 +636,13 @@ impl Job {
             }
             self.unit_times.push_back(now.saturating_duration_since(since));
         }
-        let acc =
-            Accumulation { tile: unit.tile, sums: r.sums.clone(), counts: r.counts.clone(), nonfinite: r.nonfinite };
+        let acc = Accumulation {
+            tile: unit.tile,
+            sums: r.sums.clone(),
+            counts: r.counts.clone(),
+            nonfinite: r.nonfinite,
+            layers: r.layers.clone(),
+        };
         Arc::make_mut(&mut self.tiles[tile_index]).merge(&acc).map_err(|e| malformed(e.to_string()))?;
         let unit = &mut self.units[r.unit as usize];
         unit.state = UnitState::Done;

@@ -98,6 +98,7 @@ impl Shared {
                     samples: d.samples,
                     sums: acc.sums,
                     counts: acc.counts,
+                    layers: acc.layers,
                     rays: count.rays,
                     nonfinite: acc.nonfinite,
                     render_seconds: 0.0,
@@ -335,10 +336,12 @@ impl Shared {
     }
 }
 
-/// What a unit result carries on the wire, about: its sums (3 × 16 bytes a pixel) and
-/// counts (4 bytes a pixel).
+/// What a unit result carries on the wire, about: its sums (3 × 16 bytes a pixel),
+/// counts (4 bytes a pixel) and any AOV layers.
 fn result_bytes(r: &UnitResult) -> u64 {
-    (r.sums.len() * size_of::<[i128; 3]>() + r.counts.len() * size_of::<u32>()) as u64
+    (r.sums.len() * size_of::<[i128; 3]>()
+        + r.counts.len() * size_of::<u32>()
+        + r.layers.len() * tracer::film::LAYER_BYTES) as u64
 }
 
 /// Creates a job from files already in the store and loads its scene in the
@@ -465,14 +468,17 @@ fn load_job(shared: &Arc<Shared>, job: &str, restore: Option<Restored>) -> anyho
     let batch = spec.batch_spp.unwrap_or(shared.defaults.batch_spp);
     let (w, h, spp) = (camera.width, camera.height, settings.spp);
     let max_bytes = shared.farm().config.max_job_bytes;
-    super::job::Job::check_size(w, h, spp, tile, batch, max_bytes).map_err(anyhow::Error::msg)?;
+    super::job::Job::check_size((w, h), spp, (tile, batch), settings.aovs, max_bytes).map_err(anyhow::Error::msg)?;
     let mut farm = shared.farm();
     let e = farm.entry_mut(job)?;
     if e.job.phase.is_final() {
         return Ok(()); // cancelled while loading
     }
     match restore {
-        None => e.job.start(w, h, spp, tile, batch, non_negative),
+        None => {
+            e.job.layers = settings.aovs;
+            e.job.start(w, h, spp, tile, batch, non_negative);
+        }
         Some(r) => {
             anyhow::ensure!(
                 (r.width, r.height) == (w, h),

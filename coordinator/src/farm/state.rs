@@ -289,7 +289,7 @@ impl Farm {
             if spp <= j.spp {
                 return Err(FarmError::Invalid(format!("spp {spp}: the job already renders {} spp", j.spp)));
             }
-            super::job::Job::check_size(j.width, j.height, spp, j.tile_size, j.batch_spp, max_bytes)
+            super::job::Job::check_size((j.width, j.height), spp, (j.tile_size, j.batch_spp), j.layers, max_bytes)
                 .map_err(FarmError::Invalid)?;
             j.extend_spp(spp);
         }

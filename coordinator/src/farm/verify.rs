@@ -70,7 +70,8 @@ impl Check {
     }
 }
 
-/// The bits of a result that make the image: its sums, counts and non-finite count.
+/// The bits of a result that make the image: its sums, counts, non-finite count and
+/// any AOV layers.
 pub fn digest(r: &UnitResult) -> [u8; 32] {
     let mut h = Sha256::new();
     h.update(r.nonfinite.to_le_bytes());
@@ -79,6 +80,9 @@ pub fn digest(r: &UnitResult) -> [u8; 32] {
             h.update(v.to_le_bytes());
         }
         h.update(c.to_le_bytes());
+    }
+    for v in r.layers.iter().flatten() {
+        h.update(v.to_le_bytes());
     }
     h.finalize().into()
 }
@@ -152,6 +156,7 @@ mod tests {
             samples: SampleRange::new(0, 4),
             sums: vec![[v, v, v]],
             counts: vec![4],
+            layers: Vec::new(),
             rays: 10,
             nonfinite: 0,
             render_seconds: 0.0,

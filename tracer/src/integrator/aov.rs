@@ -3,12 +3,31 @@
 use glam::Vec3;
 
 use super::{Integrator, RayCount};
+use crate::accel::Hit;
+use crate::film::FirstHit;
 use crate::geometry::Ray;
 use crate::scene::Scene;
 
-pub fn li(kind: Integrator, scene: &Scene, ray: Ray, count: &mut RayCount) -> Vec3 {
+/// The first-hit layers of a sample whose camera ray `ray` found `hit` (its closest hit,
+/// which the path traces anyway): the same quantities as the AOV integrators below.
+/// Inlined into the render loop's instruction-set variants, like the integrators.
+#[inline(always)]
+pub fn first_hit(scene: &Scene, ray: &Ray, hit: Option<Hit>) -> FirstHit {
+    let Some(hit) = hit else {
+        return FirstHit::default();
+    };
+    let si = scene.interaction(ray, &hit);
+    let albedo = scene.materials[si.material as usize].bsdf_at(si.uv, &scene.textures).albedo();
+    FirstHit { albedo: albedo.clamp(Vec3::ZERO, Vec3::ONE), normal: si.ns, depth: Some(hit.t * ray.dir.length()) }
+}
+
+pub fn li(kind: Integrator, scene: &Scene, ray: Ray, count: &mut RayCount, first: Option<&mut FirstHit>) -> Vec3 {
     count.rays += 1;
-    let Some(hit) = scene.intersect(&ray, f32::INFINITY) else {
+    let hit = scene.intersect(&ray, f32::INFINITY);
+    if let Some(f) = first {
+        *f = first_hit(scene, &ray, hit);
+    }
+    let Some(hit) = hit else {
         return Vec3::ZERO;
     };
     let si = scene.interaction(&ray, &hit);

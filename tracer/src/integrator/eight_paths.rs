@@ -19,14 +19,14 @@
 
 use glam::{Vec2, Vec3};
 
-use super::RayCount;
 use super::path::{Options, PathState, ShadowQuery, Strategy, emitter_weight, transmittance};
+use super::{RayCount, aov};
 use crate::accel::ray_packets::{PACKET, PacketHits, RayPacket};
 use crate::accel::triangle_blocks::PackedTriangles;
 use crate::bsdf::Bsdf;
 use crate::bsdf::blinn_phong::{BlinnPhong, BlinnPhongW};
 use crate::bsdf::lambert::LambertW;
-use crate::film::{Accumulation, SampleRange, Tile};
+use crate::film::{Accumulation, FirstHit, SampleRange, Tile};
 use crate::geometry::{FrameW, Ray, offset_origin_wide};
 use crate::material::Material;
 use crate::sampler::{Sampler, SamplerLanes};
@@ -213,7 +213,11 @@ pub(crate) fn render_unit(
         Some(packed) if packed.packets() => Queries::Packets(packed),
         _ => Queries::OneByOne,
     };
-    let mut acc = Accumulation::new(tile);
+    let layers = scene.settings.aovs;
+    let mut acc = Accumulation::with_layers(tile, layers);
+    // With layers: each lane's first hit, taken from its camera ray's intersection.
+    let mut firsts = [FirstHit::default(); PACKET];
+    let mut fresh = 0u32;
     let mut count = RayCount::default();
     let cam = &scene.camera;
     let seed = scene.settings.seed;
@@ -254,6 +258,7 @@ pub(crate) fn render_unit(
             samplers.set(l, &sampler);
             pixels[l] = pixel as usize;
             live |= 1 << l;
+            fresh |= 1 << l;
         }
         if live == 0 {
             return (acc, count);
@@ -268,6 +273,12 @@ pub(crate) fn render_unit(
         };
         count.rays += u64::from(live.count_ones());
         let hits = queries.intersect(scene, &rays);
+        if layers {
+            for l in each(fresh) {
+                firsts[l] = aov::first_hit(scene, &paths.get(l).ray, hits.get(l));
+            }
+        }
+        fresh = 0;
 
         let mut shadows = Shadows {
             pending: 0,
@@ -307,7 +318,7 @@ pub(crate) fn render_unit(
 
         let ended = live & !go_on;
         for l in each(ended) {
-            acc.add_sample(pixels[l], opt.limit(paths.l.get(l)));
+            acc.add_sample_at(pixels[l], opt.limit(paths.l.get(l)), &firsts[l]);
         }
         live &= go_on;
     }

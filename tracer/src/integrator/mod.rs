@@ -8,6 +8,7 @@ pub mod path;
 
 use glam::Vec3;
 
+use crate::film::FirstHit;
 use crate::geometry::Ray;
 use crate::sampler::Sampler;
 use crate::scene::Scene;
@@ -66,13 +67,21 @@ pub struct RayCount {
     pub rays: u64,
 }
 
-/// The estimate for one camera ray. (Inlined into the render loop's variants, so that
-/// the sampler's code is compiled for each instruction set; see `render.rs`.)
+/// The estimate for one camera ray; with `first`, also what the ray met first (for the
+/// film's layers), from the same intersection. (Inlined into the render loop's variants,
+/// so that the sampler's code is compiled for each instruction set; see `render.rs`.)
 #[inline(always)]
-pub fn li(integrator: Integrator, scene: &Scene, ray: Ray, sampler: &mut Sampler, count: &mut RayCount) -> Vec3 {
+pub fn li(
+    integrator: Integrator,
+    scene: &Scene,
+    ray: Ray,
+    sampler: &mut Sampler,
+    count: &mut RayCount,
+    first: Option<&mut FirstHit>,
+) -> Vec3 {
     match path_options(integrator, scene) {
-        Some(options) => options.limit(path::li(scene, ray, sampler, count, &options)),
-        None => aov::li(integrator, scene, ray, count),
+        Some(options) => options.limit(path::li(scene, ray, sampler, count, &options, first)),
+        None => aov::li(integrator, scene, ray, count, first),
     }
 }
 

@@ -17,6 +17,7 @@ use glam::{Vec2, Vec3};
 use super::RayCount;
 use crate::accel::Hit;
 use crate::bsdf::Bsdf;
+use crate::film::FirstHit;
 use crate::geometry::{Frame, Ray, offset_origin};
 use crate::sampler::Sampler;
 use crate::sampling::{power_heuristic, uniform_sphere_pdf};
@@ -63,13 +64,24 @@ impl Options {
     }
 }
 
-/// Radiance arriving at the camera along `ray`.
+/// Radiance arriving at the camera along `ray`; with `first`, also what `ray` met first
+/// (from the same intersection).
 #[inline(always)]
-pub fn li(scene: &Scene, ray: Ray, sampler: &mut Sampler, count: &mut RayCount, opt: &Options) -> Vec3 {
+pub fn li(
+    scene: &Scene,
+    ray: Ray,
+    sampler: &mut Sampler,
+    count: &mut RayCount,
+    opt: &Options,
+    mut first: Option<&mut FirstHit>,
+) -> Vec3 {
     let mut path = PathState::new(ray);
     loop {
         count.rays += 1;
         let hit = scene.intersect(&path.ray, f32::INFINITY);
+        if let Some(f) = first.take() {
+            *f = super::aov::first_hit(scene, &path.ray, hit);
+        }
         let (shadow, go_on) = path.scatter(scene, hit, sampler, opt);
         if let Some(q) = shadow {
             path.add_light(&q, transmittance(scene, &q, count));

@@ -66,6 +66,9 @@ pub struct RenderDesc {
     /// Largest channel value one sample may add (biased firefly control); absent: none.
     #[serde(default)]
     pub clamp: Option<f32>,
+    /// Keep the AOV layers (albedo, normal, depth, variance) beside the beauty pass.
+    #[serde(default)]
+    pub aovs: bool,
 }
 
 fn default_spp() -> u32 {
@@ -77,7 +80,7 @@ fn default_max_depth() -> i32 {
 
 impl Default for RenderDesc {
     fn default() -> Self {
-        Self { spp: default_spp(), max_depth: default_max_depth(), seed: 0, clamp: None }
+        Self { spp: default_spp(), max_depth: default_max_depth(), seed: 0, clamp: None, aovs: false }
     }
 }
 

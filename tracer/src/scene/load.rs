@@ -41,6 +41,9 @@ pub struct RenderSettings {
     /// Firefly control: a path sample whose largest channel exceeds this is scaled down to
     /// it (biased, so off unless asked for; recorded in the EXR). Finite and positive.
     pub clamp: Option<f32>,
+    /// Keep the AOV layers beside the beauty pass (see [`crate::film::layers`]): more
+    /// memory per pixel, the same beauty bits.
+    pub aovs: bool,
 }
 
 /// A clamp limit is a finite number above zero (zero would blank the image).
@@ -50,7 +53,7 @@ pub fn check_clamp(limit: f32) -> Result<(), String> {
 
 impl Default for RenderSettings {
     fn default() -> Self {
-        Self { spp: 64, max_depth: 8, seed: 0, clamp: None }
+        Self { spp: 64, max_depth: 8, seed: 0, clamp: None, aovs: false }
     }
 }
 
@@ -219,7 +222,7 @@ pub(super) fn assemble_parts(
     if let Some(c) = r.clamp {
         check_clamp(c).map_err(|e| invalid("render.clamp".into(), e))?;
     }
-    let settings = RenderSettings { spp: r.spp, max_depth: r.max_depth, seed: r.seed, clamp: r.clamp };
+    let settings = RenderSettings { spp: r.spp, max_depth: r.max_depth, seed: r.seed, clamp: r.clamp, aovs: r.aovs };
 
     // Meshes, each OBJ read once (see `place_meshes`).
     let mut b = Builder::default();

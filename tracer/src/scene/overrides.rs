@@ -14,6 +14,8 @@ pub struct Overrides {
     pub seed: Option<u64>,
     /// `--clamp`: see [`RenderSettings::clamp`].
     pub clamp: Option<f32>,
+    /// `--aovs`: keep the AOV layers even where the scene does not ask for them.
+    pub aovs: bool,
     /// The up axis of a bare `.obj` (used when loading: [`super::load_scene_up`]).
     pub up: super::UpAxis,
 }
@@ -55,6 +57,7 @@ impl Overrides {
             super::load::check_clamp(c).map_err(|e| format!("clamp {e}"))?;
             settings.clamp = Some(c);
         }
+        settings.aovs |= self.aovs;
         Ok(())
     }
 }

@@ -202,7 +202,7 @@ impl Job {
         }
         for &t in &tainted {
             self.nonfinite -= self.tiles[t].nonfinite.min(self.nonfinite);
-            self.tiles[t] = std::sync::Arc::new(Accumulation::new(self.tiles[t].tile));
+            self.tiles[t] = std::sync::Arc::new(Accumulation::with_layers(self.tiles[t].tile, self.layers));
         }
         if !tainted.is_empty() && self.phase == JobPhase::Done {
             self.phase = JobPhase::Running;

@@ -19,6 +19,7 @@ pub(super) fn result_for(j: &Job, unit: UnitId, value: i128) -> UnitResult {
         samples: u.samples,
         sums: vec![[value; 3]; n],
         counts: vec![u.samples.len(); n],
+        layers: Vec::new(),
         nonfinite: 0,
         rays: 10,
         render_seconds: 0.0,
@@ -84,6 +85,10 @@ fn malformed_and_foreign_results_are_rejected_without_touching_state() {
     assert!(matches!(j.apply(7, &r), Err(Rejection::Malformed { .. })));
     let mut r = good.clone();
     r.samples.end += 1;
+    assert!(matches!(j.apply(7, &r), Err(Rejection::Malformed { .. })));
+    // Layers the job does not keep are refused, not merged or dropped.
+    let mut r = good.clone();
+    r.layers = vec![[0; tracer::film::layers::CHANNELS]; r.counts.len()];
     assert!(matches!(j.apply(7, &r), Err(Rejection::Malformed { .. })));
     assert_eq!(j.image(), before);
     assert_eq!(j.units_done, 0);
@@ -374,4 +379,25 @@ fn with_no_second_worker_held_answers_are_taken_unchecked() {
     assert_eq!(j.lease_next(2, later, later + Duration::from_millis(1), NEVER), Some(id));
     j.reap_expired(later + Duration::from_secs(1));
     assert_eq!(j.units_in_check(), 1);
+}
+
+/// A job that keeps the AOV layers takes only results that carry them, merges them, and
+/// its image shows them.
+#[test]
+fn a_job_with_layers_wants_them_in_every_result() {
+    let mut j = Job::loading("j2".into(), "test".into());
+    j.layers = true;
+    j.start(4, 2, 2, 2, 2, true);
+    let id = j.lease_next(7, Instant::now(), Instant::now() + NEVER, Duration::MAX).unwrap();
+    let plain = result_for(&j, id, 5);
+    assert!(matches!(j.apply(7, &plain), Err(Rejection::Malformed { .. })));
+    let mut r = plain.clone();
+    r.layers = vec![[1 << 32; tracer::film::layers::CHANNELS]; r.counts.len()];
+    r.layers.pop();
+    assert!(matches!(j.apply(7, &r), Err(Rejection::Malformed { .. })));
+    r.layers.push([1 << 32; tracer::film::layers::CHANNELS]);
+    assert_eq!(j.apply(7, &r), Ok(Applied::Merged));
+    let tile = &j.tile_accumulations()[j.units[id as usize].tile_index];
+    assert_eq!(tile.layers[0], [1 << 32; tracer::film::layers::CHANNELS]);
+    assert!(tile.layers_at(0).is_some_and(|l| l.albedo == glam::Vec3::splat(0.5)), "two samples' albedo sums, 1 each");
 }
