@@ -357,6 +357,46 @@ fn aovs_are_layers_of_the_same_exr() {
     assert!(a.layers.iter().any(|l| l.normal.length() > 0.99), "flat walls have unit normals");
 }
 
+/// `--denoise` adds a denoised layer beside the raw beauty (which keeps its bits) and
+/// records the denoiser; a PNG shows the denoised image. A build without the denoiser
+/// refuses `--denoise` before rendering, saying how to get one.
+#[test]
+fn denoise_adds_a_layer_beside_the_raw_image() {
+    let dir = TempDir::new("denoise");
+    let run = |name: &str, extra: &[&str]| {
+        let path = dir.0.join(name);
+        let out = coordinator()
+            .args(["render", "-q", "--spp", "4", "--width", "32", "--local-workers", "1"])
+            .args(extra)
+            .arg("-o")
+            .arg(&path)
+            .output()
+            .unwrap();
+        (path, out)
+    };
+    if !tracer::denoise::AVAILABLE {
+        let (path, out) = run("d.exr", &["--denoise"]);
+        let err = String::from_utf8_lossy(&out.stderr);
+        assert!(!out.status.success() && err.contains("--features denoise"), "{err}");
+        assert!(!path.exists(), "nothing rendered");
+        println!("SKIPPED: denoising itself: built without the `denoise` feature; `.ci/run` builds it");
+        return;
+    }
+    let (denoised, out) = run("d.exr", &["--denoise"]);
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    let (raw, out) = run("r.exr", &["--aovs"]);
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    let (d, r) = (tracer::output::read_exr(&denoised).unwrap(), tracer::output::read_exr(&raw).unwrap());
+    assert_eq!((&d.pixels, &d.layers), (&r.pixels, &r.layers), "the raw beauty and layers are kept as they were");
+    assert_eq!(d.denoised.len(), d.pixels.len());
+    assert!(d.denoised.iter().all(|p| p.is_finite()) && d.denoised != d.pixels);
+    let meta = exr::meta::MetaData::read_from_file(&denoised, false).unwrap();
+    let key = exr::meta::attribute::Text::from("tilefarm/denoiser");
+    assert!(meta.headers[0].own_attributes.other.contains_key(&key));
+    let (png, out) = run("d.png", &["--denoise"]);
+    assert!(out.status.success() && png.exists(), "{}", String::from_utf8_lossy(&out.stderr));
+}
+
 /// A render that was killed never ran its cleanup: the next render removes its folder.
 #[test]
 fn a_killed_renders_temporary_folder_is_removed_by_the_next_render() {

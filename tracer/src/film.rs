@@ -275,6 +275,10 @@ pub trait Pixels: Sync {
     fn has_layers(&self) -> bool;
     /// The AOV layers of pixel (x, y) (default values where there are none).
     fn layers(&self, x: u32, y: u32) -> PixelLayers;
+    /// The denoised value of pixel (x, y), where a denoiser ran ([`Image::denoised`]).
+    fn denoised(&self, _x: u32, _y: u32) -> Option<Vec3> {
+        None
+    }
 }
 
 /// A whole image as its tiles' accumulations (laid out by [`Tile::grid`]), read in
@@ -355,6 +359,10 @@ impl Pixels for Image {
     fn layers(&self, x: u32, y: u32) -> PixelLayers {
         self.layers.get((y * self.width + x) as usize).copied().unwrap_or_default()
     }
+
+    fn denoised(&self, x: u32, y: u32) -> Option<Vec3> {
+        self.denoised.get((y * self.width + x) as usize).copied()
+    }
 }
 
 /// A whole image assembled from tiles: mean radiance and sample count per pixel.
@@ -366,12 +374,22 @@ pub struct Image {
     pub counts: Vec<u32>,
     /// Per-pixel AOV layers; empty when the render kept none.
     pub layers: Vec<PixelLayers>,
+    /// The denoised beauty pass (`crate::denoise`), beside the raw one; empty unless a
+    /// denoiser ran.
+    pub denoised: Vec<Vec3>,
 }
 
 impl Image {
     pub fn new(width: u32, height: u32) -> Self {
         let n = width as usize * height as usize;
-        Self { width, height, pixels: vec![Vec3::ZERO; n], counts: vec![0; n], layers: Vec::new() }
+        Self {
+            width,
+            height,
+            pixels: vec![Vec3::ZERO; n],
+            counts: vec![0; n],
+            layers: Vec::new(),
+            denoised: Vec::new(),
+        }
     }
 
     /// Writes a tile's means (and layers, if it has them) into the image (the tile must
@@ -405,6 +423,12 @@ impl Image {
         let mut img = Image::new(w, h);
         if p.has_layers() {
             img.layers = vec![PixelLayers::default(); img.pixels.len()];
+        }
+        if p.denoised(0, 0).is_some() {
+            img.denoised = (0..h)
+                .flat_map(|y| (0..w).map(move |x| (x, y)))
+                .map(|(x, y)| p.denoised(x, y).unwrap_or_default())
+                .collect();
         }
         for y in 0..h {
             for x in 0..w {

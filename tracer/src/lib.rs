@@ -10,6 +10,7 @@
 pub mod accel;
 pub mod bsdf;
 pub mod camera;
+pub mod denoise;
 pub mod film;
 pub mod geometry;
 pub mod integrator;

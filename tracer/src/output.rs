@@ -151,6 +151,8 @@ pub mod keys {
     pub const SCENE: &str = "tilefarm/scene";
     /// Present only when a clamp was on: its limit.
     pub const CLAMP: &str = "tilefarm/clamp";
+    /// Present only when the file holds a denoised layer: the denoiser that made it.
+    pub const DENOISER: &str = "tilefarm/denoiser";
 }
 
 /// Linear float32 R, G, B, A (= 1) and `samples` (u32) channels, lossless ZIP.
@@ -206,6 +208,9 @@ fn write_exr_to(
         exr.attributes.chromaticities = Some(REC709);
         return exr.write().to_buffered(out).map_err(|e| e.to_string());
     }
+    if image.denoised(0, 0).is_some() {
+        return write_denoised_exr(image, attributes, out);
+    }
     // The AOV layers, named as compositors (Nuke, Blender) and OIDN's tools expect.
     let channels = SpecificChannels::build()
         .with_channel("R")
@@ -241,6 +246,52 @@ const REC709: exr::meta::attribute::Chromaticities = exr::meta::attribute::Chrom
     blue: exr::math::Vec2(0.15, 0.06),
     white: exr::math::Vec2(0.3127, 0.3290),
 };
+
+/// [`write_exr_to`] with the AOV layers and a denoised beauty layer (`denoised.R/G/B`)
+/// beside the raw one.
+fn write_denoised_exr(
+    image: &impl Pixels,
+    mut attributes: exr::meta::header::LayerAttributes,
+    out: &mut (impl std::io::Write + std::io::Seek),
+) -> Result<(), String> {
+    use exr::prelude::*;
+    let (w, h) = image.size();
+    attributes.other.insert(
+        Text::from(keys::DENOISER),
+        AttributeValue::Text(Text::from("Intel Open Image Denoise 2, RT filter, HDR, guided by albedo and N")),
+    );
+    let channels = SpecificChannels::build()
+        .with_channel("R")
+        .with_channel("G")
+        .with_channel("B")
+        .with_channel("A")
+        .with_channel("samples")
+        .with_channel("albedo.R")
+        .with_channel("albedo.G")
+        .with_channel("albedo.B")
+        .with_channel("N.X")
+        .with_channel("N.Y")
+        .with_channel("N.Z")
+        .with_channel("Z")
+        .with_channel("variance.R")
+        .with_channel("variance.G")
+        .with_channel("variance.B")
+        .with_channel("denoised.R")
+        .with_channel("denoised.G")
+        .with_channel("denoised.B")
+        .with_pixel_fn(|Vec2(x, y): Vec2<usize>| {
+            let (x, y) = (x as u32, y as u32);
+            let (p, n) = image.pixel(x, y);
+            let l = image.layers(x, y);
+            let d = image.denoised(x, y).unwrap_or(p);
+            let (a, nn, v) = (l.albedo, l.normal, l.variance);
+            (p.x, p.y, p.z, 1.0f32, n, a.x, a.y, a.z, nn.x, nn.y, nn.z, l.depth, v.x, v.y, v.z, d.x, d.y, d.z)
+        });
+    let mut exr =
+        Image::from_layer(Layer::new((w as usize, h as usize), attributes, Encoding::SMALL_LOSSLESS, channels));
+    exr.attributes.chromaticities = Some(REC709);
+    exr.write().to_buffered(out).map_err(|e| e.to_string())
+}
 
 /// The layer's header attributes: the software, and with `info` what made the image.
 fn exr_attributes(image: &impl Pixels, info: Option<&RenderInfo>) -> exr::meta::header::LayerAttributes {
@@ -285,6 +336,9 @@ pub fn read_exr(path: &Path) -> Result<Image, OutputError> {
     if layer.channel_data.list.iter().any(|c| c.name.to_string() == "albedo.R") {
         out.layers = vec![crate::film::PixelLayers::default(); out.pixels.len()];
     }
+    if layer.channel_data.list.iter().any(|c| c.name.to_string() == "denoised.R") {
+        out.denoised = vec![Vec3::ZERO; out.pixels.len()];
+    }
     for ch in &layer.channel_data.list {
         let name = ch.name.to_string();
         let values: Vec<f32> = ch.sample_data.values_as_f32().collect();
@@ -305,6 +359,9 @@ pub fn read_exr(path: &Path) -> Result<Image, OutputError> {
                 ("variance.R", Some(l)) => l.variance.x = v,
                 ("variance.G", Some(l)) => l.variance.y = v,
                 ("variance.B", Some(l)) => l.variance.z = v,
+                ("denoised.R", _) if !out.denoised.is_empty() => out.denoised[i].x = v,
+                ("denoised.G", _) if !out.denoised.is_empty() => out.denoised[i].y = v,
+                ("denoised.B", _) if !out.denoised.is_empty() => out.denoised[i].z = v,
                 _ => {}
             }
         }
@@ -346,9 +403,11 @@ pub fn png_bytes(image: &impl Pixels, scale: f32) -> Result<Vec<u8>, String> {
     Ok(out)
 }
 
+/// A tone-mapped PNG of `image`: its denoised pixels where it has them, else the raw.
 pub fn write_png(image: &Image, path: &Path) -> Result<(), OutputError> {
     let mut buf = Vec::with_capacity(image.pixels.len() * 3);
-    for p in &image.pixels {
+    let shown = if image.denoised.len() == image.pixels.len() { &image.denoised } else { &image.pixels };
+    for p in shown {
         buf.extend_from_slice(&tonemap(*p));
     }
     image::save_buffer(path, &buf, image.width, image.height, image::ColorType::Rgb8)
@@ -382,6 +441,9 @@ mod tests {
             .collect();
         write_image(&img, &path).unwrap();
         assert_eq!(read_exr(&path).unwrap(), img, "the AOV layers round-trip");
+        img.denoised = (0..6).map(|i| Vec3::new(0.25, i as f32, 2.0)).collect();
+        write_image(&img, &path).unwrap();
+        assert_eq!(read_exr(&path).unwrap(), img, "a denoised layer round-trips beside the raw one");
         write_image(&img, &dir.join("t.png")).unwrap();
         assert!(write_image(&img, &dir.join("t.bmpx")).is_err());
         std::fs::remove_dir_all(&dir).ok();

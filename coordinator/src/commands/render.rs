@@ -151,6 +151,12 @@ pub struct RunArgs {
     /// Rewrite a tone-mapped PNG preview of the image so far every few seconds.
     #[arg(long, value_name = "FILE.png")]
     pub preview: Option<PathBuf>,
+    /// Denoise the finished image with Intel Open Image Denoise, guided by the albedo and
+    /// normal layers (implies --aovs). An EXR keeps the raw beauty in R/G/B and adds
+    /// denoised.R/G/B; a PNG (output or --preview's last) shows the denoised image. Needs
+    /// a build with `--features denoise` (README.md, Denoising).
+    #[arg(long)]
+    pub denoise: bool,
     /// No progress bar.
     #[arg(long, short)]
     pub quiet: bool,
@@ -220,6 +226,9 @@ fn runtime() -> anyhow::Result<tokio::runtime::Runtime> {
 impl RunArgs {
     /// The output and preview paths must be writable before anything is rendered.
     fn check_outputs(&self) -> anyhow::Result<()> {
+        if self.denoise {
+            tracer::denoise::check_available().map_err(|e| anyhow::anyhow!("--denoise: {e}"))?;
+        }
         Ok(tracer::output::check_output_paths(&self.output, self.preview.as_deref())?)
     }
 }
@@ -263,7 +272,9 @@ pub fn run(args: RenderArgs) -> anyhow::Result<()> {
     };
     let mut store = AssetStore::open(&store_dir)?;
     let (scene, assets) = store_local_scene(&mut store, &local)?;
-    let spec = args.job.spec(scene, assets);
+    let mut spec = args.job.spec(scene, assets);
+    // The denoiser is guided by the albedo and normal layers.
+    spec.overrides.aovs |= args.run.denoise;
     let restore = match &args.checkpoint {
         None => None,
         Some(dir) => {
@@ -288,6 +299,11 @@ pub fn resume(args: ResumeArgs) -> anyhow::Result<()> {
     args.run.check_outputs()?;
     let snap = checkpoint::read(&args.dir)?
         .with_context(|| format!("{} holds no checkpoint", checkpoint::path(&args.dir).display()))?;
+    anyhow::ensure!(
+        !args.run.denoise || snap.job.tiles.first().is_some_and(|t| t.has_layers()),
+        "--denoise: the checkpoint in {} was rendered without the AOV layers the denoiser needs (--aovs)",
+        args.dir.display()
+    );
     let store = AssetStore::open(&args.dir)?;
     let mut spec = snap.spec.clone();
     spec.job_id = String::new();
@@ -450,7 +466,7 @@ async fn execute(plan: Plan, args: &RunArgs) -> anyhow::Result<()> {
         }
     }
     if interrupted && !args.no_partial {
-        write_partial(&shared, &job, &args.output)?;
+        write_partial(&shared, &job, args)?;
     }
     let status = outcome?;
     write_result(&shared, &job, args, &status, resumed, (earlier_samples, earlier_rays))
@@ -542,10 +558,7 @@ fn write_result(
         let e = farm.entry(job)?;
         (e.job.image_tiles(), e.render_info(), e.job.nonfinite, e.job.units.len() as u64)
     };
-    tracer::output::write_image_with(&image.mosaic(), info.as_ref(), &args.output)?;
-    if let Some(p) = &args.preview {
-        tracer::output::write_png(&tracer::film::Image::of(&image.mosaic()), p)?;
-    }
+    write_images(&image, info.as_ref(), args)?;
     println!(
         "{}; units: {resumed} from checkpoint + {} rendered = {total}; wrote {}",
         summary(status, earlier.0, earlier.1),
@@ -560,7 +573,7 @@ fn write_result(
 
 /// Writes the image of an interrupted render so far: each pixel the mean of the samples
 /// it has, its count in the `samples` channel.
-fn write_partial(shared: &Shared, job: &str, output: &Path) -> anyhow::Result<()> {
+fn write_partial(shared: &Shared, job: &str, args: &RunArgs) -> anyhow::Result<()> {
     let (image, info, done, total) = {
         let farm = shared.farm();
         let e = farm.entry(job)?;
@@ -569,11 +582,36 @@ fn write_partial(shared: &Shared, job: &str, output: &Path) -> anyhow::Result<()
         }
         (e.job.image_tiles(), e.render_info(), e.job.samples_done, e.job.samples_total())
     };
-    tracer::output::write_image_with(&image.mosaic(), info.as_ref(), output)?;
+    write_images(&image, info.as_ref(), args)?;
     eprintln!(
         "wrote the image so far to {} ({:.1}% of its samples; --no-partial writes nothing)",
-        output.display(),
+        args.output.display(),
         100.0 * done as f64 / total.max(1) as f64
     );
+    Ok(())
+}
+
+/// Writes a render's image to --output (and its --preview), denoised beside the raw
+/// image with --denoise.
+fn write_images(
+    image: &crate::farm::job::ImageTiles,
+    info: Option<&tracer::output::RenderInfo>,
+    args: &RunArgs,
+) -> anyhow::Result<()> {
+    if !args.denoise {
+        tracer::output::write_image_with(&image.mosaic(), info, &args.output)?;
+        if let Some(p) = &args.preview {
+            tracer::output::write_png(&tracer::film::Image::of(&image.mosaic()), p)?;
+        }
+        return Ok(());
+    }
+    let mut assembled = tracer::film::Image::of(&image.mosaic());
+    let started = Instant::now();
+    assembled.denoised = tracer::denoise::denoise(&assembled).map_err(|e| anyhow::anyhow!("--denoise: {e}"))?;
+    tracing::info!("denoised in {:.2} s", started.elapsed().as_secs_f64());
+    tracer::output::write_image_with(&assembled, info, &args.output)?;
+    if let Some(p) = &args.preview {
+        tracer::output::write_png(&assembled, p)?;
+    }
     Ok(())
 }

@@ -3,8 +3,11 @@
 use std::path::{Path, PathBuf};
 
 /// A scratch directory removed on drop (also when a test fails).
+// Each test binary compiles this module; not all of them use every helper.
+#[allow(dead_code)]
 pub struct TempDir(pub PathBuf);
 
+#[allow(dead_code)]
 impl TempDir {
     pub fn new(tag: &str) -> Self {
         let d = std::env::temp_dir().join(format!("tilefarm-test-{tag}-{}", std::process::id()));
