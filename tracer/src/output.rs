@@ -184,6 +184,30 @@ pub fn exr_bytes(image: &impl Pixels, info: Option<&RenderInfo>) -> Result<Vec<u
     Ok(out.into_inner())
 }
 
+/// The channels of an EXR with the AOV layers, in order: the beauty pass, the sample
+/// count, albedo, normal, depth and variance (named as compositors, Nuke and Blender,
+/// and OIDN's tools expect). A macro, since each channel adds to the builder's type.
+macro_rules! layer_channels {
+    ($builder:expr) => {
+        $builder
+            .with_channel("R")
+            .with_channel("G")
+            .with_channel("B")
+            .with_channel("A")
+            .with_channel("samples")
+            .with_channel("albedo.R")
+            .with_channel("albedo.G")
+            .with_channel("albedo.B")
+            .with_channel("N.X")
+            .with_channel("N.Y")
+            .with_channel("N.Z")
+            .with_channel("Z")
+            .with_channel("variance.R")
+            .with_channel("variance.G")
+            .with_channel("variance.B")
+    };
+}
+
 fn write_exr_to(
     image: &impl Pixels,
     info: Option<&RenderInfo>,
@@ -212,28 +236,12 @@ fn write_exr_to(
         return write_denoised_exr(image, attributes, out);
     }
     // The AOV layers, named as compositors (Nuke, Blender) and OIDN's tools expect.
-    let channels = SpecificChannels::build()
-        .with_channel("R")
-        .with_channel("G")
-        .with_channel("B")
-        .with_channel("A")
-        .with_channel("samples")
-        .with_channel("albedo.R")
-        .with_channel("albedo.G")
-        .with_channel("albedo.B")
-        .with_channel("N.X")
-        .with_channel("N.Y")
-        .with_channel("N.Z")
-        .with_channel("Z")
-        .with_channel("variance.R")
-        .with_channel("variance.G")
-        .with_channel("variance.B")
-        .with_pixel_fn(|Vec2(x, y): Vec2<usize>| {
-            let (p, n) = image.pixel(x as u32, y as u32);
-            let l = image.layers(x as u32, y as u32);
-            let (a, nn, v) = (l.albedo, l.normal, l.variance);
-            (p.x, p.y, p.z, 1.0f32, n, a.x, a.y, a.z, nn.x, nn.y, nn.z, l.depth, v.x, v.y, v.z)
-        });
+    let channels = layer_channels!(SpecificChannels::build()).with_pixel_fn(|Vec2(x, y): Vec2<usize>| {
+        let (p, n) = image.pixel(x as u32, y as u32);
+        let l = image.layers(x as u32, y as u32);
+        let (a, nn, v) = (l.albedo, l.normal, l.variance);
+        (p.x, p.y, p.z, 1.0f32, n, a.x, a.y, a.z, nn.x, nn.y, nn.z, l.depth, v.x, v.y, v.z)
+    });
     let mut exr = Image::from_layer(Layer::new(size, attributes, Encoding::SMALL_LOSSLESS, channels));
     exr.attributes.chromaticities = Some(REC709);
     exr.write().to_buffered(out).map_err(|e| e.to_string())
@@ -260,22 +268,7 @@ fn write_denoised_exr(
         Text::from(keys::DENOISER),
         AttributeValue::Text(Text::from("Intel Open Image Denoise 2, RT filter, HDR, guided by albedo and N")),
     );
-    let channels = SpecificChannels::build()
-        .with_channel("R")
-        .with_channel("G")
-        .with_channel("B")
-        .with_channel("A")
-        .with_channel("samples")
-        .with_channel("albedo.R")
-        .with_channel("albedo.G")
-        .with_channel("albedo.B")
-        .with_channel("N.X")
-        .with_channel("N.Y")
-        .with_channel("N.Z")
-        .with_channel("Z")
-        .with_channel("variance.R")
-        .with_channel("variance.G")
-        .with_channel("variance.B")
+    let channels = layer_channels!(SpecificChannels::build())
         .with_channel("denoised.R")
         .with_channel("denoised.G")
         .with_channel("denoised.B")
