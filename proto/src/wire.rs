@@ -128,9 +128,11 @@ pub fn job_from_proto(j: crate::JobSpec) -> Result<JobSpec, String> {
     Ok(spec)
 }
 
-/// An upper bound of the encoded size of a result of `tile` (what batching counts).
-pub fn result_bytes_bound(tile: Tile) -> usize {
-    tile.pixel_count() * RESULT_BYTES_PER_PIXEL + RESULT_OVERHEAD_BYTES
+/// An upper bound of the encoded size of a result of `tile` (what batching counts),
+/// with the AOV layers' sums (`layers`) or without.
+pub fn result_bytes_bound(tile: Tile, layers: bool) -> usize {
+    let per_pixel = RESULT_BYTES_PER_PIXEL + if layers { tracer::film::LAYER_BYTES } else { 0 };
+    tile.pixel_count() * per_pixel + RESULT_OVERHEAD_BYTES
 }
 
 /// Checks a tile from the wire: non-empty, at most [`MAX_TILE_SIDE`] on each side, no
@@ -144,7 +146,8 @@ pub fn tile_from_proto(t: Option<&crate::Tile>) -> Result<Tile, String> {
         return Err(format!("tile at ({}, {}) of {}×{} overflows", t.x0, t.y0, t.width, t.height));
     }
     let tile = Tile::new(t.x0, t.y0, t.width, t.height);
-    if result_bytes_bound(tile) > crate::MAX_MESSAGE_BYTES {
+    // Without layers: a job with them is refused tiles too large for them when it starts.
+    if result_bytes_bound(tile, false) > crate::MAX_MESSAGE_BYTES {
         return Err(format!("tile {}×{}: its result would exceed the message size limit", t.width, t.height));
     }
     Ok(tile)

@@ -215,6 +215,13 @@ impl Job {
         if tile == 0 || tile > proto::wire::MAX_TILE_SIDE {
             return Err(format!("tile size {tile}: must be between 1 and {}", proto::wire::MAX_TILE_SIDE));
         }
+        let side = Tile::new(0, 0, tile, tile);
+        if proto::wire::result_bytes_bound(side, layers) > proto::MAX_MESSAGE_BYTES {
+            return Err(format!(
+                "tile size {tile}: a tile's result with the AOV layers would not fit in one message; use a \
+                 smaller tile size"
+            ));
+        }
         if batch == 0 || batch > proto::wire::MAX_SAMPLES_PER_UNIT {
             return Err(format!("batch_spp {batch}: must be between 1 and {}", proto::wire::MAX_SAMPLES_PER_UNIT));
         }

@@ -362,7 +362,7 @@ impl Machine {
         let (mut serials, mut units, mut bytes) = (Vec::new(), Vec::new(), 0);
         for (&serial, slot) in &mut self.slots {
             let SlotState::Finished { unit, submitting: submitting @ false } = &mut slot.state else { continue };
-            let size = proto::wire::result_bytes_bound(unit.acc.tile);
+            let size = proto::wire::result_bytes_bound(unit.acc.tile, unit.acc.has_layers());
             if !units.is_empty() && (bytes + size > budget || units.len() == proto::MAX_RESULTS_PER_CALL) {
                 break;
             }

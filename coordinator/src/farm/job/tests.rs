@@ -401,3 +401,19 @@ fn a_job_with_layers_wants_them_in_every_result() {
     assert_eq!(tile.layers[0], [1 << 32; tracer::film::layers::CHANNELS]);
     assert!(tile.layers_at(0).is_some_and(|l| l.albedo == glam::Vec3::splat(0.5)), "two samples' albedo sums, 1 each");
 }
+
+/// A job's shape is checked before anything is allocated, counting the layers' memory
+/// and their share of a result's message.
+#[test]
+fn the_size_check_counts_the_layers() {
+    let gib = 1u64 << 30;
+    assert!(Job::check_size((1000, 1000), 16, (1000, 16), false, gib).is_ok());
+    let e = Job::check_size((1000, 1000), 16, (1000, 16), true, gib).unwrap_err();
+    assert!(e.contains("tile size 1000") && e.contains("message"), "{e}");
+    assert!(Job::check_size((1000, 1000), 16, (256, 16), true, gib).is_ok());
+    // 52 bytes a pixel without layers, 228 with: 100 MiB holds a 1,400² image only without.
+    let limit = 100 << 20;
+    assert!(Job::check_size((1400, 1400), 16, (64, 16), false, limit).is_ok());
+    let e = Job::check_size((1400, 1400), 16, (64, 16), true, limit).unwrap_err();
+    assert!(e.contains("--max-job-memory-mb"), "{e}");
+}
