@@ -45,6 +45,7 @@ pub fn settings_to_proto(j: &JobSpec) -> crate::RenderSettings {
         seed: o.seed,
         clamp: o.clamp,
         aovs: o.aovs,
+        noise: o.noise,
         integrator: j.integrator.name().to_string(),
         tile_size: j.tile_size.unwrap_or(0),
         batch_spp: j.batch_spp.unwrap_or(0),
@@ -111,6 +112,7 @@ pub fn settings_from_proto(s: Option<&crate::RenderSettings>) -> Result<(Overrid
         seed: s.seed,
         clamp: s.clamp,
         aovs: s.aovs,
+        noise: s.noise,
         up: if s.up.is_empty() { tracer::scene::UpAxis::Y } else { s.up.parse()? },
     };
     let integrator = if s.integrator.is_empty() { Integrator::Path } else { s.integrator.parse()? };
@@ -289,6 +291,7 @@ mod tests {
                     up: "z".into(),
                     clamp: Some(0.5),
                     aovs: true,
+                    noise: Some(0.02),
                 }),
             }),
             unit_id: 7,
@@ -316,6 +319,7 @@ mod tests {
                 up: tracer::scene::UpAxis::Z,
                 clamp: Some(0.5),
                 aovs: true,
+                noise: Some(0.02),
             }
         );
     }

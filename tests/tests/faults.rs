@@ -49,20 +49,35 @@ fn wait_for_progress(url: &str, fraction: f64) -> proto::JobStatus {
 }
 
 fn submit_wait(coord: &Coordinator, out: &Path) -> Proc {
+    submit_wait_with(coord, out, &JOB)
+}
+
+fn submit_wait_with(coord: &Coordinator, out: &Path, job: &[&str]) -> Proc {
     let mut cmd = Command::new(bin("coordinator"));
-    cmd.arg("submit").arg(cornell()).args(["--coordinator", &coord.url, "--wait", "-q", "-o"]).arg(out).args(JOB);
+    cmd.arg("submit").arg(cornell()).args(["--coordinator", &coord.url, "--wait", "-q", "-o"]).arg(out).args(job);
     Proc::spawn("submit --wait", &mut cmd)
 }
 
 #[test]
 fn a_worker_killed_mid_render_loses_nothing() {
-    let dir = TempDir::new("kill-worker");
-    let expected = reference(&dir, &JOB);
+    killed_worker_loses_nothing("kill-worker", &JOB);
+}
+
+/// Adaptive sampling decides from merged sums alone: a killed worker's units render
+/// again elsewhere, and the image (and where its samples went) is the in-process one.
+#[test]
+fn a_worker_killed_mid_adaptive_render_loses_nothing() {
+    killed_worker_loses_nothing("kill-worker-adaptive", &[&JOB[..], &["--adaptive", "--noise", "0.1"]].concat());
+}
+
+fn killed_worker_loses_nothing(tag: &str, job: &[&str]) {
+    let dir = TempDir::new(tag);
+    let expected = reference(&dir, job);
     let coord = Coordinator::start(&dir.path("store"), &["--lease-ms", "1000", "--heartbeat-ms", "250"]);
     let victim = coord.worker(1, &dir.path("cache-a"));
     let _other = coord.worker(1, &dir.path("cache-b"));
     let out = dir.path("farm.exr");
-    let mut submit = submit_wait(&coord, &out);
+    let mut submit = submit_wait_with(&coord, &out, job);
     let at = wait_for_progress(&coord.url, 0.25);
     assert!(at.units_done < at.units_total, "finished before the kill");
     signal(victim.pid(), "-KILL");
@@ -70,6 +85,10 @@ fn a_worker_killed_mid_render_loses_nothing() {
     let j = list_jobs(&coord.url).remove(0);
     assert_eq!((j.units_done, j.samples_done), (j.units_total, j.samples_total));
     assert_same_bits(&read_exr(&out), &expected, "after a worker was killed");
+    if job.contains(&"--adaptive") {
+        let (least, most) = (expected.counts.iter().min(), expected.counts.iter().max());
+        assert!(least < most, "some tiles converged before others ({least:?}, {most:?})");
+    }
 }
 
 #[test]

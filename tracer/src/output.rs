@@ -105,6 +105,8 @@ pub struct RenderInfo {
     pub seed: u64,
     /// The firefly clamp, if one was on (the image is then biased).
     pub clamp: Option<f32>,
+    /// Adaptive sampling's noise target, if it was on.
+    pub noise: Option<f32>,
     pub integrator: String,
     /// Wall-clock time of the render so far.
     pub seconds: f64,
@@ -132,6 +134,7 @@ impl RenderInfo {
             max_depth: settings.max_depth,
             seed: settings.seed,
             clamp: settings.clamp,
+            noise: settings.noise,
             integrator: integrator.to_string(),
             seconds: 0.0,
             world_to_camera: camera.world_to_camera().to_cols_array(),
@@ -151,6 +154,9 @@ pub mod keys {
     pub const SCENE: &str = "tilefarm/scene";
     /// Present only when a clamp was on: its limit.
     pub const CLAMP: &str = "tilefarm/clamp";
+    /// Present only when adaptive sampling was on: its noise target (the `samples`
+    /// channel shows where the samples went).
+    pub const NOISE: &str = "tilefarm/noiseTarget";
     /// Present only when the file holds a denoised layer: the denoiser that made it.
     pub const DENOISER: &str = "tilefarm/denoiser";
 }
@@ -312,6 +318,9 @@ fn exr_attributes(image: &impl Pixels, info: Option<&RenderInfo>) -> exr::meta::
         }
         if let Some(c) = info.clamp {
             attributes.other.insert(Text::from(keys::CLAMP), AttributeValue::F32(c));
+        }
+        if let Some(n) = info.noise {
+            attributes.other.insert(Text::from(keys::NOISE), AttributeValue::F32(n));
         }
     }
     attributes

@@ -93,3 +93,24 @@ fn the_variance_layer_is_the_variance_of_the_pixel_mean() {
     }
     assert!(noisy > 0, "some pixels are noisy, so the comparison means something");
 }
+
+/// `[render] noise` turns adaptive sampling on, which keeps the layers; a target that is
+/// not a positive number is refused, naming its field.
+#[test]
+fn a_noise_target_keeps_layers_and_must_be_positive() {
+    let dir = TempDir::new("noise-field");
+    dir.write("wall.mtl", "newmtl white\nKd 1 1 1\n");
+    dir.write("wall.obj", "mtllib wall.mtl\nv -1 -1 0\nv 1 -1 0\nv 1 1 0\nusemtl white\nf 1 2 3\n");
+    let toml = |noise: &str| {
+        format!(
+            "[render]\nnoise = {noise}\n[camera]\nposition = [0.0, 0.0, -4.0]\nlook_at = [0.0, 0.0, 0.0]\nfov = 40\n\
+             width = 8\nheight = 8\n[[mesh]]\nobj = \"wall.obj\"\n"
+        )
+    };
+    let s = scene_from_toml(&toml("0.02"), "n.toml", &dir.0).unwrap();
+    assert_eq!((s.settings.noise, s.settings.aovs), (Some(0.02), true));
+    for bad in ["0.0", "-0.1", "nan", "inf"] {
+        let err = scene_from_toml(&toml(bad), "n.toml", &dir.0).err().expect(bad).to_string();
+        assert!(err.contains("render.noise") && err.contains("above 0"), "{bad}: {err}");
+    }
+}

@@ -56,6 +56,16 @@ pub struct JobArgs {
     /// Also set by the scene's [render] aovs = true.
     #[arg(long)]
     pub aovs: bool,
+    /// Adaptive sampling: each tile renders batch after batch until its noise is at most
+    /// --noise, or it reaches --spp. Decided from the merged image alone, so the result
+    /// is the same bits for any number of workers; the EXR's `samples` channel shows
+    /// where the samples went. Implies --aovs.
+    #[arg(long)]
+    pub adaptive: bool,
+    /// Adaptive sampling's target: a pixel's standard error relative to its value
+    /// (implies --adaptive) [default with --adaptive: 0.01].
+    #[arg(long, value_name = "E", value_parser = noise_target)]
+    pub noise: Option<f32>,
     /// path (default: NEE + MIS); path-light or path-bsdf (one strategy only, to compare
     /// estimators); or an AOV: normals, albedo, depth.
     #[arg(long, default_value = "path")]
@@ -71,6 +81,15 @@ pub struct JobArgs {
     /// a scene file, set `up = "z"` in a [[mesh]] table instead.
     #[arg(long, value_name = "AXIS", default_value = "y")]
     pub up: tracer::scene::UpAxis,
+}
+
+/// The noise target of `--adaptive` without `--noise`.
+const DEFAULT_NOISE: f32 = 0.01;
+
+/// `--noise`'s value: a finite number above zero.
+fn noise_target(s: &str) -> Result<f32, String> {
+    let v: f32 = s.parse().map_err(|_| format!("{s:?} is not a number"))?;
+    tracer::scene::check_noise(v).map(|()| v)
 }
 
 /// `--clamp`'s value: a finite number above zero.
@@ -93,7 +112,10 @@ impl JobArgs {
                 max_depth: self.max_depth,
                 seed: self.seed,
                 clamp: self.clamp,
-                aovs: self.aovs,
+                // Adaptive sampling judges by the layers' squared sums: said on the wire
+                // too, so that every worker keeps them.
+                aovs: self.aovs || self.adaptive || self.noise.is_some(),
+                noise: self.noise.or(self.adaptive.then_some(DEFAULT_NOISE)),
                 up: self.up,
             },
             integrator: self.integrator,

@@ -105,6 +105,10 @@ pub fn scene_key(spec: &JobSpec) -> String {
     if o.aovs {
         h.update(b"|aovs");
     }
+    // Adaptive sampling's target decides which samples are taken.
+    if let Some(n) = o.noise {
+        h.update(format!("|noise {:08x}", n.to_bits()).as_bytes());
+    }
     hex::encode(h.finalize())
 }
 
@@ -525,6 +529,9 @@ mod tests {
         let mut layered = s.clone();
         layered.overrides.aovs = true;
         assert_ne!(scene_key(&s), scene_key(&layered), "a render with layers continues only one with layers");
+        let mut adaptive = s.clone();
+        adaptive.overrides.noise = Some(0.01);
+        assert_ne!(scene_key(&s), scene_key(&adaptive));
         let mut other_limit = s.clone();
         other_limit.overrides.clamp = Some(8.0);
         assert_ne!(scene_key(&clamped), scene_key(&other_limit));

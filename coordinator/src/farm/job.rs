@@ -71,8 +71,18 @@ pub struct Job {
     /// Whether the job keeps the AOV layers (`[render] aovs`): set before [`Job::start`],
     /// and from its tiles on [`Job::restore`]; every result must carry them then.
     pub layers: bool,
+    /// The noise target of adaptive sampling (see `job/adaptive.rs`); set before
+    /// [`Job::start`] or [`Job::restore`].
+    pub adaptive: Option<f32>,
     pub units: Vec<Unit>,
     pending: BTreeSet<UnitId>,
+    /// Adaptive jobs: units waiting for their tile's previous unit to merge.
+    gated: BTreeSet<UnitId>,
+    /// Adaptive jobs: units of converged tiles, never rendered (and their samples).
+    skipped: BTreeSet<UnitId>,
+    skipped_samples: u64,
+    /// Adaptive jobs: each tile's units in sample order.
+    tile_units: Vec<Vec<UnitId>>,
     /// Each tile shared, so that the image can be written or checkpointed outside the
     /// farm's lock without a copy: a merge copies only the one tile it changes, and only
     /// while a writer still reads it.
@@ -172,8 +182,13 @@ impl Job {
             batch_spp: 0,
             non_negative: true,
             layers: false,
+            adaptive: None,
             units: Vec::new(),
             pending: BTreeSet::new(),
+            gated: BTreeSet::new(),
+            skipped: BTreeSet::new(),
+            skipped_samples: 0,
+            tile_units: Vec::new(),
             tiles: Vec::new(),
             units_done: 0,
             samples_done: 0,
@@ -260,9 +275,16 @@ impl Job {
         (self.tile_size, self.batch_spp) = (tile_size, batch_spp);
         self.phase = JobPhase::Running;
         (self.started, self.rendering_since) = (Instant::now(), None);
-        if self.units.is_empty() {
+        self.reset_adaptive();
+        if self.all_settled() {
             self.finish();
         }
+    }
+
+    /// Forgets adaptive sampling's placement of the units and decides it afresh.
+    fn reset_adaptive(&mut self) {
+        (self.gated, self.skipped, self.skipped_samples) = (BTreeSet::new(), BTreeSet::new(), 0);
+        self.settle_all();
     }
 
     /// Continues a job from a checkpoint: its units (with what is done) and its tile
@@ -317,7 +339,8 @@ impl Job {
         (self.started, self.rendering_since) = (Instant::now(), None);
         self.samples_at_start = self.samples_done;
         self.finished = None;
-        if self.units_done == self.units.len() as u64 {
+        self.reset_adaptive();
+        if self.all_settled() {
             self.finish();
         }
         if r.cancelled {
@@ -351,6 +374,10 @@ impl Job {
         self.spp = spp;
         self.phase = JobPhase::Running;
         self.finished = None;
+        self.reset_adaptive();
+        if self.all_settled() {
+            self.finish();
+        }
     }
 
     /// The units as a checkpoint records them.
@@ -400,8 +427,9 @@ impl Job {
     }
 
     /// How many units the job has (also once evicted).
+    /// Units skipped by adaptive sampling do not count.
     pub fn units_total(&self) -> u64 {
-        self.evicted_units.unwrap_or(self.units.len() as u64)
+        self.evicted_units.unwrap_or((self.units.len() - self.skipped.len()) as u64)
     }
 
     /// Drops a finished job's units and per-pixel sums (about 52 B a pixel) once its
@@ -409,10 +437,11 @@ impl Job {
     /// evicted: nothing about it can change any more.
     pub fn evict(&mut self) {
         if self.phase == JobPhase::Done && self.evicted_units.is_none() {
-            self.evicted_units = Some(self.units.len() as u64);
+            self.evicted_units = Some(self.units_total());
             self.units = Vec::new();
             self.tiles = Vec::new();
             self.pending = BTreeSet::new();
+            (self.gated, self.skipped, self.tile_units) = (BTreeSet::new(), BTreeSet::new(), Vec::new());
             self.clock.clear();
         }
     }
@@ -421,8 +450,9 @@ impl Job {
         self.evicted_units.is_some()
     }
 
+    /// Samples skipped by adaptive sampling do not count.
     pub fn samples_total(&self) -> u64 {
-        self.width as u64 * self.height as u64 * self.spp as u64
+        self.width as u64 * self.height as u64 * self.spp as u64 - self.skipped_samples
     }
 
     /// Leases the next pending unit (progressive order) to `worker` until `deadline`.
@@ -663,7 +693,8 @@ impl Job {
         self.rays += r.rays;
         self.nonfinite += r.nonfinite;
         self.rendered(now, r.render_seconds);
-        if self.units_done == self.units.len() as u64 {
+        self.settle(tile_index);
+        if self.all_settled() {
             self.finish();
         }
         Ok(())
@@ -718,6 +749,7 @@ impl Job {
     }
 }
 
+mod adaptive;
 mod checks;
 #[cfg(test)]
 mod tests;

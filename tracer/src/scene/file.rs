@@ -69,6 +69,9 @@ pub struct RenderDesc {
     /// Keep the AOV layers (albedo, normal, depth, variance) beside the beauty pass.
     #[serde(default)]
     pub aovs: bool,
+    /// Adaptive sampling's noise target (relative error); absent: every pixel gets spp.
+    #[serde(default)]
+    pub noise: Option<f32>,
 }
 
 fn default_spp() -> u32 {
@@ -80,7 +83,7 @@ fn default_max_depth() -> i32 {
 
 impl Default for RenderDesc {
     fn default() -> Self {
-        Self { spp: default_spp(), max_depth: default_max_depth(), seed: 0, clamp: None, aovs: false }
+        Self { spp: default_spp(), max_depth: default_max_depth(), seed: 0, clamp: None, aovs: false, noise: None }
     }
 }
 

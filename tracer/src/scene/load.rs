@@ -44,6 +44,19 @@ pub struct RenderSettings {
     /// Keep the AOV layers beside the beauty pass (see [`crate::film::layers`]): more
     /// memory per pixel, the same beauty bits.
     pub aovs: bool,
+    /// Adaptive sampling's noise target: a tile stops once its pixels' relative standard
+    /// error is at most this (the farm decides; see the coordinator's `job/adaptive.rs`).
+    /// Needs the layers' squared sums, so it turns `aovs` on. Finite and positive.
+    pub noise: Option<f32>,
+}
+
+/// A noise target is a finite number above zero.
+pub fn check_noise(target: f32) -> Result<(), String> {
+    if target.is_finite() && target > 0.0 {
+        Ok(())
+    } else {
+        Err(format!("must be a finite number above 0 (a relative error, such as 0.01), not {target}"))
+    }
 }
 
 /// A clamp limit is a finite number above zero (zero would blank the image).
@@ -53,7 +66,7 @@ pub fn check_clamp(limit: f32) -> Result<(), String> {
 
 impl Default for RenderSettings {
     fn default() -> Self {
-        Self { spp: 64, max_depth: 8, seed: 0, clamp: None, aovs: false }
+        Self { spp: 64, max_depth: 8, seed: 0, clamp: None, aovs: false, noise: None }
     }
 }
 
@@ -222,7 +235,17 @@ pub(super) fn assemble_parts(
     if let Some(c) = r.clamp {
         check_clamp(c).map_err(|e| invalid("render.clamp".into(), e))?;
     }
-    let settings = RenderSettings { spp: r.spp, max_depth: r.max_depth, seed: r.seed, clamp: r.clamp, aovs: r.aovs };
+    if let Some(n) = r.noise {
+        check_noise(n).map_err(|e| invalid("render.noise".into(), e))?;
+    }
+    let settings = RenderSettings {
+        spp: r.spp,
+        max_depth: r.max_depth,
+        seed: r.seed,
+        clamp: r.clamp,
+        aovs: r.aovs || r.noise.is_some(),
+        noise: r.noise,
+    };
 
     // Meshes, each OBJ read once (see `place_meshes`).
     let mut b = Builder::default();

@@ -17,8 +17,8 @@ pub use crate::shapes::{Geometry, GeometryBytes, NONE, PrimRef, Sphere, Tri, Tri
 pub use check::{SceneCheck, check_scene_as};
 pub use file::UpAxis;
 pub use load::{
-    RenderSettings, SceneError, check_clamp, load_scene, load_scene_as, load_scene_up, scene_from_bare_obj,
-    scene_from_toml,
+    RenderSettings, SceneError, check_clamp, check_noise, load_scene, load_scene_as, load_scene_up,
+    scene_from_bare_obj, scene_from_toml,
 };
 pub use overrides::Overrides;
 

@@ -16,6 +16,8 @@ pub struct Overrides {
     pub clamp: Option<f32>,
     /// `--aovs`: keep the AOV layers even where the scene does not ask for them.
     pub aovs: bool,
+    /// `--adaptive` / `--noise`: see [`RenderSettings::noise`].
+    pub noise: Option<f32>,
     /// The up axis of a bare `.obj` (used when loading: [`super::load_scene_up`]).
     pub up: super::UpAxis,
 }
@@ -58,6 +60,12 @@ impl Overrides {
             settings.clamp = Some(c);
         }
         settings.aovs |= self.aovs;
+        if let Some(n) = self.noise {
+            super::load::check_noise(n).map_err(|e| format!("noise {e}"))?;
+            settings.noise = Some(n);
+        }
+        // Adaptive sampling judges tiles by the layers' squared sums.
+        settings.aovs |= settings.noise.is_some();
         Ok(())
     }
 }

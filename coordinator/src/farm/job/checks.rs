@@ -204,6 +204,21 @@ impl Job {
             self.nonfinite -= self.tiles[t].nonfinite.min(self.nonfinite);
             self.tiles[t] = std::sync::Arc::new(Accumulation::with_layers(self.tiles[t].tile, self.layers));
         }
+        if self.adaptive.is_some() && !tainted.is_empty() {
+            // A tainted tile starts again from its first batch: a later batch still out
+            // would merge into the wrong prefix, so its lease is withdrawn (and its result
+            // refused: it has no holder any more).
+            for (id, u) in self.units.iter_mut().enumerate() {
+                if let UnitState::Leased { since, .. } = u.state
+                    && tainted.contains(&u.tile_index)
+                {
+                    self.clock.ended(id as UnitId, since);
+                    (u.state, u.spare) = (UnitState::Pending, None);
+                    u.holders.clear();
+                }
+            }
+            tainted.iter().for_each(|&t| self.settle(t));
+        }
         if !tainted.is_empty() && self.phase == JobPhase::Done {
             self.phase = JobPhase::Running;
             self.finished = None;

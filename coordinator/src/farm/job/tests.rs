@@ -417,3 +417,70 @@ fn the_size_check_counts_the_layers() {
     let e = Job::check_size((1400, 1400), 16, (64, 16), true, limit).unwrap_err();
     assert!(e.contains("--max-job-memory-mb"), "{e}");
 }
+
+/// A result of `unit` whose every sample is `v` (so zero variance) or, with `noisy`,
+/// alternately 0 and 2v (the same mean, a large variance), with the squared sums that
+/// adaptive sampling judges by.
+fn layered_result(j: &Job, unit: UnitId, v: f64, noisy: bool) -> UnitResult {
+    let mut r = result_for(j, unit, 0);
+    let n = r.samples.len() as f64;
+    let one = (1u64 << 32) as f64;
+    let sum = (n * v * one) as i128;
+    let squares = if noisy { (n * 2.0 * v * v * one) as i128 } else { (n * v * v * one) as i128 };
+    r.sums = vec![[sum; 3]; r.counts.len()];
+    let mut l = [0i128; tracer::film::layers::CHANNELS];
+    l[tracer::film::layers::SQUARES_AT..tracer::film::layers::SQUARES_AT + 3].fill(squares);
+    r.layers = vec![l; r.counts.len()];
+    r
+}
+
+/// Adaptive sampling: one unit of a tile out at a time; a tile whose merged samples are
+/// converged skips the rest, one that is noisy renders to spp; the decisions come back
+/// the same from a checkpoint.
+#[test]
+fn adaptive_jobs_render_a_tile_a_batch_at_a_time_and_stop_converged_tiles() {
+    let mut j = Job::loading("a".into(), "test".into());
+    (j.layers, j.adaptive) = (true, Some(0.01));
+    j.start(4, 2, 64, 2, 8, true); // two tiles, eight batches each
+    let far = Instant::now() + NEVER;
+    let lease = |j: &mut Job| j.lease_next(7, Instant::now(), far, Duration::MAX);
+    let (a, b) = (lease(&mut j).unwrap(), lease(&mut j).unwrap());
+    assert_ne!(j.units[a as usize].tile_index, j.units[b as usize].tile_index);
+    assert_eq!(lease(&mut j), None, "each tile's next batch waits for its first");
+    let mut rendered = [0u32; 2];
+    let mut out = vec![a, b];
+    while let Some(id) = out.pop() {
+        let t = j.units[id as usize].tile_index;
+        rendered[t] += 1;
+        let r = layered_result(&j, id, 0.5, t == 1);
+        assert_eq!(j.apply(7, &r), Ok(Applied::Merged));
+        out.extend(lease(&mut j));
+    }
+    // Tile 0 converged at 16 spp (two batches, the least judged); tile 1 ran to 64.
+    assert_eq!(rendered, [2, 8]);
+    assert_eq!(j.phase, JobPhase::Done);
+    assert_eq!((j.units_done, j.units_total()), (10, 10));
+    assert_eq!(j.samples_done, j.samples_total());
+    assert_eq!(j.tile_accumulations()[0].counts[0], 16);
+    assert_eq!(j.tile_accumulations()[1].counts[0], 64);
+
+    // A checkpoint keeps the skipped units as not done; restored, they are skipped again.
+    let mut r = Job::loading("a".into(), "test".into());
+    r.adaptive = Some(0.01);
+    r.restore(Restored {
+        width: 4,
+        height: 2,
+        spp: 64,
+        tile_size: 2,
+        batch_spp: 8,
+        non_negative: true,
+        units: j.records(),
+        tiles: j.tile_accumulations().to_vec(),
+        rays: 0,
+        nonfinite: 0,
+        cancelled: false,
+    })
+    .unwrap();
+    assert_eq!(r.phase, JobPhase::Done);
+    assert_eq!(r.units_total(), 10);
+}

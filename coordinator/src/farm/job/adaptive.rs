@@ -1,0 +1,112 @@
+//! Adaptive sampling, decided from merged state only.
+//!
+//! A job with a noise target (`--adaptive`, `--noise`) renders each tile one batch at a
+//! time: a tile's next unit is leased only once its previous one has merged, so that
+//! the tile's accumulation is always exactly the sum of its first k batches, whatever
+//! the workers, their number, the order results arrive in, kills and resumes. After
+//! each merge the tile is judged on that accumulation alone: once it has at least
+//! [`MIN_SPP`] samples and its noise ([`tile_noise`]) is at most the target, its
+//! remaining units are skipped. The decision is a pure function of exact integer sums,
+//! so the image (and the `samples` channel, which shows where samples went) is the same
+//! bits every time.
+//!
+//! Skipped units are not done: a checkpoint records them as pending, and a restored
+//! job decides again, from the same sums, to skip them.
+
+use super::{Job, UnitId, UnitState};
+use tracer::film::Accumulation;
+
+/// Fewest samples a tile has before it may be judged converged: with fewer, a variance
+/// estimate is itself too noisy to trust.
+pub const MIN_SPP: u32 = 16;
+
+/// What keeps black pixels from demanding endless samples: the error is relative to
+/// the pixel's value plus this.
+const DARK: f64 = 0.01;
+
+/// A tile's noise: the largest, over its pixels, of the standard error of the pixel's
+/// value (the root of the summed variance estimates of its three channels' means)
+/// relative to its value (the sum of the three means, plus [`DARK`]). Infinite without
+/// the squared sums that give the variance (an accumulation without layers).
+pub fn tile_noise(acc: &Accumulation) -> f64 {
+    if !acc.has_layers() {
+        return f64::INFINITY;
+    }
+    let mut worst = 0.0f64;
+    for i in 0..acc.counts.len() {
+        let Some(l) = acc.layers_at(i) else { return f64::INFINITY };
+        let (v, m) = (l.variance.as_dvec3(), acc.mean(i).as_dvec3());
+        let e = v.element_sum().sqrt() / (m.element_sum().abs() + DARK);
+        // NaN (a pixel with one sample has an unknown variance) counts as not converged.
+        worst = if e.is_nan() { f64::INFINITY } else { worst.max(e) };
+    }
+    worst
+}
+
+impl Job {
+    /// Lists each tile's units in sample order (after the units change).
+    pub(super) fn index_tiles(&mut self) {
+        self.tile_units = vec![Vec::new(); self.tiles.len()];
+        for (id, u) in self.units.iter().enumerate() {
+            self.tile_units[u.tile_index].push(id as UnitId);
+        }
+        for ids in &mut self.tile_units {
+            ids.sort_by_key(|&id| self.units[id as usize].samples.start);
+        }
+    }
+
+    /// Decides every tile afresh (see [`Job::settle`]).
+    pub(super) fn settle_all(&mut self) {
+        if self.adaptive.is_some() {
+            self.index_tiles();
+            (0..self.tiles.len()).for_each(|t| self.settle(t));
+        }
+    }
+
+    /// Places tile `t`'s unfinished units: none while one is out (leased or under check)
+    /// but the ones after it, which wait; else, if the tile has converged, all skipped;
+    /// else the first pending and the rest waiting. Only for adaptive jobs.
+    pub(super) fn settle(&mut self, t: usize) {
+        let Some(target) = self.adaptive else { return };
+        let ids = std::mem::take(&mut self.tile_units[t]);
+        let open: Vec<UnitId> =
+            ids.iter().copied().filter(|&id| self.units[id as usize].state != UnitState::Done).collect();
+        let out = |job: &Job, id: UnitId| {
+            matches!(job.units[id as usize].state, UnitState::Leased { .. }) || job.checking.contains(&id)
+        };
+        let first_out = open.first().is_some_and(|&id| out(self, id));
+        let acc = &self.tiles[t];
+        let converged =
+            !first_out && acc.counts.first().is_some_and(|&n| n >= MIN_SPP) && { tile_noise(acc) <= f64::from(target) };
+        for (k, &id) in open.iter().enumerate() {
+            if k == 0 && first_out {
+                continue;
+            }
+            self.pending.remove(&id);
+            self.gated.remove(&id);
+            if self.skipped.remove(&id) {
+                self.skipped_samples -= self.unit_samples(id);
+            }
+            if converged {
+                self.skipped.insert(id);
+                self.skipped_samples += self.unit_samples(id);
+            } else if k == 0 {
+                self.pending.insert(id);
+            } else {
+                self.gated.insert(id);
+            }
+        }
+        self.tile_units[t] = ids;
+    }
+
+    /// Samples (pixels × samples per pixel) of unit `id`.
+    fn unit_samples(&self, id: UnitId) -> u64 {
+        let u = &self.units[id as usize];
+        u.tile.pixel_count() as u64 * u64::from(u.samples.len())
+    }
+
+    /// Whether every unit is done or skipped.
+    pub(super) fn all_settled(&self) -> bool {
+        self.units_done + self.skipped.len() as u64 == self.units.len() as u64
+    }
+}

@@ -1,0 +1,134 @@
+//! Adaptive sampling as a user runs it (`render --adaptive`): the same bits with any
+//! number of worker processes, and through a checkpoint and `resume`; more samples
+//! where the noise is; and a lower error than uniform sampling at the same total.
+
+use std::path::{Path, PathBuf};
+use std::process::Command;
+
+use tracer::film::Image;
+
+struct TempDir(PathBuf);
+
+impl TempDir {
+    fn new(tag: &str) -> Self {
+        let d = std::env::temp_dir().join(format!("tilefarm-adaptive-{tag}-{}", std::process::id()));
+        std::fs::create_dir_all(&d).unwrap();
+        Self(d)
+    }
+}
+
+impl Drop for TempDir {
+    fn drop(&mut self) {
+        let _ = std::fs::remove_dir_all(&self.0);
+    }
+}
+
+/// A wall whose left half is an emitter (every sample sees exactly its radiance: no
+/// noise) and whose right half is white and lit by a small sphere light (noisy).
+fn halves(dir: &Path) -> PathBuf {
+    std::fs::write(dir.join("halves.mtl"), "newmtl lamp\nKd 0 0 0\nKe 1 1 1\nnewmtl white\nKd 0.8 0.8 0.8\n").unwrap();
+    std::fs::write(
+        dir.join("halves.obj"),
+        "mtllib halves.mtl\nv -10 -10 0\nv 0 -10 0\nv 0 10 0\nv -10 10 0\nv 10 -10 0\nv 10 10 0\n\
+         usemtl lamp\nf 1 4 3 2\nusemtl white\nf 2 3 6 5\n",
+    )
+    .unwrap();
+    let scene = dir.join("halves.toml");
+    std::fs::write(
+        &scene,
+        "[camera]\nposition = [0.0, 0.0, -4.0]\nlook_at = [0.0, 0.0, 0.0]\nfov = 40\nwidth = 32\nheight = 16\n\
+         [render]\nspp = 256\n[[mesh]]\nobj = \"halves.obj\"\n\
+         [[sphere]]\ncenter = [1.2, 0.0, -1.5]\nradius = 0.1\nke = [40.0, 40.0, 40.0]\n",
+    )
+    .unwrap();
+    scene
+}
+
+/// Renders `scene` with `args` to `name` in `dir`; the image.
+fn render(dir: &Path, scene: &Path, name: &str, args: &[&str]) -> Image {
+    let out = dir.join(name);
+    let run = Command::new(env!("CARGO_BIN_EXE_coordinator"))
+        .arg("render")
+        .arg(scene)
+        .args(["-q", "--tile", "8", "--batch-spp", "8"])
+        .args(args)
+        .arg("-o")
+        .arg(&out)
+        .output()
+        .unwrap();
+    assert!(run.status.success(), "{args:?}: {}", String::from_utf8_lossy(&run.stderr));
+    tracer::output::read_exr(&out).unwrap()
+}
+
+/// Mean over pixels and channels of (x - ref)² / (ref² + 0.01).
+fn rel_mse(x: &Image, reference: &Image) -> f64 {
+    let mut sum = 0.0;
+    for (a, r) in x.pixels.iter().zip(&reference.pixels) {
+        for k in 0..3 {
+            let (a, r) = (a[k] as f64, r[k] as f64);
+            sum += (a - r).powi(2) / (r * r + 0.01);
+        }
+    }
+    sum / (3 * x.pixels.len()) as f64
+}
+
+#[test]
+fn adaptive_renders_are_the_same_bits_for_any_workers_and_spend_samples_on_noise() {
+    let dir = TempDir::new("halves");
+    let scene = halves(&dir.0);
+    let adaptive = ["--adaptive", "--noise", "0.03"];
+    let in_process = render(&dir.0, &scene, "a0.exr", &[&adaptive[..], &["--local-workers", "0"]].concat());
+    for workers in ["1", "2"] {
+        let farm = render(&dir.0, &scene, "a.exr", &[&adaptive[..], &["--local-workers", workers]].concat());
+        assert_eq!(farm, in_process, "{workers} worker processes");
+    }
+    let meta = exr::meta::MetaData::read_from_file(dir.0.join("a0.exr"), false).unwrap();
+    let key = exr::meta::attribute::Text::from("tilefarm/noiseTarget");
+    assert_eq!(meta.headers[0].own_attributes.other.get(&key), Some(&exr::meta::attribute::AttributeValue::F32(0.03)));
+
+    // Where the samples went: the emitter's tiles stop at the least a tile is judged
+    // on; tiles of the lit wall take more.
+    let counts = &in_process.counts;
+    let (least, most) = (*counts.iter().min().unwrap(), *counts.iter().max().unwrap());
+    assert_eq!(least, 16, "converged tiles stop at 16 spp");
+    assert!(most > 64, "noisy tiles take more samples ({most})");
+    let total: u64 = counts.iter().map(|&c| u64::from(c)).sum();
+    let pixels = counts.len() as u64;
+    assert!(total < 256 * pixels, "adaptive sampling took fewer than the 256 spp asked for");
+
+    // At the same total, a lower error than uniform sampling (against 2048 spp).
+    let uniform_spp = (total / pixels).to_string();
+    let uniform = render(&dir.0, &scene, "u.exr", &["--spp", &uniform_spp, "--local-workers", "0"]);
+    let reference = render(&dir.0, &scene, "r.exr", &["--spp", "2048", "--local-workers", "0"]);
+    let (e_adaptive, e_uniform) = (rel_mse(&in_process, &reference), rel_mse(&uniform, &reference));
+    println!(
+        "relMSE at {:.1} spp on average: adaptive {e_adaptive:.6}, uniform {e_uniform:.6} ({:.2}×)",
+        total as f64 / pixels as f64,
+        e_uniform / e_adaptive
+    );
+    assert!(e_adaptive < e_uniform, "adaptive {e_adaptive} is not below uniform {e_uniform}");
+}
+
+/// A checkpointed adaptive render continued by `resume` to more spp is the same bits as
+/// one rendered to that spp at once: the restored job decides each tile again from the
+/// same sums.
+#[test]
+fn a_resumed_adaptive_render_equals_an_uninterrupted_one() {
+    let dir = TempDir::new("resume");
+    let scene = halves(&dir.0);
+    let ckpt = dir.0.join("ckpt");
+    let ckpt_arg = ckpt.to_str().unwrap();
+    let first = ["--adaptive", "--noise", "0.03", "--spp", "32", "--local-workers", "1", "--checkpoint", ckpt_arg];
+    render(&dir.0, &scene, "part.exr", &first);
+    let out = dir.0.join("resumed.exr");
+    let run = Command::new(env!("CARGO_BIN_EXE_coordinator"))
+        .args(["resume", ckpt_arg, "--spp", "128", "-q", "--local-workers", "2", "-o"])
+        .arg(&out)
+        .output()
+        .unwrap();
+    assert!(run.status.success(), "{}", String::from_utf8_lossy(&run.stderr));
+    let resumed = tracer::output::read_exr(&out).unwrap();
+    let whole = render(&dir.0, &scene, "whole.exr", &["--adaptive", "--noise", "0.03", "--spp", "128"]);
+    assert_eq!(resumed, whole);
+    assert!(whole.counts.iter().any(|&c| c > 32), "the resume rendered more");
+}
