@@ -575,14 +575,17 @@ fn write_result(
     resumed: u64,
     earlier: (u64, u64),
 ) -> anyhow::Result<()> {
-    let (image, info, nonfinite, total) = {
+    let (image, info, nonfinite, total, skipped) = {
         let farm = shared.farm();
         let e = farm.entry(job)?;
-        (e.job.image_tiles(), e.render_info(), e.job.nonfinite, e.job.units.len() as u64)
+        let total = e.job.units_total();
+        (e.job.image_tiles(), e.render_info(), e.job.nonfinite, total, e.job.units.len() as u64 - total)
     };
     write_images(&image, info.as_ref(), args)?;
+    let converged =
+        if skipped > 0 { format!(" ({skipped} more skipped: their tiles had converged)") } else { String::new() };
     println!(
-        "{}; units: {resumed} from checkpoint + {} rendered = {total}; wrote {}",
+        "{}; units: {resumed} from checkpoint + {} rendered = {total}{converged}; wrote {}",
         summary(status, earlier.0, earlier.1),
         status.units_done - resumed,
         args.output.display()
