@@ -1,6 +1,7 @@
-//! Adaptive sampling as a user runs it (`render --adaptive`): the same bits with any
-//! number of worker processes, and through a checkpoint and `resume`; more samples
-//! where the noise is; and a lower error than uniform sampling at the same total.
+//! Adaptive sampling and time budgets as a user runs them (`render --adaptive`,
+//! `--time-budget`): the same bits with any number of worker processes, and through a
+//! checkpoint and `resume`; more samples where the noise is; a lower error than uniform
+//! sampling at the same total; a budget that stops in whole batches.
 
 use std::path::{Path, PathBuf};
 use std::process::Command;
@@ -131,4 +132,43 @@ fn a_resumed_adaptive_render_equals_an_uninterrupted_one() {
     let whole = render(&dir.0, &scene, "whole.exr", &["--adaptive", "--noise", "0.03", "--spp", "128"]);
     assert_eq!(resumed, whole);
     assert!(whole.counts.iter().any(|&c| c > 32), "the resume rendered more");
+}
+
+/// `--time-budget` stops the render in whole batches: it ends soon after its budget,
+/// every tile within one batch of the others, and each pixel is the same bits as a
+/// render to the spp its tile reached (the `samples` channel is the map to render again).
+#[test]
+fn a_time_budget_ends_in_whole_batches_that_render_again_to_the_same_bits() {
+    let dir = TempDir::new("budget");
+    let cornell = Path::new(env!("CARGO_MANIFEST_DIR")).join("../scenes/cornell-box/scene.toml");
+    let started = std::time::Instant::now();
+    let budget = render(
+        &dir.0,
+        &cornell,
+        "budget.exr",
+        &["--width", "48", "--spp", "100000", "--time-budget", "2s", "--local-workers", "1"],
+    );
+    let took = started.elapsed();
+    // Generous: the point is that it stops (the loaded test machine sets the rest).
+    assert!(took < std::time::Duration::from_secs(60), "a 2 s budget took {took:?}");
+    let (least, most) = (*budget.counts.iter().min().unwrap(), *budget.counts.iter().max().unwrap());
+    assert!(least >= 8 && most - least <= 8, "tiles within one batch: {least}..{most} spp");
+    println!("2 s budget: {least}..{most} spp in {took:?}");
+    for spp in [least, most] {
+        let again = render(&dir.0, &cornell, "again.exr", &["--width", "48", "--spp", &spp.to_string()]);
+        for (i, &c) in budget.counts.iter().enumerate() {
+            if c == spp {
+                assert_eq!(budget.pixels[i].to_array(), again.pixels[i].to_array(), "pixel {i} at {spp} spp");
+            }
+        }
+    }
+    for bad in ["0", "soon", "-5s"] {
+        let out = Command::new(env!("CARGO_BIN_EXE_coordinator"))
+            .args(["render", "-q", "--time-budget", bad, "-o"])
+            .arg(dir.0.join("x.exr"))
+            .output()
+            .unwrap();
+        let err = String::from_utf8_lossy(&out.stderr);
+        assert!(!out.status.success() && err.contains("--time-budget"), "{bad}: {err}");
+    }
 }

@@ -46,6 +46,7 @@ pub fn settings_to_proto(j: &JobSpec) -> crate::RenderSettings {
         clamp: o.clamp,
         aovs: o.aovs,
         noise: o.noise,
+        time_budget_ms: o.time_budget.map(|d| u64::try_from(d.as_millis()).unwrap_or(u64::MAX)),
         integrator: j.integrator.name().to_string(),
         tile_size: j.tile_size.unwrap_or(0),
         batch_spp: j.batch_spp.unwrap_or(0),
@@ -113,6 +114,7 @@ pub fn settings_from_proto(s: Option<&crate::RenderSettings>) -> Result<(Overrid
         clamp: s.clamp,
         aovs: s.aovs,
         noise: s.noise,
+        time_budget: s.time_budget_ms.map(std::time::Duration::from_millis),
         up: if s.up.is_empty() { tracer::scene::UpAxis::Y } else { s.up.parse()? },
     };
     let integrator = if s.integrator.is_empty() { Integrator::Path } else { s.integrator.parse()? };
@@ -292,6 +294,7 @@ mod tests {
                     clamp: Some(0.5),
                     aovs: true,
                     noise: Some(0.02),
+                    time_budget_ms: Some(90_000),
                 }),
             }),
             unit_id: 7,
@@ -320,6 +323,7 @@ mod tests {
                 clamp: Some(0.5),
                 aovs: true,
                 noise: Some(0.02),
+                time_budget: Some(std::time::Duration::from_secs(90)),
             }
         );
     }

@@ -66,6 +66,12 @@ pub struct JobArgs {
     /// (implies --adaptive) [default with --adaptive: 0.01].
     #[arg(long, value_name = "E", value_parser = noise_target)]
     pub noise: Option<f32>,
+    /// Render for this long, in whole batches: no unit is leased once it has passed
+    /// since the job started, the ones out finish, and the image holds what was done,
+    /// every tile within one batch of the others (its `samples` channel shows the spp
+    /// each reached). A duration such as 90s, 10m, 1h or 1h30m; --spp stays the most.
+    #[arg(long, value_name = "DURATION", value_parser = duration, allow_hyphen_values = true)]
+    pub time_budget: Option<std::time::Duration>,
     /// path (default: NEE + MIS); path-light or path-bsdf (one strategy only, to compare
     /// estimators); or an AOV: normals, albedo, depth.
     #[arg(long, default_value = "path")]
@@ -81,6 +87,20 @@ pub struct JobArgs {
     /// a scene file, set `up = "z"` in a [[mesh]] table instead.
     #[arg(long, value_name = "AXIS", default_value = "y")]
     pub up: tracer::scene::UpAxis,
+}
+
+/// A duration as people write one (humantime's: 90s, 10m, 1h, 1h30m); a bare number
+/// is seconds. Zero is refused: a budget of nothing renders nothing.
+pub fn duration(s: &str) -> Result<std::time::Duration, String> {
+    let d = match s.trim().parse::<u64>() {
+        Ok(secs) => std::time::Duration::from_secs(secs),
+        Err(_) => humantime::parse_duration(s.trim())
+            .map_err(|e| format!("{s:?} is not a duration such as 90s, 10m, 1h or 1h30m ({e})"))?,
+    };
+    if d.is_zero() {
+        return Err("a time budget must be longer than zero".into());
+    }
+    Ok(d)
 }
 
 /// The noise target of `--adaptive` without `--noise`.
@@ -116,6 +136,7 @@ impl JobArgs {
                 // too, so that every worker keeps them.
                 aovs: self.aovs || self.adaptive || self.noise.is_some(),
                 noise: self.noise.or(self.adaptive.then_some(DEFAULT_NOISE)),
+                time_budget: self.time_budget,
                 up: self.up,
             },
             integrator: self.integrator,
@@ -149,6 +170,10 @@ pub struct ResumeArgs {
     /// Raise the samples per pixel: only the new samples are rendered.
     #[arg(long, value_name = "N", value_parser = clap::value_parser!(u32).range(1..))]
     pub spp: Option<u32>,
+    /// Render for this long more, in whole batches (see `render --time-budget`);
+    /// without it, to the job's spp.
+    #[arg(long, value_name = "DURATION", value_parser = duration, allow_hyphen_values = true)]
+    pub time_budget: Option<std::time::Duration>,
     #[command(flatten)]
     pub run: RunArgs,
 }
@@ -329,6 +354,8 @@ pub fn resume(args: ResumeArgs) -> anyhow::Result<()> {
     let store = AssetStore::open(&args.dir)?;
     let mut spec = snap.spec.clone();
     spec.job_id = String::new();
+    // A budget is for one run: the checkpoint's was spent.
+    spec.overrides.time_budget = args.time_budget;
     spec.overrides.spp = match args.spp {
         Some(spp) => {
             anyhow::ensure!(
@@ -575,15 +602,21 @@ fn write_result(
     resumed: u64,
     earlier: (u64, u64),
 ) -> anyhow::Result<()> {
-    let (image, info, nonfinite, total, skipped) = {
+    let (image, info, nonfinite, total, skipped, budget) = {
         let farm = shared.farm();
         let e = farm.entry(job)?;
         let total = e.job.units_total();
-        (e.job.image_tiles(), e.render_info(), e.job.nonfinite, total, e.job.units.len() as u64 - total)
+        let spp = e.job.tile_accumulations().iter().filter_map(|a| a.counts.first().copied());
+        let reached = spp.clone().min().zip(spp.max());
+        let budget = e.job.budget.filter(|_| e.job.units_done < total).and(reached);
+        (e.job.image_tiles(), e.render_info(), e.job.nonfinite, total, e.job.units.len() as u64 - total, budget)
     };
     write_images(&image, info.as_ref(), args)?;
-    let converged =
+    let mut converged =
         if skipped > 0 { format!(" ({skipped} more skipped: their tiles had converged)") } else { String::new() };
+    if let Some((least, most)) = budget {
+        converged += &format!(" (the time budget ended it with tiles at {least}–{most} spp)");
+    }
     println!(
         "{}; units: {resumed} from checkpoint + {} rendered = {total}{converged}; wrote {}",
         summary(status, earlier.0, earlier.1),

@@ -74,6 +74,9 @@ pub struct Job {
     /// The noise target of adaptive sampling (see `job/adaptive.rs`); set before
     /// [`Job::start`] or [`Job::restore`].
     pub adaptive: Option<f32>,
+    /// `--time-budget`: no unit is leased once this long has passed since the job
+    /// (re)started; the job ends when the units out are in.
+    pub budget: Option<Duration>,
     pub units: Vec<Unit>,
     pending: BTreeSet<UnitId>,
     /// Adaptive jobs: units waiting for their tile's previous unit to merge.
@@ -183,6 +186,7 @@ impl Job {
             non_negative: true,
             layers: false,
             adaptive: None,
+            budget: None,
             units: Vec::new(),
             pending: BTreeSet::new(),
             gated: BTreeSet::new(),
@@ -467,7 +471,7 @@ impl Job {
         deadline: Instant,
         speculate_after: Duration,
     ) -> Option<UnitId> {
-        if self.phase != JobPhase::Running || self.share.paused {
+        if self.phase != JobPhase::Running || self.share.paused || self.budget_spent(now) {
             return None;
         }
         // Units under check first: the job cannot end before they are settled.
@@ -697,7 +701,23 @@ impl Job {
         if self.all_settled() {
             self.finish();
         }
+        self.budget_spent(now);
         Ok(())
+    }
+
+    /// Whether the time budget has run out; ends the job once no unit is out (so every
+    /// tile stops on a whole batch, at most one batch from the others: units are leased
+    /// batch by batch across the tiles).
+    pub fn budget_spent(&mut self, now: Instant) -> bool {
+        let Some(budget) = self.budget else { return false };
+        if now.saturating_duration_since(self.started) < budget {
+            return false;
+        }
+        let nothing_out = self.clock.oldest_out().next().is_none() && self.checking.is_empty();
+        if self.phase == JobPhase::Running && nothing_out {
+            self.finish();
+        }
+        true
     }
 
     fn finish(&mut self) {

@@ -476,7 +476,7 @@ fn load_job(shared: &Arc<Shared>, job: &str, restore: Option<Restored>) -> anyho
     }
     match restore {
         None => {
-            (e.job.layers, e.job.adaptive) = (settings.aovs, settings.noise);
+            (e.job.layers, e.job.adaptive, e.job.budget) = (settings.aovs, settings.noise, spec.overrides.time_budget);
             e.job.start(w, h, spp, tile, batch, non_negative);
         }
         Some(r) => {
@@ -486,7 +486,7 @@ fn load_job(shared: &Arc<Shared>, job: &str, restore: Option<Restored>) -> anyho
                 r.width,
                 r.height
             );
-            e.job.adaptive = settings.noise;
+            (e.job.adaptive, e.job.budget) = (settings.noise, spec.overrides.time_budget);
             e.job.restore(r).map_err(|m| anyhow::anyhow!("the checkpoint is inconsistent: {m}"))?;
             if let Some(more) = spec.overrides.spp
                 && more > e.job.spp

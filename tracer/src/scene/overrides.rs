@@ -18,6 +18,10 @@ pub struct Overrides {
     pub aovs: bool,
     /// `--adaptive` / `--noise`: see [`RenderSettings::noise`].
     pub noise: Option<f32>,
+    /// `--time-budget`: the farm stops leasing units once this long has passed since
+    /// the job started, finishes the ones out, and ends the job with what it has.
+    /// Scheduling only: not a scene setting, and no sample changes.
+    pub time_budget: Option<std::time::Duration>,
     /// The up axis of a bare `.obj` (used when loading: [`super::load_scene_up`]).
     pub up: super::UpAxis,
 }

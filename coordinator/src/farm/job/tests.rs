@@ -484,3 +484,21 @@ fn adaptive_jobs_render_a_tile_a_batch_at_a_time_and_stop_converged_tiles() {
     assert_eq!(r.phase, JobPhase::Done);
     assert_eq!(r.units_total(), 10);
 }
+
+/// Once its time budget has passed, a job leases nothing more, and ends when the units
+/// out are in: with what is done, and nothing thrown away.
+#[test]
+fn a_spent_time_budget_stops_leasing_and_ends_the_job_when_the_units_out_are_in() {
+    let mut j = job();
+    j.budget = Some(Duration::from_secs(3600));
+    let now = Instant::now();
+    let out = j.lease_next(7, now, now + NEVER, Duration::MAX).unwrap();
+    let later = now + Duration::from_secs(3601);
+    assert_eq!(j.lease_next(7, later, later + NEVER, Duration::MAX), None, "nothing is leased after the budget");
+    assert_eq!(j.phase, JobPhase::Running, "a unit is still out");
+    assert_eq!(j.apply(7, &result_for(&j, out, 5)), Ok(Applied::Merged));
+    assert!(!j.budget_spent(now), "not yet spent at the start");
+    assert!(j.budget_spent(later));
+    assert_eq!(j.phase, JobPhase::Done);
+    assert_eq!(j.units_done, 1, "the unit out was merged, not lost");
+}
