@@ -2,7 +2,8 @@
 // playwright-core), as tests/tests/dashboard.rs asks:
 //   node drive.mjs URL JOB_NAME SCREENSHOT.png
 // It waits for the job and two workers to be listed, for the live image to change
-// between two updates, writes a screenshot, then presses the job's cancel button and
+// between two updates, writes a screenshot, shows the noise and samples views (each
+// must differ from the image, with its legend), then presses the job's cancel button and
 // waits for the page to show it cancelled. Prints one JSON line; exits non-zero on failure.
 import { chromium } from "playwright-core";
 
@@ -35,9 +36,23 @@ try {
   const latencies = await page.evaluate(() => window.tilefarmLatencies || []);
   await page.screenshot({ path: shot, fullPage: true });
 
+  // The noise and samples-per-pixel views: each shows its legend and an image unlike
+  // the beauty image's (screenshots beside the main one).
+  const views = {};
+  for (const view of ["noise", "samples"]) {
+    await page.selectOption("#viewsel", view);
+    await page.locator(`#legend[data-view="${view}"]`).waitFor({ timeout: 30000 });
+    const v = await version();
+    await page.waitForFunction((v) => Number(document.getElementById("live").dataset.version || "0") > v, v, { timeout: 30000 });
+    const shown = await page.locator("#live").screenshot({ path: shot.replace(/\.png$/, `-${view}.png`) });
+    if (Buffer.compare(shown, second) === 0) throw new Error(`the ${view} view shows the beauty image`);
+    views[view] = (await page.locator("#legend").textContent()).trim();
+  }
+  await page.selectOption("#viewsel", "beauty");
+
   await row.locator('button[data-action="cancel"]').click();
   await page.locator("#jobs tr.job", { hasText: jobName }).filter({ hasText: "cancelled" }).waitFor({ timeout: 30000 });
-  console.log(JSON.stringify({ ok: true, versions: [v1, v2], latencies_ms: latencies }));
+  console.log(JSON.stringify({ ok: true, versions: [v1, v2], views, latencies_ms: latencies }));
 } finally {
   await browser.close();
 }

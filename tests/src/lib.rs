@@ -261,30 +261,41 @@ pub fn forged_result(worker: u64, job: &str, unit: &proto::Unit, value: i128) ->
 /// `GET path` on `addr` over plain HTTP/1.1 (with `Authorization: Bearer TOKEN` when
 /// given): the status code and the body. Bounded by `limit`.
 pub fn http_get(addr: &str, path: &str, token: Option<&str>, limit: Duration) -> (u16, String) {
+    let (code, _, body) = http_get_bytes(addr, path, token, limit);
+    (code, String::from_utf8_lossy(&body).into_owned())
+}
+
+/// `GET path` from `addr` over plain HTTP/1.1 (bounded by `limit`): the status, the
+/// head (status line and headers) and the body as bytes, its chunks joined.
+pub fn http_get_bytes(addr: &str, path: &str, token: Option<&str>, limit: Duration) -> (u16, String, Vec<u8>) {
     use std::io::{Read, Write};
     let mut s = std::net::TcpStream::connect(addr).unwrap_or_else(|e| panic!("connecting to {addr}: {e}"));
     s.set_read_timeout(Some(limit)).expect("timeout");
     let auth = token.map(|t| format!("Authorization: Bearer {t}\r\n")).unwrap_or_default();
     write!(s, "GET {path} HTTP/1.1\r\nHost: {addr}\r\n{auth}Connection: close\r\n\r\n").expect("request");
-    let mut text = String::new();
-    s.read_to_string(&mut text).expect("response");
-    let (head, body) = text.split_once("\r\n\r\n").unwrap_or((&text, ""));
+    let mut raw = Vec::new();
+    s.read_to_end(&mut raw).expect("response");
+    let split = raw.windows(4).position(|w| w == b"\r\n\r\n").unwrap_or(raw.len());
+    let head = String::from_utf8_lossy(&raw[..split]).into_owned();
+    let body = raw.get(split + 4..).unwrap_or_default();
     let code = head.split_whitespace().nth(1).and_then(|c| c.parse().ok()).unwrap_or(0);
     // Chunked bodies (axum streams larger ones): join the chunks.
     let body = if head.to_ascii_lowercase().contains("transfer-encoding: chunked") {
-        let mut out = String::new();
+        let mut out = Vec::new();
         let mut rest = body;
-        while let Some((size, tail)) = rest.split_once("\r\n") {
+        while let Some(end) = rest.windows(2).position(|w| w == b"\r\n") {
+            let size = String::from_utf8_lossy(&rest[..end]);
             let n = usize::from_str_radix(size.trim(), 16).unwrap_or(0);
+            let tail = &rest[end + 2..];
             if n == 0 || tail.len() < n {
                 break;
             }
-            out.push_str(&tail[..n]);
-            rest = tail[n..].trim_start_matches("\r\n");
+            out.extend_from_slice(&tail[..n]);
+            rest = tail[n..].strip_prefix(b"\r\n").unwrap_or(&tail[n..]);
         }
         out
     } else {
-        body.to_string()
+        body.to_vec()
     };
-    (code, body)
+    (code, head, body)
 }

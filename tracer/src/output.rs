@@ -143,6 +143,8 @@ impl RenderInfo {
     }
 }
 
+pub mod views;
+
 /// The header attributes' names for what has no standard one.
 pub mod keys {
     pub const SPP: &str = "tilefarm/spp";
@@ -390,19 +392,7 @@ pub fn tonemap(p: Vec3) -> [u8; 3] {
 /// A tone-mapped PNG of `image` (each radiance scaled by `scale` first: 2^stops of
 /// exposure), in memory: the dashboard's live image.
 pub fn png_bytes(image: &impl Pixels, scale: f32) -> Result<Vec<u8>, String> {
-    use image::ImageEncoder;
-    let (w, h) = image.size();
-    let mut buf = Vec::with_capacity(w as usize * h as usize * 3);
-    for y in 0..h {
-        for x in 0..w {
-            buf.extend_from_slice(&tonemap(image.pixel(x, y).0 * scale));
-        }
-    }
-    let mut out = Vec::new();
-    image::codecs::png::PngEncoder::new(&mut out)
-        .write_image(&buf, w, h, image::ExtendedColorType::Rgb8)
-        .map_err(|e| e.to_string())?;
-    Ok(out)
+    views::view_png(image, views::View::Beauty, scale, 0.0).map(|v| v.png)
 }
 
 /// A tone-mapped PNG of `image`: its denoised pixels where it has them, else the raw.

@@ -103,9 +103,6 @@ pub fn duration(s: &str) -> Result<std::time::Duration, String> {
     Ok(d)
 }
 
-/// The noise target of `--adaptive` without `--noise`.
-const DEFAULT_NOISE: f32 = 0.01;
-
 /// `--noise`'s value: a finite number above zero.
 fn noise_target(s: &str) -> Result<f32, String> {
     let v: f32 = s.parse().map_err(|_| format!("{s:?} is not a number"))?;
@@ -135,7 +132,7 @@ impl JobArgs {
                 // Adaptive sampling judges by the layers' squared sums: said on the wire
                 // too, so that every worker keeps them.
                 aovs: self.aovs || self.adaptive || self.noise.is_some(),
-                noise: self.noise.or(self.adaptive.then_some(DEFAULT_NOISE)),
+                noise: self.noise.or(self.adaptive.then_some(crate::farm::job::DEFAULT_NOISE)),
                 time_budget: self.time_budget,
                 up: self.up,
             },

@@ -5,6 +5,7 @@ use std::sync::atomic::AtomicUsize;
 use std::sync::{Arc, Mutex};
 
 use proto::auth::Access;
+use tracer::output::views::{View, ViewImage};
 
 use crate::farm::Shared;
 
@@ -13,29 +14,29 @@ pub(super) struct App {
     pub(super) shared: Arc<Shared>,
     pub(super) access: Arc<Access>,
     /// The dashboard's latest PNGs, shared by every page that shows the same merge at
-    /// the same exposure (each is encoded once, however many pages are open).
+    /// the same exposure and view (each is encoded once, however many pages are open).
     pub(super) images: Arc<Mutex<ImageCache>>,
     /// Event streams open now (each polls the farm; bounded).
     pub(super) event_streams: Arc<AtomicUsize>,
 }
 
-/// Which image: (job, results merged, the exposure's bits).
-pub(super) type ImageKey = (String, u64, u32);
+/// Which image: (job, results merged, the exposure's bits, the view).
+pub(super) type ImageKey = (String, u64, u32, View);
 
 /// A few recent tone-mapped images, by [`ImageKey`].
 #[derive(Default)]
 pub(super) struct ImageCache {
-    entries: VecDeque<(ImageKey, Arc<Vec<u8>>)>,
+    entries: VecDeque<(ImageKey, Arc<ViewImage>)>,
 }
 
 impl ImageCache {
     const KEPT: usize = 8;
 
-    pub(super) fn get(&self, key: &ImageKey) -> Option<Arc<Vec<u8>>> {
+    pub(super) fn get(&self, key: &ImageKey) -> Option<Arc<ViewImage>> {
         self.entries.iter().find(|(k, _)| k == key).map(|(_, v)| Arc::clone(v))
     }
 
-    pub(super) fn put(&mut self, key: ImageKey, png: Arc<Vec<u8>>) {
+    pub(super) fn put(&mut self, key: ImageKey, png: Arc<ViewImage>) {
         if self.entries.len() == Self::KEPT {
             self.entries.pop_front();
         }

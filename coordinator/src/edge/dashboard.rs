@@ -15,13 +15,15 @@ use std::time::{Duration, Instant};
 
 use axum::Json;
 use axum::extract::{Path, Query, State};
-use axum::http::{HeaderMap, StatusCode, header};
+use axum::http::{HeaderMap, HeaderName, StatusCode, header};
 use axum::response::sse::{Event, KeepAlive, Sse};
 use axum::response::{Html, IntoResponse, Response};
 use proto::auth::{Caller, Role};
 use serde::{Deserialize, Serialize};
+use tracer::output::views::{View, view_png};
 
 use super::app::App;
+use crate::farm::job::ImageTiles;
 use crate::farm::lifecycle::ImageError;
 use crate::farm::state::JobChange;
 use crate::farm::status::JobStatus;
@@ -224,49 +226,88 @@ fn caller_of_job(app: &App, headers: &HeaderMap, id: &str) -> Result<Caller, Ref
     Ok(who)
 }
 
-#[derive(Deserialize)]
-pub(super) struct Exposure {
-    #[serde(default)]
-    exposure: f32,
+/// Where a job's image is read from.
+enum Source {
+    Live(ImageTiles),
+    Stored(std::path::PathBuf),
 }
 
-/// The current merge, tone-mapped after scaling by 2^exposure (stops, −20 to 20).
+#[derive(Deserialize)]
+pub(super) struct ImageQuery {
+    #[serde(default)]
+    exposure: f32,
+    /// `beauty` (the default), `noise` or `samples` ([`View`]).
+    view: Option<String>,
+}
+
+/// The current merge as a PNG: tone-mapped after scaling by 2^exposure (stops, −20 to
+/// 20), or a false-colour view of its noise or sample counts. The header
+/// `X-Tilefarm-Scale: LOW HIGH` gives the values the view's colours span (its legend).
 pub(super) async fn image_png(
     State(app): State<App>,
     headers: HeaderMap,
     Path(id): Path<String>,
-    Query(q): Query<Exposure>,
+    Query(q): Query<ImageQuery>,
 ) -> Response {
     if let Err(r) = caller_of_job(&app, &headers, &id) {
         return r.into_response();
     }
-    let (tiles, merged) = {
+    let view = match q.view.as_deref().map(str::parse::<View>).unwrap_or(Ok(View::Beauty)) {
+        Ok(v) => v,
+        Err(e) => return (StatusCode::BAD_REQUEST, format!("{e}\n")).into_response(),
+    };
+    // A running job's image is read from its tiles in place; a finished one's, whose
+    // sums have left memory, from the EXR it was stored as.
+    let (source, merged, target, layers) = {
         let farm = app.shared.farm();
         match farm.entry(&id) {
-            Ok(e) if e.job.width > 0 && !e.job.is_evicted() => (e.job.image_tiles(), e.job.merged),
-            _ => return (StatusCode::NOT_FOUND, "no image in memory for this job\n").into_response(),
+            Ok(e) if e.job.width > 0 && !e.job.is_evicted() => {
+                (Source::Live(e.job.image_tiles()), e.job.merged, e.job.noise_target(), e.job.layers)
+            }
+            Ok(e) if e.stored.is_some() => {
+                let path = e.stored.clone().unwrap_or_default();
+                (Source::Stored(path), e.job.merged, e.job.noise_target(), e.job.layers)
+            }
+            _ => return (StatusCode::NOT_FOUND, "no image for this job\n").into_response(),
         }
     };
-    let stops = if q.exposure.is_finite() { q.exposure.clamp(-20.0, 20.0) } else { 0.0 };
-    let key = (id, merged, stops.to_bits());
+    if view == View::Noise && !layers {
+        let why = "this job keeps no variance: render with --aovs or --adaptive for a noise view\n";
+        return (StatusCode::CONFLICT, why).into_response();
+    }
+    let stops = if q.exposure.is_finite() && view == View::Beauty { q.exposure.clamp(-20.0, 20.0) } else { 0.0 };
+    let key = (id, merged, stops.to_bits(), view);
     let cached = app.images.lock().unwrap_or_else(|p| p.into_inner()).get(&key);
-    let png = match cached {
-        Some(png) => png,
+    let shown = match cached {
+        Some(shown) => shown,
         None => {
-            let encoded =
-                tokio::task::spawn_blocking(move || tracer::output::png_bytes(&tiles.mosaic(), 2f32.powf(stops))).await;
+            let scale = 2f32.powf(stops);
+            let encoded = tokio::task::spawn_blocking(move || match source {
+                Source::Live(tiles) => view_png(&tiles.mosaic(), view, scale, target),
+                Source::Stored(path) => {
+                    let image = tracer::output::read_exr(&path).map_err(|e| format!("the stored image: {e}"))?;
+                    view_png(&image, view, scale, target)
+                }
+            })
+            .await;
             match encoded {
-                Ok(Ok(png)) => {
-                    let png = Arc::new(png);
-                    app.images.lock().unwrap_or_else(|p| p.into_inner()).put(key, Arc::clone(&png));
-                    png
+                Ok(Ok(shown)) => {
+                    let shown = Arc::new(shown);
+                    app.images.lock().unwrap_or_else(|p| p.into_inner()).put(key, Arc::clone(&shown));
+                    shown
                 }
                 Ok(Err(e)) => return (StatusCode::INTERNAL_SERVER_ERROR, e).into_response(),
                 Err(e) => return (StatusCode::INTERNAL_SERVER_ERROR, e.to_string()).into_response(),
             }
         }
     };
-    ([(header::CONTENT_TYPE, "image/png"), (header::CACHE_CONTROL, "no-store")], png.as_ref().clone()).into_response()
+    let scale = format!("{} {}", shown.low, shown.high);
+    let headers = [
+        (header::CONTENT_TYPE, "image/png".to_string()),
+        (header::CACHE_CONTROL, "no-store".to_string()),
+        (HeaderName::from_static("x-tilefarm-scale"), scale),
+    ];
+    (headers, shown.png.clone()).into_response()
 }
 
 /// The finished (or so far) image as the EXR `fetch` writes.
@@ -295,8 +336,10 @@ struct TileRow {
     y: u32,
     w: u32,
     h: u32,
-    /// Samples merged over samples wanted, 0 to 1.
+    /// Samples merged over samples wanted, 0 to 1 (1 once converged).
     done: f32,
+    /// Adaptive sampling judged the tile converged and skipped its remaining units.
+    converged: bool,
 }
 
 /// Each tile's progress, for the page's overlay.
@@ -310,7 +353,14 @@ pub(super) async fn tiles(State(app): State<App>, headers: HeaderMap, Path(id): 
         .job
         .tile_progress()
         .into_iter()
-        .map(|(t, done)| TileRow { x: t.x0, y: t.y0, w: t.width, h: t.height, done })
+        .map(|p| TileRow {
+            x: p.tile.x0,
+            y: p.tile.y0,
+            w: p.tile.width,
+            h: p.tile.height,
+            done: p.done,
+            converged: p.converged,
+        })
         .collect();
     Json(rows).into_response()
 }

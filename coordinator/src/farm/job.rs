@@ -149,6 +149,16 @@ impl ImageTiles {
     }
 }
 
+/// A tile's progress ([`Job::tile_progress`]).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct TileProgress {
+    pub tile: Tile,
+    /// Samples merged over samples wanted, 0 to 1 (1 once converged).
+    pub done: f32,
+    /// Adaptive sampling skipped the tile's remaining units.
+    pub converged: bool,
+}
+
 /// Unit times a job keeps for its median.
 const UNIT_TIMES_KEPT: usize = 64;
 /// A unit out for this many times the job's median unit time is a straggler...
@@ -741,12 +751,20 @@ impl Job {
     }
 
     /// Units currently leased to `worker`.
-    /// Each tile with the fraction of its samples merged (0 to 1): a unit covers its
-    /// whole tile, so the tile's first pixel's count is every pixel's.
-    pub fn tile_progress(&self) -> Vec<(Tile, f32)> {
+    /// Each tile with the fraction of its samples merged (0 to 1; 1 once adaptive
+    /// sampling judged it converged): a unit covers its whole tile, so the tile's first
+    /// pixel's count is every pixel's.
+    pub fn tile_progress(&self) -> Vec<TileProgress> {
         let spp = f64::from(self.spp.max(1));
         let done = |a: &Accumulation| f64::from(a.counts.first().copied().unwrap_or(0));
-        self.tiles.iter().map(|a| (a.tile, (done(a) / spp).min(1.0) as f32)).collect()
+        let tiles = self.tiles.iter().enumerate();
+        tiles
+            .map(|(t, a)| {
+                let converged = self.tile_converged(t);
+                let done = if converged { 1.0 } else { (done(a) / spp).min(1.0) as f32 };
+                TileProgress { tile: a.tile, done, converged }
+            })
+            .collect()
     }
 
     /// Units waiting for a worker: pending, or under check and waiting for a second answer.
@@ -770,6 +788,7 @@ impl Job {
 }
 
 mod adaptive;
+pub use adaptive::DEFAULT_NOISE;
 mod checks;
 #[cfg(test)]
 mod tests;

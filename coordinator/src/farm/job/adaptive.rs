@@ -20,14 +20,14 @@ use tracer::film::Accumulation;
 /// estimate is itself too noisy to trust.
 pub const MIN_SPP: u32 = 16;
 
-/// What keeps black pixels from demanding endless samples: the error is relative to
-/// the pixel's value plus this.
-const DARK: f64 = 0.01;
+/// The noise target of `--adaptive` without `--noise` (and what the dashboard's noise
+/// view measures other jobs against): a 1 % relative error.
+pub const DEFAULT_NOISE: f32 = 0.01;
 
-/// A tile's noise: the largest, over its pixels, of the standard error of the pixel's
-/// value (the root of the summed variance estimates of its three channels' means)
-/// relative to its value (the sum of the three means, plus [`DARK`]). Infinite without
-/// the squared sums that give the variance (an accumulation without layers).
+/// A tile's noise: the largest relative error of its pixels
+/// ([`tracer::film::PixelLayers::relative_error`]: the standard error of the pixel's
+/// value relative to its value plus a little). Infinite without the squared sums that
+/// give the variance (an accumulation without layers).
 pub fn tile_noise(acc: &Accumulation) -> f64 {
     if !acc.has_layers() {
         return f64::INFINITY;
@@ -35,10 +35,7 @@ pub fn tile_noise(acc: &Accumulation) -> f64 {
     let mut worst = 0.0f64;
     for i in 0..acc.counts.len() {
         let Some(l) = acc.layers_at(i) else { return f64::INFINITY };
-        let (v, m) = (l.variance.as_dvec3(), acc.mean(i).as_dvec3());
-        let e = v.element_sum().sqrt() / (m.element_sum().abs() + DARK);
-        // NaN (a pixel with one sample has an unknown variance) counts as not converged.
-        worst = if e.is_nan() { f64::INFINITY } else { worst.max(e) };
+        worst = worst.max(l.relative_error(acc.mean(i)));
     }
     worst
 }
@@ -103,6 +100,17 @@ impl Job {
     fn unit_samples(&self, id: UnitId) -> u64 {
         let u = &self.units[id as usize];
         u.tile.pixel_count() as u64 * u64::from(u.samples.len())
+    }
+
+    /// Whether tile `t` has converged: adaptive sampling skipped its remaining units.
+    pub fn tile_converged(&self, t: usize) -> bool {
+        self.tile_units.get(t).is_some_and(|ids| ids.last().is_some_and(|id| self.skipped.contains(id)))
+    }
+
+    /// The relative error the dashboard's noise view centres on: the job's target, else
+    /// [`DEFAULT_NOISE`].
+    pub fn noise_target(&self) -> f64 {
+        f64::from(self.adaptive.unwrap_or(DEFAULT_NOISE))
     }
 
     /// Whether every unit is done or skipped.

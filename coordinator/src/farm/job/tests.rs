@@ -463,6 +463,9 @@ fn adaptive_jobs_render_a_tile_a_batch_at_a_time_and_stop_converged_tiles() {
     assert_eq!(j.samples_done, j.samples_total());
     assert_eq!(j.tile_accumulations()[0].counts[0], 16);
     assert_eq!(j.tile_accumulations()[1].counts[0], 64);
+    // The dashboard's overlay: the converged tile is done and marked; the other is done.
+    let shown: Vec<(f32, bool)> = j.tile_progress().iter().map(|p| (p.done, p.converged)).collect();
+    assert_eq!(shown, [(1.0, true), (1.0, false)]);
 
     // A checkpoint keeps the skipped units as not done; restored, they are skipped again.
     let mut r = Job::loading("a".into(), "test".into());
