@@ -77,7 +77,7 @@ fn rel_mse(x: &Image, reference: &Image) -> f64 {
 fn adaptive_renders_are_the_same_bits_for_any_workers_and_spend_samples_on_noise() {
     let dir = TempDir::new("halves");
     let scene = halves(&dir.0);
-    let adaptive = ["--adaptive", "--noise", "0.03"];
+    let adaptive = ["--adaptive", "--noise", "0.02"];
     let in_process = render(&dir.0, &scene, "a0.exr", &[&adaptive[..], &["--local-workers", "0"]].concat());
     for workers in ["1", "2"] {
         let farm = render(&dir.0, &scene, "a.exr", &[&adaptive[..], &["--local-workers", workers]].concat());
@@ -85,14 +85,14 @@ fn adaptive_renders_are_the_same_bits_for_any_workers_and_spend_samples_on_noise
     }
     let meta = exr::meta::MetaData::read_from_file(dir.0.join("a0.exr"), false).unwrap();
     let key = exr::meta::attribute::Text::from("tilefarm/noiseTarget");
-    assert_eq!(meta.headers[0].own_attributes.other.get(&key), Some(&exr::meta::attribute::AttributeValue::F32(0.03)));
+    assert_eq!(meta.headers[0].own_attributes.other.get(&key), Some(&exr::meta::attribute::AttributeValue::F32(0.02)));
 
     // Where the samples went: the emitter's tiles stop at the least a tile is judged
     // on; tiles of the lit wall take more.
     let counts = &in_process.counts;
     let (least, most) = (*counts.iter().min().unwrap(), *counts.iter().max().unwrap());
-    assert_eq!(least, 16, "converged tiles stop at 16 spp");
-    assert!(most > 64, "noisy tiles take more samples ({most})");
+    assert_eq!(least, 64, "converged tiles stop at 64 spp");
+    assert!(most >= 2 * least, "noisy tiles take more samples ({most})");
     let total: u64 = counts.iter().map(|&c| u64::from(c)).sum();
     let pixels = counts.len() as u64;
     assert!(total < 256 * pixels, "adaptive sampling took fewer than the 256 spp asked for");

@@ -67,7 +67,9 @@ fn a_worker_killed_mid_render_loses_nothing() {
 /// again elsewhere, and the image (and where its samples went) is the in-process one.
 #[test]
 fn a_worker_killed_mid_adaptive_render_loses_nothing() {
-    killed_worker_loses_nothing("kill-worker-adaptive", &[&JOB[..], &["--adaptive", "--noise", "0.1"]].concat());
+    // Up to 256 spp: a tile is judged from 64 on, and some go on past it.
+    let job = ["--width", "96", "--spp", "256", "--tile", "16", "--batch-spp", "16", "--adaptive", "--noise", "0.05"];
+    killed_worker_loses_nothing("kill-worker-adaptive", &job);
 }
 
 fn killed_worker_loses_nothing(tag: &str, job: &[&str]) {

@@ -62,8 +62,9 @@ pub struct JobArgs {
     /// where the samples went. Implies --aovs.
     #[arg(long)]
     pub adaptive: bool,
-    /// Adaptive sampling's target: a pixel's standard error relative to its value
-    /// (implies --adaptive) [default with --adaptive: 0.01].
+    /// Adaptive sampling's target: a tile's RMS relative error (per pixel, the root of
+    /// its estimated relMSE); judged from 64 spp on (implies --adaptive) [default with
+    /// --adaptive: 0.01].
     #[arg(long, value_name = "E", value_parser = noise_target)]
     pub noise: Option<f32>,
     /// Render for this long, in whole batches: no unit is leased once it has passed

@@ -104,19 +104,21 @@ impl PixelLayers {
         Self { albedo: mean3(ALBEDO_AT), normal: mean3(NORMAL_AT), depth, variance }
     }
 
-    /// The pixel's relative error: the standard error of its value (the root of its
-    /// three channels' variance estimates, summed) over its value (the sum of the three
-    /// means, `mean`) plus [`DARK`]. What adaptive sampling judges tiles by and the
-    /// dashboard's noise view shows. Infinite where the variance is unknown (fewer than
-    /// two samples).
+    /// The pixel's relative error: the root of the mean, over its three channels, of
+    /// the variance estimate of the channel's mean over that mean squared plus [`DARK`]
+    /// (the square root of the pixel's expected relMSE, as a reference comparison would
+    /// measure it). What adaptive sampling judges tiles by and the dashboard's noise view
+    /// shows. Infinite where the variance is unknown (fewer than two samples).
     pub fn relative_error(&self, mean: Vec3) -> f64 {
-        let e = self.variance.as_dvec3().element_sum().sqrt() / (mean.as_dvec3().element_sum().abs() + DARK);
-        if e.is_nan() { f64::INFINITY } else { e }
+        let (v, m) = (self.variance.as_dvec3(), mean.as_dvec3());
+        let e = (v / (m * m + DARK)).element_sum() / 3.0;
+        if e.is_nan() { f64::INFINITY } else { e.sqrt() }
     }
 }
 
-/// What keeps black pixels from demanding endless samples: a pixel's error is relative
-/// to its value plus this ([`PixelLayers::relative_error`]).
+/// What keeps dark pixels from demanding endless samples: a pixel's squared error is
+/// relative to its value squared plus this ([`PixelLayers::relative_error`]), as in the
+/// usual relMSE.
 pub const DARK: f64 = 0.01;
 
 #[cfg(test)]

@@ -168,9 +168,9 @@ mod tests {
     #[test]
     fn the_noise_view_places_each_pixel_against_the_target() {
         // Pixel 0: values 1 and 3, mean 2 per channel, sample variance 2, variance of the
-        // mean 1 per channel: relative error √3 / (6 + 0.01).
+        // mean 1 per channel: relative error √(1 / (2² + 0.01)).
         let img = image_of(&[1.0, 3.0], &[5.0; 8]);
-        let e = 3f64.sqrt() / 6.01;
+        let e = (1.0 / 4.01f64).sqrt();
         let v = view_png(&img, View::Noise, 1.0, e).unwrap();
         let px = decode(&v.png);
         assert_eq!(px.get_pixel(0, 0).0, ramp(&NOISE_RAMP, 0.5), "at the target: the middle colour");

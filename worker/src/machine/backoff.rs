@@ -45,6 +45,11 @@ impl Backoff {
     pub fn reset(&mut self) {
         self.next = Self::INITIAL.min(self.max);
     }
+
+    /// Whether no failure has come since the last reset.
+    pub fn is_reset(&self) -> bool {
+        self.next == Self::INITIAL.min(self.max)
+    }
 }
 
 #[cfg(test)]

@@ -294,6 +294,11 @@ impl Machine {
         match result {
             Ok(outcomes) => {
                 self.submit_backoff.reset();
+                // Merged results can make work at once (an adaptive tile's next batch
+                // waits for its previous one): ask now, not after an idle answer's wait.
+                if outcomes.iter().any(|o| matches!(o, Ok(true))) {
+                    self.lease.hurry(now);
+                }
                 if outcomes.len() != serials.len() {
                     warn!("the coordinator answered {} results with {} outcomes", serials.len(), outcomes.len());
                 }

@@ -27,6 +27,15 @@ impl Op {
         self.next_at = next;
     }
 
+    /// Go again now rather than at a later time set by an idle answer: when something
+    /// that may have made work (results merged) happened. Not while failing: a backoff
+    /// stays in force.
+    pub fn hurry(&mut self, now: Instant) {
+        if !self.in_flight && self.backoff.is_reset() {
+            self.next_at = self.next_at.min(now);
+        }
+    }
+
     /// After a failure: go again after the backoff's next delay (at most `cap`).
     pub fn failed(&mut self, now: Instant, cap: Option<Duration>) -> Duration {
         self.in_flight = false;

@@ -359,6 +359,28 @@ fn an_idle_farm_is_asked_again_after_its_hint() {
     assert_eq!(names(&m.actions(t + Duration::from_millis(250))), ["lease 2"]);
 }
 
+/// Merged results can unlock work (an adaptive tile's next batch waits for its last
+/// one to merge): a worker told to wait asks again as soon as a result is accepted,
+/// not after the wait; a refused result does not hurry it.
+#[test]
+fn an_accepted_result_ends_an_idle_wait() {
+    for (accepted, asks) in [(true, true), (false, false)] {
+        let (mut m, t) = (machine(1), Instant::now());
+        registered(&mut m, t);
+        leased_and_loaded(&mut m, t, 1);
+        assert_eq!(names(&m.actions(t)), ["prepare job-1", "render #0", "lease 1"]);
+        let idle = Grant { units: vec![], retry_after_ms: 250, shutdown: false, prepare: vec![] };
+        m.handle(Event::Leased { worker_id: WORKER, result: Ok(idle) }, t).unwrap();
+        m.handle(done(0, tile(0)), t).unwrap();
+        assert_eq!(names(&m.actions(t)), [format!("submit job-1/0 as {WORKER}")]);
+        let outcome = if accepted { Ok(true) } else { Err("refused".into()) };
+        let later = t + Duration::from_millis(10);
+        m.handle(answered(&[0], Ok(vec![outcome])), later).unwrap();
+        let leases = m.actions(later).iter().filter(|a| matches!(a, Action::Lease { .. })).count();
+        assert_eq!(leases == 1, asks, "accepted {accepted}");
+    }
+}
+
 #[test]
 fn a_worker_gives_up_on_a_coordinator_gone_for_too_long() {
     let mut m = machine_with(1, Some(Duration::from_secs(5)));

@@ -17,27 +17,28 @@ use super::{Job, UnitId, UnitState};
 use tracer::film::Accumulation;
 
 /// Fewest samples a tile has before it may be judged converged: with fewer, a variance
-/// estimate is itself too noisy to trust.
-pub const MIN_SPP: u32 = 16;
+/// estimate is itself too noisy to trust (path-traced noise is heavy-tailed: a tile's
+/// rare bright paths are often not among its first few dozen samples).
+pub const MIN_SPP: u32 = 64;
 
 /// The noise target of `--adaptive` without `--noise` (and what the dashboard's noise
 /// view measures other jobs against): a 1 % relative error.
 pub const DEFAULT_NOISE: f32 = 0.01;
 
-/// A tile's noise: the largest relative error of its pixels
+/// A tile's noise: the root mean square of its pixels' relative errors
 /// ([`tracer::film::PixelLayers::relative_error`]: the standard error of the pixel's
 /// value relative to its value plus a little). Infinite without the squared sums that
 /// give the variance (an accumulation without layers).
 pub fn tile_noise(acc: &Accumulation) -> f64 {
-    if !acc.has_layers() {
+    if !acc.has_layers() || acc.counts.is_empty() {
         return f64::INFINITY;
     }
-    let mut worst = 0.0f64;
+    let mut squares = 0.0f64;
     for i in 0..acc.counts.len() {
         let Some(l) = acc.layers_at(i) else { return f64::INFINITY };
-        worst = worst.max(l.relative_error(acc.mean(i)));
+        squares += l.relative_error(acc.mean(i)).powi(2);
     }
-    worst
+    (squares / acc.counts.len() as f64).sqrt()
 }
 
 impl Job {

@@ -441,7 +441,7 @@ fn layered_result(j: &Job, unit: UnitId, v: f64, noisy: bool) -> UnitResult {
 fn adaptive_jobs_render_a_tile_a_batch_at_a_time_and_stop_converged_tiles() {
     let mut j = Job::loading("a".into(), "test".into());
     (j.layers, j.adaptive) = (true, Some(0.01));
-    j.start(4, 2, 64, 2, 8, true); // two tiles, eight batches each
+    j.start(4, 2, 256, 2, 8, true); // two tiles, 32 batches each
     let far = Instant::now() + NEVER;
     let lease = |j: &mut Job| j.lease_next(7, Instant::now(), far, Duration::MAX);
     let (a, b) = (lease(&mut j).unwrap(), lease(&mut j).unwrap());
@@ -456,13 +456,13 @@ fn adaptive_jobs_render_a_tile_a_batch_at_a_time_and_stop_converged_tiles() {
         assert_eq!(j.apply(7, &r), Ok(Applied::Merged));
         out.extend(lease(&mut j));
     }
-    // Tile 0 converged at 16 spp (two batches, the least judged); tile 1 ran to 64.
-    assert_eq!(rendered, [2, 8]);
+    // Tile 0 converged at 64 spp (eight batches, the least judged); tile 1 ran to 256.
+    assert_eq!(rendered, [8, 32]);
     assert_eq!(j.phase, JobPhase::Done);
-    assert_eq!((j.units_done, j.units_total()), (10, 10));
+    assert_eq!((j.units_done, j.units_total()), (40, 40));
     assert_eq!(j.samples_done, j.samples_total());
-    assert_eq!(j.tile_accumulations()[0].counts[0], 16);
-    assert_eq!(j.tile_accumulations()[1].counts[0], 64);
+    assert_eq!(j.tile_accumulations()[0].counts[0], 64);
+    assert_eq!(j.tile_accumulations()[1].counts[0], 256);
     // The dashboard's overlay: the converged tile is done and marked; the other is done.
     let shown: Vec<(f32, bool)> = j.tile_progress().iter().map(|p| (p.done, p.converged)).collect();
     assert_eq!(shown, [(1.0, true), (1.0, false)]);
@@ -473,7 +473,7 @@ fn adaptive_jobs_render_a_tile_a_batch_at_a_time_and_stop_converged_tiles() {
     r.restore(Restored {
         width: 4,
         height: 2,
-        spp: 64,
+        spp: 256,
         tile_size: 2,
         batch_spp: 8,
         non_negative: true,
@@ -485,7 +485,7 @@ fn adaptive_jobs_render_a_tile_a_batch_at_a_time_and_stop_converged_tiles() {
     })
     .unwrap();
     assert_eq!(r.phase, JobPhase::Done);
-    assert_eq!(r.units_total(), 10);
+    assert_eq!(r.units_total(), 40);
 }
 
 /// Once its time budget has passed, a job leases nothing more, and ends when the units
