@@ -83,6 +83,11 @@ fn adaptive_renders_are_the_same_bits_for_any_workers_and_spend_samples_on_noise
         let farm = render(&dir.0, &scene, "a.exr", &[&adaptive[..], &["--local-workers", workers]].concat());
         assert_eq!(farm, in_process, "{workers} worker processes");
     }
+    // Its `samples` channel, as a map, renders the same bits again without adaptive
+    // sampling (layers kept, to compare them too).
+    let map = dir.0.join("a0.exr");
+    let again = render(&dir.0, &scene, "again.exr", &["--spp-map", map.to_str().unwrap(), "--aovs"]);
+    assert_eq!(again, in_process, "rendered again from its spp map");
     let meta = exr::meta::MetaData::read_from_file(dir.0.join("a0.exr"), false).unwrap();
     let key = exr::meta::attribute::Text::from("tilefarm/noiseTarget");
     assert_eq!(meta.headers[0].own_attributes.other.get(&key), Some(&exr::meta::attribute::AttributeValue::F32(0.02)));
@@ -135,8 +140,8 @@ fn a_resumed_adaptive_render_equals_an_uninterrupted_one() {
 }
 
 /// `--time-budget` stops the render in whole batches: it ends soon after its budget,
-/// every tile within one batch of the others, and each pixel is the same bits as a
-/// render to the spp its tile reached (the `samples` channel is the map to render again).
+/// every tile within one batch of the others, `--spp-map` of its EXR renders the same
+/// bits again, and each pixel is the same bits as a render to the spp its tile reached.
 #[test]
 fn a_time_budget_ends_in_whole_batches_that_render_again_to_the_same_bits() {
     let dir = TempDir::new("budget");
@@ -154,13 +159,39 @@ fn a_time_budget_ends_in_whole_batches_that_render_again_to_the_same_bits() {
     let (least, most) = (*budget.counts.iter().min().unwrap(), *budget.counts.iter().max().unwrap());
     assert!(least >= 8 && most - least <= 8, "tiles within one batch: {least}..{most} spp");
     println!("2 s budget: {least}..{most} spp in {took:?}");
+    // Its `samples` channel is the map to render the same bits again (in-process here,
+    // with a worker above).
+    let map = dir.0.join("budget.exr");
+    let again = render(&dir.0, &cornell, "again.exr", &["--spp-map", map.to_str().unwrap()]);
+    assert_eq!(again, budget, "rendered again from its spp map");
+    // And each pixel is what a render to its tile's spp gives.
     for spp in [least, most] {
-        let again = render(&dir.0, &cornell, "again.exr", &["--width", "48", "--spp", &spp.to_string()]);
+        let uniform = render(&dir.0, &cornell, "uniform.exr", &["--width", "48", "--spp", &spp.to_string()]);
         for (i, &c) in budget.counts.iter().enumerate() {
             if c == spp {
-                assert_eq!(budget.pixels[i].to_array(), again.pixels[i].to_array(), "pixel {i} at {spp} spp");
+                assert_eq!(budget.pixels[i].to_array(), uniform.pixels[i].to_array(), "pixel {i} at {spp} spp");
             }
         }
+    }
+    // A map of another size, or cut in other tiles, is refused with what differs.
+    let mut halves = Image::new(48, 48);
+    halves.counts.iter_mut().enumerate().for_each(|(i, c)| *c = if i % 48 < 24 { 8 } else { 16 });
+    let halves_map = dir.0.join("halves.exr");
+    tracer::output::write_exr(&halves, &halves_map).unwrap();
+    for (file, args, says) in [
+        (&map, &["--tile", "8", "--width", "64"][..], "the spp map is of a 48×48 image"),
+        (&halves_map, &["--tile", "48"][..], "give the --tile of the render that wrote it"),
+    ] {
+        let out = Command::new(env!("CARGO_BIN_EXE_coordinator"))
+            .args(["render", "-q", "--local-workers", "0", "--spp-map", file.to_str().unwrap()])
+            .args(args)
+            .arg(&cornell)
+            .arg("-o")
+            .arg(dir.0.join("x.exr"))
+            .output()
+            .unwrap();
+        let err = String::from_utf8_lossy(&out.stderr);
+        assert!(!out.status.success() && err.contains(says), "{args:?}: {err}");
     }
     for bad in ["0", "soon", "-5s"] {
         let out = Command::new(env!("CARGO_BIN_EXE_coordinator"))
@@ -171,4 +202,24 @@ fn a_time_budget_ends_in_whole_batches_that_render_again_to_the_same_bits() {
         let err = String::from_utf8_lossy(&out.stderr);
         assert!(!out.status.success() && err.contains("--time-budget"), "{bad}: {err}");
     }
+}
+
+/// A time budget with adaptive sampling: tiles that have not converged end within one
+/// batch of each other, and `--spp-map` of the result renders the same bits again.
+#[test]
+fn an_adaptive_render_on_a_time_budget_renders_again_from_its_map() {
+    let dir = TempDir::new("adaptive-budget");
+    let scene = halves(&dir.0);
+    // A target no tile reaches within the budget: each goes on until the budget ends.
+    let args = ["--adaptive", "--noise", "0.0001", "--spp", "1000000", "--time-budget", "1s", "--local-workers", "1"];
+    let budget = render(&dir.0, &scene, "budget.exr", &args);
+    // The emitter's half (the image's right) converges at once; the lit half's tiles go on.
+    let half = |lit: bool| budget.counts.iter().enumerate().filter(move |(i, _)| (i % 32 < 16) == lit).map(|(_, &c)| c);
+    let (least, most) = (half(true).min().unwrap(), half(true).max().unwrap());
+    println!("1 s adaptive budget: the lit half at {least}..{most} spp");
+    assert!(half(false).all(|c| c == 64), "the emitter's tiles stop at 64 spp");
+    assert!(least > 64 && most - least <= 8, "unconverged tiles within one batch: {least}..{most} spp");
+    let map = dir.0.join("budget.exr");
+    let again = render(&dir.0, &scene, "again.exr", &["--spp-map", map.to_str().unwrap(), "--aovs"]);
+    assert_eq!(again, budget, "rendered again from its spp map");
 }

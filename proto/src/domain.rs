@@ -42,6 +42,45 @@ pub struct JobSpec {
     /// farm's default). The coordinator's business; workers ignore them.
     pub tile_size: Option<u32>,
     pub batch_spp: Option<u32>,
+    /// `--spp-map`: each tile's samples per pixel, instead of the same spp for all.
+    pub spp_map: Option<SppMap>,
+}
+
+/// Samples per pixel for each tile of a `width`×`height` image cut into tiles of side
+/// `tile_size`, in the tiles' grid order (row by row): the map a previous render reached
+/// (after `--time-budget` or `--adaptive`), to render the same pixels again.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub struct SppMap {
+    pub width: u32,
+    pub height: u32,
+    pub tile_size: u32,
+    pub tile_spp: Vec<u32>,
+}
+
+impl SppMap {
+    /// The tiles of a `width`×`height` image with side `tile`, row by row.
+    pub fn tile_count(width: u32, height: u32, tile: u32) -> usize {
+        let tile = tile.max(1);
+        width.div_ceil(tile) as usize * height.div_ceil(tile) as usize
+    }
+
+    /// Whether the map's size and tile count agree (what the wire must check before
+    /// trusting it); the message says what does not.
+    pub fn check(&self) -> Result<(), String> {
+        if self.width == 0 || self.height == 0 || self.width > 65536 || self.height > 65536 || self.tile_size == 0 {
+            return Err(format!("an spp map of {}×{} in tiles of {}", self.width, self.height, self.tile_size));
+        }
+        let n = Self::tile_count(self.width, self.height, self.tile_size);
+        if self.tile_spp.len() != n {
+            return Err(format!("an spp map with {} tiles where its size has {n}", self.tile_spp.len()));
+        }
+        Ok(())
+    }
+
+    /// The most samples per pixel of any tile.
+    pub fn most(&self) -> u32 {
+        self.tile_spp.iter().copied().max().unwrap_or(0)
+    }
 }
 
 impl JobSpec {
@@ -110,6 +149,7 @@ mod tests {
             integrator: Integrator::Path,
             tile_size: None,
             batch_spp: None,
+            spp_map: None,
         }
     }
 

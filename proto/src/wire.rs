@@ -10,7 +10,7 @@ use tracer::film::{Accumulation, SampleRange, Tile};
 use tracer::integrator::Integrator;
 use tracer::scene::Overrides;
 
-pub use crate::domain::{AssetRef, JobSpec, ReceivedResult, UnitKey, UnitResult, WorkUnit};
+pub use crate::domain::{AssetRef, JobSpec, ReceivedResult, SppMap, UnitKey, UnitResult, WorkUnit};
 
 /// Largest tile side the worker accepts.
 pub const MAX_TILE_SIDE: u32 = 4096;
@@ -50,6 +50,12 @@ pub fn settings_to_proto(j: &JobSpec) -> crate::RenderSettings {
         integrator: j.integrator.name().to_string(),
         tile_size: j.tile_size.unwrap_or(0),
         batch_spp: j.batch_spp.unwrap_or(0),
+        spp_map: j.spp_map.as_ref().map(|m| crate::SppMap {
+            width: m.width,
+            height: m.height,
+            tile_size: m.tile_size,
+            tile_spp: m.tile_spp.clone(),
+        }),
         up: match o.up {
             tracer::scene::UpAxis::Y => String::new(),
             tracer::scene::UpAxis::Z => "z".into(),
@@ -78,7 +84,15 @@ pub fn submission_from_proto(
     let assets = assets.into_iter().map(|a| asset_from_proto(Some(a), "asset")).collect::<Result<Vec<_>, _>>()?;
     let nonzero = |v: u32| (v != 0).then_some(v);
     let (tile_size, batch_spp) = settings.map_or((None, None), |s| (nonzero(s.tile_size), nonzero(s.batch_spp)));
-    Ok(JobSpec { job_id: String::new(), scene, assets, overrides, integrator, tile_size, batch_spp })
+    let spp_map = match settings.and_then(|s| s.spp_map.as_ref()) {
+        None => None,
+        Some(m) => {
+            let map = SppMap { width: m.width, height: m.height, tile_size: m.tile_size, tile_spp: m.tile_spp.clone() };
+            map.check().map_err(|e| format!("settings: {e}"))?;
+            Some(map)
+        }
+    };
+    Ok(JobSpec { job_id: String::new(), scene, assets, overrides, integrator, tile_size, batch_spp, spp_map })
 }
 
 /// A job spec as bytes (its wire encoding), for files that keep it, such as checkpoints.
@@ -295,6 +309,12 @@ mod tests {
                     aovs: true,
                     noise: Some(0.02),
                     time_budget_ms: Some(90_000),
+                    spp_map: Some(crate::SppMap {
+                        width: 64,
+                        height: 40,
+                        tile_size: 32,
+                        tile_spp: vec![8, 16, 24, 32],
+                    }),
                 }),
             }),
             unit_id: 7,
@@ -363,9 +383,23 @@ mod tests {
         assert_eq!((job.tile_size, job.batch_spp), (Some(32), Some(4)));
         assert_eq!(job_from_bytes(&job_to_bytes(&job)).unwrap(), job);
         assert_eq!(job_from_proto(job_to_proto(&job)).unwrap(), job);
-        let plain = JobSpec { tile_size: None, batch_spp: None, overrides: Overrides::default(), ..job };
+        assert_eq!(job.spp_map.as_ref().map(|m| (m.width, m.height, m.tile_spp.len())), Some((64, 40, 4)));
+        let plain = JobSpec { tile_size: None, batch_spp: None, overrides: Overrides::default(), spp_map: None, ..job };
         assert_eq!(job_from_bytes(&job_to_bytes(&plain)).unwrap(), plain);
         assert!(job_from_bytes(b"\xff\xff").is_err());
+    }
+
+    /// A map whose tiles do not fit its size is refused before it is used.
+    #[test]
+    fn a_malformed_spp_map_is_refused() {
+        for (w, h, tile, n) in [(64, 40, 32, 3), (64, 40, 32, 5), (0, 40, 32, 0), (64, 40, 0, 4), (70000, 1, 70000, 1)]
+        {
+            let mut u = unit(None, 0, 1).job.unwrap();
+            u.settings.as_mut().unwrap().spp_map =
+                Some(crate::SppMap { width: w, height: h, tile_size: tile, tile_spp: vec![1; n] });
+            let err = job_from_proto(u).unwrap_err();
+            assert!(err.contains("spp map"), "{w}×{h}/{tile} with {n}: {err}");
+        }
     }
 
     #[test]

@@ -162,7 +162,7 @@ pub fn submit(args: SubmitArgs) -> anyhow::Result<()> {
             assets.push(client.upload(f, local.relative(f)).await?);
         }
         let name = args.name.clone().unwrap_or_else(|| job_name(&args.scene));
-        let job = client.submit(name, args.priority, &args.job.spec(scene, assets)).await?;
+        let job = client.submit(name, args.priority, &args.job.spec_with_map(scene, assets)?).await?;
         println!("{job}");
         if args.wait {
             let stream = match client.watch(&job).await? {

@@ -117,6 +117,7 @@ mod tests {
             integrator: Integrator::Path,
             tile_size: None,
             batch_spp: None,
+            spp_map: None,
         };
         let job = shared.farm().add_job("j".into(), None, spec);
         let executor = FailOnPanic { pool: Panicking, shared: Arc::clone(&shared), job: job.clone() };

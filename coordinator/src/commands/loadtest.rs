@@ -154,6 +154,7 @@ async fn submit_job(jobs: &mut FarmClient, args: &LoadtestArgs) -> anyhow::Resul
         integrator: tracer::integrator::Integrator::Path,
         tile_size: Some(args.tile),
         batch_spp: Some(1),
+        spp_map: None,
     };
     let job = jobs.submit("loadtest".into(), 0, &spec).await.context("submitting the job")?;
     Ok((spec, job))

@@ -12,3 +12,4 @@ pub(crate) mod local;
 pub(crate) mod progress;
 pub mod render;
 pub mod serve;
+pub(crate) mod spp_map;

@@ -56,6 +56,11 @@ pub struct JobArgs {
     /// Also set by the scene's [render] aovs = true.
     #[arg(long)]
     pub aovs: bool,
+    /// Render each tile to the samples per pixel a previous render's EXR reached (its
+    /// `samples` channel): after --time-budget or --adaptive, the same bits again. The
+    /// image is that render's size; --tile must be its tile size.
+    #[arg(long, value_name = "FILE.exr", conflicts_with_all = ["adaptive", "noise", "spp"])]
+    pub spp_map: Option<PathBuf>,
     /// Adaptive sampling: each tile renders batch after batch until its noise is at most
     /// --noise, or it reaches --spp. Decided from the merged image alone, so the result
     /// is the same bits for any number of workers; the EXR's `samples` channel shows
@@ -140,7 +145,22 @@ impl JobArgs {
             integrator: self.integrator,
             tile_size: Some(self.tile),
             batch_spp: Some(self.batch_spp),
+            spp_map: None,
         }
+    }
+
+    /// [`JobArgs::spec`] with the `--spp-map` file read, if one was given.
+    pub fn spec_with_map(&self, scene: AssetRef, assets: Vec<AssetRef>) -> anyhow::Result<JobSpec> {
+        let mut spec = self.spec(scene, assets);
+        if let Some(path) = &self.spp_map {
+            let map = super::spp_map::read(path, self.tile)?;
+            // The map's own size unless another is asked for (and then refused).
+            if self.width.is_none() && self.height.is_none() {
+                (spec.overrides.width, spec.overrides.height) = (Some(map.width), Some(map.height));
+            }
+            spec.spp_map = Some(map);
+        }
+        Ok(spec)
     }
 }
 
@@ -317,7 +337,7 @@ pub fn run(args: RenderArgs) -> anyhow::Result<()> {
     };
     let mut store = AssetStore::open(&store_dir)?;
     let (scene, assets) = store_local_scene(&mut store, &local)?;
-    let mut spec = args.job.spec(scene, assets);
+    let mut spec = args.job.spec_with_map(scene, assets)?;
     // The denoiser is guided by the albedo and normal layers.
     spec.overrides.aovs |= args.run.denoise;
     let restore = match &args.checkpoint {

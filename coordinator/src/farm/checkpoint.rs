@@ -105,9 +105,13 @@ pub fn scene_key(spec: &JobSpec) -> String {
     if o.aovs {
         h.update(b"|aovs");
     }
-    // Adaptive sampling's target decides which samples are taken.
+    // Adaptive sampling's target decides which samples are taken; so does a map.
     if let Some(n) = o.noise {
         h.update(format!("|noise {:08x}", n.to_bits()).as_bytes());
+    }
+    if let Some(m) = &spec.spp_map {
+        h.update(format!("|sppmap {}x{}/{}:", m.width, m.height, m.tile_size).as_bytes());
+        m.tile_spp.iter().for_each(|n| h.update(n.to_le_bytes()));
     }
     hex::encode(h.finalize())
 }
@@ -433,6 +437,7 @@ mod tests {
             integrator: Default::default(),
             tile_size: None,
             batch_spp: None,
+            spp_map: None,
         };
         Snapshot::of(&spec, &job)
     }
@@ -532,6 +537,11 @@ mod tests {
         let mut adaptive = s.clone();
         adaptive.overrides.noise = Some(0.01);
         assert_ne!(scene_key(&s), scene_key(&adaptive));
+        let map = |n: u32| proto::domain::SppMap { width: 8, height: 8, tile_size: 4, tile_spp: vec![n; 4] };
+        let (mut mapped, mut other_map) = (s.clone(), s.clone());
+        (mapped.spp_map, other_map.spp_map) = (Some(map(8)), Some(map(16)));
+        assert_ne!(scene_key(&s), scene_key(&mapped));
+        assert_ne!(scene_key(&mapped), scene_key(&other_map));
         let mut other_limit = s.clone();
         other_limit.overrides.clamp = Some(8.0);
         assert_ne!(scene_key(&clamped), scene_key(&other_limit));

@@ -77,6 +77,9 @@ pub struct Job {
     /// `--time-budget`: no unit is leased once this long has passed since the job
     /// (re)started; the job ends when the units out are in.
     pub budget: Option<Duration>,
+    /// `--spp-map`: each tile's samples per pixel (empty: `spp` for every tile); set
+    /// before [`Job::start`], which cuts the units to it.
+    pub tile_spp: Vec<u32>,
     pub units: Vec<Unit>,
     pending: BTreeSet<UnitId>,
     /// Adaptive jobs: units waiting for their tile's previous unit to merge.
@@ -86,6 +89,9 @@ pub struct Job {
     skipped_samples: u64,
     /// Adaptive jobs: each tile's units in sample order.
     tile_units: Vec<Vec<UnitId>>,
+    /// Adaptive jobs: per tile, where in `tile_units` its first unit not done may be
+    /// (none before it is), so that a merge need not look at the tile's done units.
+    tile_open: Vec<usize>,
     /// Each tile shared, so that the image can be written or checkpointed outside the
     /// farm's lock without a copy: a merge copies only the one tile it changes, and only
     /// while a writer still reads it.
@@ -197,12 +203,14 @@ impl Job {
             layers: false,
             adaptive: None,
             budget: None,
+            tile_spp: Vec::new(),
             units: Vec::new(),
             pending: BTreeSet::new(),
             gated: BTreeSet::new(),
             skipped: BTreeSet::new(),
             skipped_samples: 0,
             tile_units: Vec::new(),
+            tile_open: Vec::new(),
             tiles: Vec::new(),
             units_done: 0,
             samples_done: 0,
@@ -278,9 +286,15 @@ impl Job {
 
     pub fn start(&mut self, width: u32, height: u32, spp: u32, tile_size: u32, batch_spp: u32, non_negative: bool) {
         let tiles = Tile::grid(width, height, tile_size);
+        // With an spp map, each tile's units stop at its own spp.
+        let cap = |t: usize| self.tile_spp.get(t).copied().unwrap_or(spp);
         self.units = schedule::progressive_units(&tiles, spp, batch_spp)
             .into_iter()
-            .map(|(tile_index, samples)| Unit::new(tile_index, tiles[tile_index], samples, UnitState::Pending))
+            .filter(|&(t, samples)| samples.start < cap(t))
+            .map(|(t, samples)| {
+                let samples = SampleRange::new(samples.start, samples.end.min(cap(t)));
+                Unit::new(t, tiles[t], samples, UnitState::Pending)
+            })
             .collect();
         self.pending = (0..self.units.len() as UnitId).collect();
         self.clock.clear();
@@ -707,7 +721,7 @@ impl Job {
         self.rays += r.rays;
         self.nonfinite += r.nonfinite;
         self.rendered(now, r.render_seconds);
-        self.settle(tile_index);
+        self.settle_merged(tile_index);
         if self.all_settled() {
             self.finish();
         }

@@ -466,7 +466,17 @@ fn load_job(shared: &Arc<Shared>, job: &str, restore: Option<Restored>) -> anyho
         matches!(spec.integrator, Integrator::Path | Integrator::PathLightOnly | Integrator::PathBsdfOnly);
     let tile = spec.tile_size.unwrap_or(shared.defaults.tile);
     let batch = spec.batch_spp.unwrap_or(shared.defaults.batch_spp);
-    let (w, h, spp) = (camera.width, camera.height, settings.spp);
+    let (w, h, mut spp) = (camera.width, camera.height, settings.spp);
+    if let Some(map) = &spec.spp_map {
+        anyhow::ensure!(
+            (map.width, map.height, map.tile_size) == (w, h, tile),
+            "the spp map is of a {}×{} image in tiles of {}; the job renders {w}×{h} in tiles of {tile}",
+            map.width,
+            map.height,
+            map.tile_size
+        );
+        spp = map.most().max(1);
+    }
     let max_bytes = shared.farm().config.max_job_bytes;
     super::job::Job::check_size((w, h), spp, (tile, batch), settings.aovs, max_bytes).map_err(anyhow::Error::msg)?;
     let mut farm = shared.farm();
@@ -477,6 +487,7 @@ fn load_job(shared: &Arc<Shared>, job: &str, restore: Option<Restored>) -> anyho
     match restore {
         None => {
             (e.job.layers, e.job.adaptive, e.job.budget) = (settings.aovs, settings.noise, spec.overrides.time_budget);
+            e.job.tile_spp = spec.spp_map.as_ref().map(|m| m.tile_spp.clone()).unwrap_or_default();
             e.job.start(w, h, spp, tile, batch, non_negative);
         }
         Some(r) => {
@@ -487,6 +498,7 @@ fn load_job(shared: &Arc<Shared>, job: &str, restore: Option<Restored>) -> anyho
                 r.height
             );
             (e.job.adaptive, e.job.budget) = (settings.noise, spec.overrides.time_budget);
+            e.job.tile_spp = spec.spp_map.as_ref().map(|m| m.tile_spp.clone()).unwrap_or_default();
             e.job.restore(r).map_err(|m| anyhow::anyhow!("the checkpoint is inconsistent: {m}"))?;
             if let Some(more) = spec.overrides.spp
                 && more > e.job.spp

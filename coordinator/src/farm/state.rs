@@ -289,6 +289,9 @@ impl Farm {
             if spp <= j.spp {
                 return Err(FarmError::Invalid(format!("spp {spp}: the job already renders {} spp", j.spp)));
             }
+            if !j.tile_spp.is_empty() {
+                return Err(FarmError::Invalid(format!("job {job} renders an spp map; its spp cannot be raised")));
+            }
             super::job::Job::check_size((j.width, j.height), spp, (j.tile_size, j.batch_spp), j.layers, max_bytes)
                 .map_err(FarmError::Invalid)?;
             j.extend_spp(spp);
@@ -560,6 +563,7 @@ mod tests {
             integrator: Default::default(),
             tile_size: None,
             batch_spp: None,
+            spp_map: None,
         }
     }
 

@@ -21,6 +21,7 @@ fn spec(id: &str) -> Arc<JobSpec> {
         integrator: Integrator::Path,
         tile_size: None,
         batch_spp: None,
+        spp_map: None,
     })
 }
 

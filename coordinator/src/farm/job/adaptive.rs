@@ -45,6 +45,7 @@ impl Job {
     /// Lists each tile's units in sample order (after the units change).
     pub(super) fn index_tiles(&mut self) {
         self.tile_units = vec![Vec::new(); self.tiles.len()];
+        self.tile_open = vec![0; self.tiles.len()];
         for (id, u) in self.units.iter().enumerate() {
             self.tile_units[u.tile_index].push(id as UnitId);
         }
@@ -66,6 +67,7 @@ impl Job {
     /// else the first pending and the rest waiting. Only for adaptive jobs.
     pub(super) fn settle(&mut self, t: usize) {
         let Some(target) = self.adaptive else { return };
+        self.tile_open[t] = 0;
         let ids = std::mem::take(&mut self.tile_units[t]);
         let open: Vec<UnitId> =
             ids.iter().copied().filter(|&id| self.units[id as usize].state != UnitState::Done).collect();
@@ -95,6 +97,30 @@ impl Job {
             }
         }
         self.tile_units[t] = ids;
+    }
+
+    /// [`Job::settle`] after a merge into tile `t`, in time independent of the tile's
+    /// unit count (a long adaptive render has many): the tile's next batch becomes
+    /// leasable, unless the tile has converged (then the full form skips the rest).
+    pub(super) fn settle_merged(&mut self, t: usize) {
+        let Some(target) = self.adaptive else { return };
+        let ids = &self.tile_units[t];
+        let mut k = self.tile_open[t];
+        while k < ids.len() && self.units[ids[k] as usize].state == UnitState::Done {
+            k += 1;
+        }
+        self.tile_open[t] = k;
+        let Some(&first) = ids.get(k) else { return };
+        if matches!(self.units[first as usize].state, UnitState::Leased { .. }) || self.checking.contains(&first) {
+            return;
+        }
+        let acc = &self.tiles[t];
+        let converged = acc.counts.first().is_some_and(|&n| n >= MIN_SPP) && tile_noise(acc) <= f64::from(target);
+        if converged || self.skipped.contains(&first) {
+            self.settle(t);
+        } else if self.gated.remove(&first) {
+            self.pending.insert(first);
+        }
     }
 
     /// Samples (pixels × samples per pixel) of unit `id`.
