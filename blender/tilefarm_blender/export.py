@@ -1,0 +1,356 @@
+"""A Blender scene as a tilefarm scene folder: `scene.toml`, one OBJ per distinct mesh
+(modifiers applied, in its object's space, placed by its world matrix; meshes with the
+same content share one file, named by its digest), `materials.mtl` and the textures.
+
+Blender's world coordinates are kept as they are (Z up): the camera's `up` says which
+way is up, and both are right-handed, so nothing is mirrored. The camera looks down its
+local −Z with +Y up and +X right; tilefarm's right is forward × up, which is that +X, so
+an object to the camera's right in Blender is on the image's right.
+
+Light units, measured against Cycles 4.2 (a white Lambertian plane under each light):
+a point or spot light of power P watts has intensity P / 4π W/sr; a sun of strength S
+gives irradiance S W/m²; an area light of power P and area A has radiance P / (π A),
+emitted from its front (local −Z) only; an Emission shader of strength s emits s × its
+colour.
+"""
+
+import hashlib
+import math
+import os
+import time
+
+import bpy
+import mathutils
+import numpy as np
+
+from . import materials as mats
+
+MESH_TYPES = {"MESH", "CURVE", "SURFACE", "META", "FONT"}
+
+
+class Report:
+    """What an export wrote and what it could not map."""
+
+    def __init__(self):
+        self.warnings = []
+        self.meshes = 0
+        self.mesh_files = 0
+        self.triangles = 0
+        self.seconds = 0.0
+
+    def warn(self, what):
+        if what not in self.warnings:
+            self.warnings.append(what)
+
+    def summary(self):
+        """The one warning listing everything not mapped, or None."""
+        if not self.warnings:
+            return None
+        return f"tilefarm export: {len(self.warnings)} thing(s) not mapped exactly:\n  - " + "\n  - ".join(self.warnings)
+
+
+def _rows(tag, a):
+    """OBJ lines `tag x y …` of the rows of `a`, formatted in one go (a million
+    triangles' worth in seconds, not minutes)."""
+    if len(a) == 0:
+        return ""
+    line = tag + " %.9g" * a.shape[1] + "\n"  # float32 round-trips in 9 digits
+    return (line * len(a)) % tuple(a.astype(np.float64).ravel().tolist())
+
+
+def _vec(v):
+    return "[" + ", ".join(f"{float(c):.9g}" for c in v) + "]"
+
+
+def _matrix(m):
+    rows = [[float(m[r][c]) for c in range(4)] for r in range(4)]
+    rows[3] = [0.0, 0.0, 0.0, 1.0]
+    return "[" + ", ".join(_vec(r) for r in rows) + "]"
+
+
+class _Exporter:
+    def __init__(self, folder, scene, report):
+        self.folder = folder
+        self.scene = scene
+        self.report = report
+        self.names = set()
+        self.materials = {}  # material (or None) -> Mapped
+        self.textures = {}  # image name -> file name
+        self.texture_names = set()
+        self.objs = {}  # digest -> file name
+        self.toml = []
+
+    # Materials -----------------------------------------------------------------------
+
+    def material(self, material):
+        key = material.original if material is not None else None
+        if key in self.materials:
+            return self.materials[key].name
+        name = mats.safe_name(material.name if material is not None else "default", self.names)
+        mapped = mats.map_material(material, name)
+        if mapped.texture is not None:
+            image = mapped.texture
+            if image.name not in self.textures:
+                try:
+                    self.textures[image.name] = mats.write_texture(image, self.folder, self.texture_names)
+                except Exception as e:  # a texture that cannot be saved is reported, not fatal
+                    self.report.warn(f"material {material.name}: texture {image.name} not written ({e})")
+                    self.textures[image.name] = None
+            if self.textures[image.name]:
+                mapped.lines.append(mats.texture_line(self.textures[image.name]))
+        for p in mapped.problems:
+            self.report.warn(f"material {material.name if material else 'default'}: {p}")
+        self.materials[key] = mapped
+        return name
+
+    # Meshes --------------------------------------------------------------------------
+
+    def mesh(self, ob, matrix):
+        try:
+            mesh = ob.to_mesh()
+        except RuntimeError:
+            mesh = None
+        if mesh is None:
+            return
+        try:
+            mesh.calc_loop_triangles()
+            n_tris = len(mesh.loop_triangles)
+            if n_tris == 0:
+                return
+            text = self.obj_text(ob, mesh, n_tris)
+        finally:
+            ob.to_mesh_clear()
+        digest = hashlib.sha256(text.encode()).hexdigest()
+        if digest not in self.objs:
+            self.objs[digest] = f"mesh-{digest[:16]}.obj"
+            with open(os.path.join(self.folder, self.objs[digest]), "w", encoding="utf-8") as f:
+                f.write(text)
+            self.report.mesh_files += 1
+        self.report.meshes += 1
+        self.report.triangles += n_tris
+        if matrix.determinant() < 0:
+            self.report.warn(f"object {ob.name}: mirrored by a negative scale (its faces' fronts flip)")
+        self.toml += ["", "[[mesh]]", f"# {ob.name}", f'obj = "{self.objs[digest]}"', f"matrix = {_matrix(matrix)}"]
+
+    def obj_text(self, ob, mesh, n_tris):
+        nv, nl = len(mesh.vertices), len(mesh.loops)
+        co = np.empty(nv * 3, np.float32)
+        mesh.vertices.foreach_get("co", co)
+        tri_v = np.empty(n_tris * 3, np.int64)
+        mesh.loop_triangles.foreach_get("vertices", tri_v)
+        tri_l = np.empty(n_tris * 3, np.int64)
+        mesh.loop_triangles.foreach_get("loops", tri_l)
+        tri_m = np.empty(n_tris, np.int64)
+        mesh.loop_triangles.foreach_get("material_index", tri_m)
+        normals = np.empty(nl * 3, np.float32)
+        mesh.corner_normals.foreach_get("vector", normals)
+        uv = None
+        if mesh.uv_layers.active is not None:
+            uv = np.empty(nl * 2, np.float32)
+            mesh.uv_layers.active.data.foreach_get("uv", uv)
+        # Corners share normals and uvs: each distinct one is written once.
+        normals, normal_of = np.unique(normals.reshape(-1, 3), axis=0, return_inverse=True)
+        out = ["# exported from Blender by tilefarm_blender\nmtllib materials.mtl\n", _rows("v", co.reshape(-1, 3)),
+               _rows("vn", normals)]
+        uv_of = None
+        if uv is not None:
+            uvs, uv_of = np.unique(uv.reshape(-1, 2), axis=0, return_inverse=True)
+            out.append(_rows("vt", uvs))
+        slots = ob.material_slots
+        tri_v = tri_v.reshape(-1, 3) + 1
+        corner_n = normal_of.reshape(-1)[tri_l].reshape(-1, 3) + 1
+        corner_t = uv_of.reshape(-1)[tri_l].reshape(-1, 3) + 1 if uv_of is not None else None
+        for mi in np.unique(tri_m):
+            material = slots[mi].material if mi < len(slots) else None
+            out.append(f"usemtl {self.material(material)}\n")
+            pick = tri_m == mi
+            if corner_t is not None:
+                corners = np.stack([tri_v[pick], corner_t[pick], corner_n[pick]], -1).reshape(-1, 9)
+                out.append(("f %d/%d/%d %d/%d/%d %d/%d/%d\n" * len(corners)) % tuple(corners.ravel().tolist()))
+            else:
+                corners = np.stack([tri_v[pick], corner_n[pick]], -1).reshape(-1, 6)
+                out.append(("f %d//%d %d//%d %d//%d\n" * len(corners)) % tuple(corners.ravel().tolist()))
+        return "".join(out)
+
+    # Lights --------------------------------------------------------------------------
+
+    def light(self, ob, matrix):
+        light = ob.data
+        color = [float(c) for c in light.color]
+        pos = matrix.translation
+        aim = -(matrix.to_3x3() @ mathutils.Vector((0.0, 0.0, 1.0))).normalized()
+        if light.use_nodes:
+            self.report.warn(f"light {ob.name}: its node tree (only its colour and power are used)")
+        if light.type in {"POINT", "SPOT"}:
+            intensity = [c * light.energy / (4.0 * math.pi) for c in color]
+            if light.shadow_soft_size > 0.0:
+                self.report.warn(f"light {ob.name}: radius {light.shadow_soft_size:.3g} (a point light here: hard shadows)")
+            self.toml += ["", "[[light]]", f"# {ob.name}", f'type = "{light.type.lower()}"', f"position = {_vec(pos)}"]
+            if light.type == "SPOT":
+                half = light.spot_size / 2.0
+                cos_half = math.cos(half)
+                full = math.acos(min(1.0, cos_half + (1.0 - cos_half) * light.spot_blend))
+                self.toml += [f"direction = {_vec(aim)}", f"cone_angle = {math.degrees(half):.6g}",
+                              f"falloff_start = {math.degrees(min(full, half)):.6g}"]
+            self.toml.append(f"intensity = {_vec(intensity)}")
+        elif light.type == "SUN":
+            if light.angle > 0.0:
+                self.report.warn(f"light {ob.name}: sun angle {math.degrees(light.angle):.3g}° (a directional light here: hard shadows)")
+            irradiance = [c * light.energy for c in color]
+            self.toml += ["", "[[light]]", f"# {ob.name}", 'type = "directional"', f"direction = {_vec(aim)}",
+                          f"irradiance = {_vec(irradiance)}"]
+        elif light.type == "AREA":
+            self.area_light(ob, light, color, matrix)
+        else:
+            self.report.warn(f"light {ob.name}: type {light.type}")
+
+    def area_light(self, ob, light, color, matrix):
+        """An area light as an emissive polygon in its own OBJ, facing its local −Z."""
+        sx = light.size
+        sy = light.size_y if light.shape in {"RECTANGLE", "ELLIPSE"} else light.size
+        if light.shape in {"SQUARE", "RECTANGLE"}:
+            local = [(-sx / 2, -sy / 2), (-sx / 2, sy / 2), (sx / 2, sy / 2), (sx / 2, -sy / 2)]
+        else:
+            n = 32
+            local = [(sx / 2 * math.cos(-2 * math.pi * k / n), sy / 2 * math.sin(-2 * math.pi * k / n)) for k in range(n)]
+        # Clockwise seen from +Z: counter-clockwise, the front, seen from −Z.
+        world = [matrix @ mathutils.Vector((x, y, 0.0)) for x, y in local]
+        area = sum(((world[k] - world[0]).cross(world[k + 1] - world[0])).length / 2 for k in range(1, len(world) - 1))
+        if area <= 0.0:
+            self.report.warn(f"light {ob.name}: zero area (skipped)")
+            return
+        radiance = [c * light.energy / (math.pi * area) for c in color]
+        name = mats.safe_name("light_" + ob.name, self.names)
+        mapped = mats.Mapped(name)
+        mapped.lines = ["Kd 0 0 0", "Ke " + " ".join(f"{c:.6g}" for c in radiance)]
+        self.materials[("light", ob.name)] = mapped
+        lines = ["# the area light " + ob.name, "mtllib materials.mtl", f"usemtl {name}"]
+        lines += [f"v {p.x:.7g} {p.y:.7g} {p.z:.7g}" for p in world]
+        lines.append("f " + " ".join(str(k + 1) for k in range(len(world))))
+        file_name = f"{name}.obj"
+        with open(os.path.join(self.folder, file_name), "w", encoding="utf-8") as f:
+            f.write("\n".join(lines) + "\n")
+        self.toml += ["", "[[mesh]]", f"# the area light {ob.name}", f'obj = "{file_name}"']
+        self.report.warn("area lights become emissive surfaces: seen by the camera and casting shadows "
+                         "(Blender's do neither)")
+
+    # Camera, world and settings ------------------------------------------------------
+
+    def camera(self, width, height):
+        cam_ob = self.scene.camera
+        if cam_ob is None:
+            raise ValueError("the scene has no active camera")
+        cam = cam_ob.data
+        m = cam_ob.matrix_world
+        pos = m.translation
+        forward = -(m.to_3x3() @ mathutils.Vector((0.0, 0.0, 1.0))).normalized()
+        up = (m.to_3x3() @ mathutils.Vector((0.0, 1.0, 0.0))).normalized()
+        if cam.type != "PERSP":
+            self.report.warn(f"camera {cam_ob.name}: {cam.type.lower()} projection (exported as perspective)")
+        if cam.shift_x or cam.shift_y:
+            self.report.warn(f"camera {cam_ob.name}: lens shift")
+        fit = cam.sensor_fit
+        if fit == "AUTO":
+            fit, sensor = ("HORIZONTAL" if width >= height else "VERTICAL"), cam.sensor_width
+        else:
+            sensor = cam.sensor_width if fit == "HORIZONTAL" else cam.sensor_height
+        half = sensor / (2.0 * cam.lens)
+        tan_v = half * height / width if fit == "HORIZONTAL" else half
+        fov = math.degrees(2.0 * math.atan(tan_v))
+        distance = 1.0
+        lens = []
+        if cam.dof.use_dof:
+            if cam.dof.focus_object is not None:
+                distance = max((cam.dof.focus_object.matrix_world.translation - pos).dot(forward), 1e-4)
+            else:
+                distance = cam.dof.focus_distance
+            unit = self.scene.unit_settings.scale_length or 1.0
+            aperture = 0.5 * cam.lens * 1e-3 / cam.dof.aperture_fstop / unit
+            lens = [f"aperture = {aperture:.9g}", f"focus_distance = {distance:.9g}"]
+            if cam.dof.aperture_blades > 0:
+                self.report.warn(f"camera {cam_ob.name}: {cam.dof.aperture_blades}-bladed aperture (a round one here)")
+        look_at = pos + forward * distance
+        return ["[camera]", f"# {cam_ob.name}", f"position = {_vec(pos)}", f"look_at = {_vec(look_at)}",
+                f"up = {_vec(up)}", f"fov = {fov:.9g}", f"width = {width}", f"height = {height}"] + lens
+
+    def background(self):
+        world = self.scene.world
+        if world is None:
+            return [0.0, 0.0, 0.0]
+        if not world.use_nodes or world.node_tree is None:
+            return [float(c) for c in world.color]
+        out = next((n for n in world.node_tree.nodes if n.type == "OUTPUT_WORLD" and n.is_active_output), None)
+        src = out.inputs["Surface"].links[0].from_node if out and out.inputs["Surface"].is_linked else None
+        if src is None:
+            return [0.0, 0.0, 0.0]
+        if src.type != "BACKGROUND":
+            self.report.warn(f"world: a {src.bl_idname} node (black here)")
+            return [0.0, 0.0, 0.0]
+        if src.inputs["Color"].is_linked or src.inputs["Strength"].is_linked:
+            self.report.warn("world: a texture on the background (only a constant colour maps; black here)")
+            return [0.0, 0.0, 0.0]
+        strength = float(src.inputs["Strength"].default_value)
+        return [float(c) * strength for c in src.inputs["Color"].default_value[:3]]
+
+    def render_settings(self):
+        r = self.scene.render
+        lines = ["[render]"]
+        if r.engine == "CYCLES":
+            c = self.scene.cycles
+            lines += [f"spp = {c.samples}", f"max_depth = {c.max_bounces + 2}", f"seed = {c.seed}"]
+            for what, used in [
+                ("denoising (render with --denoise for OIDN)", c.use_denoising),
+                ("sample clamping", c.sample_clamp_direct > 0 or c.sample_clamp_indirect > 0),
+                ("fewer diffuse/glossy/transmission bounces than the total",
+                 min(c.diffuse_bounces, c.glossy_bounces, c.transmission_bounces) < c.max_bounces),
+            ]:
+                if used:
+                    self.report.warn(f"render: {what}")
+        else:
+            lines += ["spp = 64", "max_depth = 8"]
+            self.report.warn(f"render: engine {r.engine} (Cycles' settings map; 64 spp, 8 segments here)")
+        return lines
+
+
+def export_scene(folder, scene=None, frame=None):
+    """Writes `scene` (the current one by default), at `frame` if given, as a tilefarm
+    scene folder; returns a Report. Raises ValueError when there is nothing to render."""
+    started = time.perf_counter()
+    scene = scene or bpy.context.scene
+    if frame is not None:
+        scene.frame_set(frame)
+    os.makedirs(folder, exist_ok=True)
+    report = Report()
+    ex = _Exporter(folder, scene, report)
+    r = scene.render
+    width = max(1, round(r.resolution_x * r.resolution_percentage / 100))
+    height = max(1, round(r.resolution_y * r.resolution_percentage / 100))
+    if r.pixel_aspect_x != r.pixel_aspect_y:
+        report.warn("render: non-square pixels")
+    depsgraph = bpy.context.evaluated_depsgraph_get()
+    for inst in depsgraph.object_instances:
+        ob = inst.object
+        if ob.original.hide_render or (ob.type in MESH_TYPES and not ob.visible_camera):
+            continue
+        matrix = inst.matrix_world.copy()
+        if ob.type in MESH_TYPES:
+            ex.mesh(ob, matrix)
+        elif ob.type == "LIGHT":
+            ex.light(ob, matrix)
+        elif ob.type not in {"CAMERA", "EMPTY", "ARMATURE", "LATTICE", "SPEAKER", "LIGHT_PROBE"}:
+            report.warn(f"object {ob.name}: type {ob.type}")
+    if report.meshes == 0:
+        raise ValueError("nothing to render: the scene has no visible mesh")
+    head = ["# exported from Blender " + bpy.app.version_string + " by tilefarm_blender", ""]
+    head += ex.camera(width, height) + [""] + ex.render_settings()
+    bg = ex.background()
+    if any(c > 0 for c in bg):
+        head += ["", "[background]", f"radiance = {_vec(bg)}"]
+    with open(os.path.join(folder, "scene.toml"), "w", encoding="utf-8") as f:
+        f.write("\n".join(head + ex.toml) + "\n")
+    with open(os.path.join(folder, "materials.mtl"), "w", encoding="utf-8") as f:
+        f.write("# exported from Blender by tilefarm_blender\n")
+        for m in ex.materials.values():
+            f.write("\n" + m.mtl())
+    report.seconds = time.perf_counter() - started
+    return report
