@@ -1,6 +1,7 @@
 """A Blender scene as a tilefarm scene folder: `scene.toml`, one OBJ per distinct mesh
-(modifiers applied, in its object's space, placed by its world matrix; meshes with the
-same content share one file, named by its digest), `materials.mtl` and the textures.
+(modifiers applied, in its object's space, placed by its world matrix) with an MTL of
+its materials, both named by the digest of their content (meshes that are the same, in
+one frame or across an animation's frames, share one file), and the textures.
 
 Blender's world coordinates are kept as they are (Z up): the camera's `up` says which
 way is up, and both are right-handed, so nothing is mirrored. The camera looks down its
@@ -75,6 +76,7 @@ class _Exporter:
         self.report = report
         self.names = set()
         self.materials = {}  # material (or None) -> Mapped
+        self.by_name = {}  # its MTL name -> Mapped
         self.textures = {}  # image name -> file name
         self.texture_names = set()
         self.objs = {}  # digest -> file name
@@ -101,6 +103,7 @@ class _Exporter:
         for p in mapped.problems:
             self.report.warn(f"material {material.name if material else 'default'}: {p}")
         self.materials[key] = mapped
+        self.by_name[name] = mapped
         return name
 
     # Meshes --------------------------------------------------------------------------
@@ -117,20 +120,32 @@ class _Exporter:
             n_tris = len(mesh.loop_triangles)
             if n_tris == 0:
                 return
-            text = self.obj_text(ob, mesh, n_tris)
+            body, used = self.obj_text(ob, mesh, n_tris)
         finally:
             ob.to_mesh_clear()
-        digest = hashlib.sha256(text.encode()).hexdigest()
-        if digest not in self.objs:
-            self.objs[digest] = f"mesh-{digest[:16]}.obj"
-            with open(os.path.join(self.folder, self.objs[digest]), "w", encoding="utf-8") as f:
-                f.write(text)
-            self.report.mesh_files += 1
+        file_name = self.write_obj("mesh", body, used)
         self.report.meshes += 1
         self.report.triangles += n_tris
         if matrix.determinant() < 0:
             self.report.warn(f"object {ob.name}: mirrored by a negative scale (its faces' fronts flip)")
-        self.toml += ["", "[[mesh]]", f"# {ob.name}", f'obj = "{self.objs[digest]}"', f"matrix = {_matrix(matrix)}"]
+        self.toml += ["", "[[mesh]]", f"# {ob.name}", f'obj = "{file_name}"', f"matrix = {_matrix(matrix)}"]
+
+    def write_obj(self, prefix, body, used):
+        """Writes an OBJ of `body` (its lines after `mtllib`) and an MTL of the materials
+        it `used`, both named by the digest of their content, so that what does not
+        change between frames (or objects) is one file; the OBJ's name."""
+        mtl = "# exported from Blender by tilefarm_blender\n" + "".join("\n" + self.by_name[n].mtl() for n in used)
+        digest = hashlib.sha256((body + "\0" + mtl).encode()).hexdigest()
+        name = f"{prefix}-{digest[:16]}"
+        # Content-addressed: a file already there (an earlier frame's) is this one.
+        if digest not in self.objs and not os.path.isfile(os.path.join(self.folder, name + ".obj")):
+            self.objs[digest] = name
+            with open(os.path.join(self.folder, name + ".mtl"), "w", encoding="utf-8") as f:
+                f.write(mtl)
+            with open(os.path.join(self.folder, name + ".obj"), "w", encoding="utf-8") as f:
+                f.write(f"# exported from Blender by tilefarm_blender\nmtllib {name}.mtl\n" + body)
+            self.report.mesh_files += 1
+        return name + ".obj"
 
     def obj_text(self, ob, mesh, n_tris):
         nv, nl = len(mesh.vertices), len(mesh.loops)
@@ -150,8 +165,8 @@ class _Exporter:
             mesh.uv_layers.active.data.foreach_get("uv", uv)
         # Corners share normals and uvs: each distinct one is written once.
         normals, normal_of = np.unique(normals.reshape(-1, 3), axis=0, return_inverse=True)
-        out = ["# exported from Blender by tilefarm_blender\nmtllib materials.mtl\n", _rows("v", co.reshape(-1, 3)),
-               _rows("vn", normals)]
+        out = [_rows("v", co.reshape(-1, 3)), _rows("vn", normals)]
+        used = []
         uv_of = None
         if uv is not None:
             uvs, uv_of = np.unique(uv.reshape(-1, 2), axis=0, return_inverse=True)
@@ -162,7 +177,8 @@ class _Exporter:
         corner_t = uv_of.reshape(-1)[tri_l].reshape(-1, 3) + 1 if uv_of is not None else None
         for mi in np.unique(tri_m):
             material = slots[mi].material if mi < len(slots) else None
-            out.append(f"usemtl {self.material(material)}\n")
+            used.append(self.material(material))
+            out.append(f"usemtl {used[-1]}\n")
             pick = tri_m == mi
             if corner_t is not None:
                 corners = np.stack([tri_v[pick], corner_t[pick], corner_n[pick]], -1).reshape(-1, 9)
@@ -170,7 +186,7 @@ class _Exporter:
             else:
                 corners = np.stack([tri_v[pick], corner_n[pick]], -1).reshape(-1, 6)
                 out.append(("f %d//%d %d//%d %d//%d\n" * len(corners)) % tuple(corners.ravel().tolist()))
-        return "".join(out)
+        return "".join(out), used
 
     # Lights --------------------------------------------------------------------------
 
@@ -224,12 +240,11 @@ class _Exporter:
         mapped = mats.Mapped(name)
         mapped.lines = ["Kd 0 0 0", "Ke " + " ".join(f"{c:.6g}" for c in radiance)]
         self.materials[("light", ob.name)] = mapped
-        lines = ["# the area light " + ob.name, "mtllib materials.mtl", f"usemtl {name}"]
-        lines += [f"v {p.x:.7g} {p.y:.7g} {p.z:.7g}" for p in world]
+        self.by_name[name] = mapped
+        lines = [f"# the area light {ob.name}", f"usemtl {name}"]
+        lines += [f"v {p.x:.9g} {p.y:.9g} {p.z:.9g}" for p in world]
         lines.append("f " + " ".join(str(k + 1) for k in range(len(world))))
-        file_name = f"{name}.obj"
-        with open(os.path.join(self.folder, file_name), "w", encoding="utf-8") as f:
-            f.write("\n".join(lines) + "\n")
+        file_name = self.write_obj("light", "\n".join(lines) + "\n", [name])
         self.toml += ["", "[[mesh]]", f"# the area light {ob.name}", f'obj = "{file_name}"']
         self.report.warn("area lights become emissive surfaces: seen by the camera and casting shadows "
                          "(Blender's do neither)")
@@ -312,9 +327,10 @@ class _Exporter:
         return lines
 
 
-def export_scene(folder, scene=None, frame=None):
+def export_scene(folder, scene=None, frame=None, toml="scene.toml"):
     """Writes `scene` (the current one by default), at `frame` if given, as a tilefarm
-    scene folder; returns a Report. Raises ValueError when there is nothing to render."""
+    scene folder (its scene file named `toml`); returns a Report. Raises ValueError when
+    there is nothing to render."""
     started = time.perf_counter()
     scene = scene or bpy.context.scene
     if frame is not None:
@@ -346,11 +362,34 @@ def export_scene(folder, scene=None, frame=None):
     bg = ex.background()
     if any(c > 0 for c in bg):
         head += ["", "[background]", f"radiance = {_vec(bg)}"]
-    with open(os.path.join(folder, "scene.toml"), "w", encoding="utf-8") as f:
+    with open(os.path.join(folder, toml), "w", encoding="utf-8") as f:
         f.write("\n".join(head + ex.toml) + "\n")
-    with open(os.path.join(folder, "materials.mtl"), "w", encoding="utf-8") as f:
-        f.write("# exported from Blender by tilefarm_blender\n")
-        for m in ex.materials.values():
-            f.write("\n" + m.mtl())
     report.seconds = time.perf_counter() - started
     return report
+
+
+def frame_file(frame):
+    """The scene file of `frame` in an animation's folder: `scene.0007.toml`, the
+    pattern `coordinator submit 'DIR/scene.####.toml' --frames A-B` reads."""
+    return f"scene.{frame:04d}.toml"
+
+
+def export_animation(folder, first, last, scene=None):
+    """Writes frames `first` to `last` of `scene` into one folder, one scene file each
+    ([`frame_file`]); meshes, materials and textures that do not change between frames
+    are one file for all of them. Returns one Report for the whole range."""
+    if last < first:
+        raise ValueError(f"frames {first}-{last}: the last comes before the first")
+    scene = scene or bpy.context.scene
+    total = Report()
+    started = time.perf_counter()
+    files_before = set(os.listdir(folder)) if os.path.isdir(folder) else set()
+    for frame in range(first, last + 1):
+        r = export_scene(folder, scene, frame=frame, toml=frame_file(frame))
+        for w in r.warnings:
+            total.warn(w)
+        total.meshes += r.meshes
+        total.triangles += r.triangles
+    total.mesh_files = len([f for f in os.listdir(folder) if f.endswith(".obj") and f not in files_before])
+    total.seconds = time.perf_counter() - started
+    return total

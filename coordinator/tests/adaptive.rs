@@ -79,7 +79,7 @@ fn adaptive_renders_are_the_same_bits_for_any_workers_and_spend_samples_on_noise
     let scene = halves(&dir.0);
     let adaptive = ["--adaptive", "--noise", "0.02"];
     let in_process = render(&dir.0, &scene, "a0.exr", &[&adaptive[..], &["--local-workers", "0"]].concat());
-    for workers in ["1", "2"] {
+    for workers in ["1", "2", "3"] {
         let farm = render(&dir.0, &scene, "a.exr", &[&adaptive[..], &["--local-workers", workers]].concat());
         assert_eq!(farm, in_process, "{workers} worker processes");
     }

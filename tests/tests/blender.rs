@@ -59,3 +59,57 @@ fn blender_scenes_export_and_render_like_cycles() {
     assert!(figures.contains("\"farm\": \"same bits as a local render\""), "the farm check ran: {figures}");
     assert!(figures.contains("\"extension\": \"bl_ext.user_default.tilefarm\""), "the extension installed: {figures}");
 }
+
+/// A 10-frame animation exported from `bpy` (`blender/tests/animation.py`: a moving
+/// camera and sphere in the Cornell box) renders as one group: `submit PATTERN --frames
+/// 1-10 --wait` writes `shot.0001.exr` … `shot.0010.exr`, uploading each unchanged mesh
+/// once; frame 7 submitted alone is the group's frame 7, bit for bit.
+#[test]
+fn a_blender_animation_renders_as_a_group_of_frames() {
+    let python = match python_with_bpy() {
+        Ok(p) => p,
+        Err(why) => {
+            println!("SKIPPED: {why}");
+            return;
+        }
+    };
+    let here = Path::new(env!("CARGO_MANIFEST_DIR"));
+    let dir = TempDir::new("blender-animation");
+    let mut cmd = Command::new(&python);
+    cmd.arg(here.join("../blender/tests/animation.py")).arg(dir.path("work")).env("HOME", dir.path("home"));
+    let out = run(&mut cmd, LIMIT);
+    let said = String::from_utf8_lossy(&out.stdout);
+    assert!(out.status.success(), "the export failed:\n{said}\n{}", String::from_utf8_lossy(&out.stderr));
+    println!("export: {}", said.lines().rev().find(|l| l.starts_with('{')).unwrap_or(""));
+    let shot = dir.path("work").join("shot");
+    let files = std::fs::read_dir(&shot).unwrap().count();
+
+    let coord = Coordinator::start(&dir.path("store"), &[]);
+    let _worker = coord.worker(2, &dir.path("cache"));
+    let settings = ["--spp", "4", "--width", "48", "--tile", "16"];
+    let pattern = shot.join("scene.####.toml");
+    let outputs = dir.path("out").join("shot.####.exr");
+    std::fs::create_dir_all(dir.path("out")).unwrap();
+    let args = [&settings[..], &["--frames", "1-10", "--wait", "-o", outputs.to_str().unwrap()]].concat();
+    let group = coord.submit(&pattern, &args, LIMIT);
+    let told = String::from_utf8_lossy(&group.stderr);
+    assert!(group.status.success(), "{told}");
+    let said = String::from_utf8_lossy(&group.stdout);
+    let jobs: Vec<&str> = said.lines().filter(|l| l.starts_with("job-")).collect();
+    assert_eq!(jobs.len(), 10, "one job a frame: {jobs:?}");
+    // Every file of the folder went up once: ten scene files, the shared rest once.
+    let uploaded = told.split("uploaded ").nth(1).and_then(|s| s.split(' ').next()).and_then(|n| n.parse().ok());
+    println!("group: {}", told.lines().find(|l| l.contains("uploaded")).unwrap_or(""));
+    assert_eq!(uploaded, Some(files), "uploads: {told}");
+
+    let frame = |n: u32| read_exr(&dir.path("out").join(format!("shot.{n:04}.exr")));
+    let alone = dir.path("frame7.exr");
+    let single = coord.submit(
+        &shot.join("scene.0007.toml"),
+        &[&settings[..], &["--wait", "-o", alone.to_str().unwrap()]].concat(),
+        LIMIT,
+    );
+    assert!(single.status.success(), "{}", String::from_utf8_lossy(&single.stderr));
+    assert_same_bits(&read_exr(&alone), &frame(7), "frame 7 alone and in the group");
+    assert_ne!(frame(1).pixels, frame(10).pixels, "the camera moves between frames");
+}

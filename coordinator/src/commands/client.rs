@@ -44,7 +44,14 @@ impl FarmAddress {
 #[derive(Args)]
 pub struct SubmitArgs {
     /// Scene file (.toml) or a bare .obj; it and every file it refers to are uploaded.
-    pub scene: PathBuf,
+    /// Several files, or one pattern with --frames, submit an animation: one job per
+    /// frame, named NAME.0001, …, sharing the files that do not change.
+    #[arg(required = true, num_args = 1.., value_name = "SCENE")]
+    pub scenes: Vec<PathBuf>,
+    /// Frames A to B of the scene pattern (its #### is the frame number, zero-padded):
+    /// `submit 'shot/scene.####.toml' --frames 1-250`.
+    #[arg(long, value_name = "A-B", value_parser = crate::commands::frames::frame_range)]
+    pub frames: Option<(u32, u32)>,
     #[command(flatten)]
     pub coordinator: FarmAddress,
     /// The job's name in `status` [default: the scene file's name, or its folder's when
@@ -141,17 +148,21 @@ fn runtime() -> anyhow::Result<tokio::runtime::Runtime> {
 }
 
 pub fn submit(args: SubmitArgs) -> anyhow::Result<()> {
+    if args.scenes.len() > 1 || args.frames.is_some() {
+        return runtime()?.block_on(submit_frames(args));
+    }
+    let scene_path = args.scenes[0].clone();
     runtime()?.block_on(async move {
         if args.wait {
             tracer::output::check_output_paths(&args.image.output, args.image.preview.as_deref())?;
         }
-        let local = LocalScene::collect(&args.scene)?;
+        let local = LocalScene::collect(&scene_path)?;
         // Refused here, before a job exists: a job that cannot load only fails later.
         if !local.missing.is_empty() {
             let list: Vec<String> = local.missing.iter().map(|m| format!("  {}", local.relative(m))).collect();
             anyhow::bail!(
                 "{} refers to files that are missing, so nothing was submitted:\n{}",
-                args.scene.display(),
+                scene_path.display(),
                 list.join("\n")
             );
         }
@@ -161,7 +172,7 @@ pub fn submit(args: SubmitArgs) -> anyhow::Result<()> {
         for f in &local.files {
             assets.push(client.upload(f, local.relative(f)).await?);
         }
-        let name = args.name.clone().unwrap_or_else(|| job_name(&args.scene));
+        let name = args.name.clone().unwrap_or_else(|| job_name(&scene_path));
         let job = client.submit(name, args.priority, &args.job.spec_with_map(scene, assets)?).await?;
         println!("{job}");
         if args.wait {
@@ -174,6 +185,49 @@ pub fn submit(args: SubmitArgs) -> anyhow::Result<()> {
         }
         Ok(())
     })
+}
+
+/// `submit` of an animation (see `commands::frames`): one job per frame, shared files
+/// uploaded once; with --wait, each frame's image to the output pattern, in order.
+async fn submit_frames(args: SubmitArgs) -> anyhow::Result<()> {
+    use crate::commands::frames::{GroupUpload, frame_output, frame_scenes, group_name};
+    let frames = frame_scenes(&args.scenes, args.frames)?;
+    if args.wait {
+        for (f, _) in &frames {
+            tracer::output::check_output_paths(&frame_output(&args.image.output, *f), None)?;
+        }
+    }
+    let group = args.name.clone().unwrap_or_else(|| group_name(&args.scenes[0]));
+    let mut client = args.coordinator.connect().await?;
+    let mut upload = GroupUpload::default();
+    let mut jobs = Vec::with_capacity(frames.len());
+    for (frame, scene) in &frames {
+        let (scene_ref, assets) = upload.frame(&mut client, scene).await?;
+        let spec = args.job.spec_with_map(scene_ref, assets)?;
+        let job = client.submit(format!("{group}.{frame:04}"), args.priority, &spec).await?;
+        println!("{job}");
+        jobs.push((*frame, job));
+    }
+    eprintln!(
+        "submitted {} frame(s) as {group}.####: uploaded {} file(s), {} bytes ({} bytes as separate jobs)",
+        jobs.len(),
+        upload.files_sent,
+        upload.sent,
+        upload.per_frame
+    );
+    if args.wait {
+        for (frame, job) in &jobs {
+            let stream = match client.watch(job).await? {
+                Watch::Stream(s) => s,
+                Watch::NotFound(m) => anyhow::bail!("frame {frame}: {m}"),
+            };
+            let out = frame_output(&args.image.output, *frame);
+            wait(&mut client, stream, job, args.image.quiet, &out, None)
+                .await
+                .with_context(|| format!("frame {frame}"))?;
+        }
+    }
+    Ok(())
 }
 
 async fn fetch_image(client: &mut FarmClient, job: &str) -> anyhow::Result<tracer::film::Image> {

@@ -6,6 +6,7 @@ pub(crate) mod builtin;
 pub mod certs;
 pub mod client;
 pub(crate) mod follow;
+pub(crate) mod frames;
 pub(crate) mod in_process;
 pub mod loadtest;
 pub(crate) mod local;
