@@ -499,7 +499,7 @@ impl Job {
             return None;
         }
         // Units under check first: the job cannot end before they are settled.
-        if let Some(id) = self.next_to_check(worker).or_else(|| self.pending.pop_first()) {
+        if let Some(id) = self.next_to_check(worker).or_else(|| self.next_pending()) {
             let unit = &mut self.units[id as usize];
             unit.state = UnitState::Leased { worker, deadline, since: now };
             unit.spare = None;

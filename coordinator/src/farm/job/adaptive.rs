@@ -123,6 +123,44 @@ impl Job {
         }
     }
 
+    /// The pending unit to lease next: the first (the furthest behind: units are
+    /// numbered batch by batch). An adaptive job on a time budget also keeps its tiles in
+    /// step: no tile leases a batch more than one ahead of the open tile furthest behind,
+    /// so that when the budget ends every open tile is within one batch of the others
+    /// (its tiles' chains of batches run at their own pace otherwise).
+    pub(super) fn next_pending(&mut self) -> Option<UnitId> {
+        let &first = self.pending.first()?;
+        if self.adaptive.is_some()
+            && self.budget.is_some()
+            && let Some(behind) = self.furthest_behind()
+            && self.units[first as usize].samples.start > behind.saturating_add(self.batch_spp.max(1))
+        {
+            return None;
+        }
+        self.pending.pop_first()
+    }
+
+    /// The lowest first sample of any open tile's next unit (pending or out; tiles that
+    /// converged are not open). Advances the tiles' cursors past done units.
+    fn furthest_behind(&mut self) -> Option<u32> {
+        let mut behind = None::<u32>;
+        for t in 0..self.tile_units.len() {
+            let ids = &self.tile_units[t];
+            let mut k = self.tile_open[t];
+            while k < ids.len() && self.units[ids[k] as usize].state == UnitState::Done {
+                k += 1;
+            }
+            self.tile_open[t] = k;
+            if let Some(&id) = ids.get(k)
+                && !self.skipped.contains(&id)
+            {
+                let start = self.units[id as usize].samples.start;
+                behind = Some(behind.map_or(start, |b| b.min(start)));
+            }
+        }
+        behind
+    }
+
     /// Samples (pixels × samples per pixel) of unit `id`.
     fn unit_samples(&self, id: UnitId) -> u64 {
         let u = &self.units[id as usize];

@@ -488,6 +488,29 @@ fn adaptive_jobs_render_a_tile_a_batch_at_a_time_and_stop_converged_tiles() {
     assert_eq!(r.units_total(), 40);
 }
 
+/// An adaptive job on a time budget keeps its tiles in step: a tile's batch two ahead
+/// of another open tile's waits for it.
+#[test]
+fn adaptive_tiles_on_a_budget_stay_within_a_batch_of_each_other() {
+    let mut j = Job::loading("a".into(), "test".into());
+    (j.layers, j.adaptive, j.budget) = (true, Some(1e-6), Some(Duration::from_secs(3600)));
+    j.start(4, 2, 256, 2, 8, true); // two tiles, 32 batches each
+    let far = Instant::now() + NEVER;
+    let lease = |j: &mut Job| j.lease_next(7, Instant::now(), far, Duration::MAX);
+    let (a, b) = (lease(&mut j).unwrap(), lease(&mut j).unwrap());
+    let merge =
+        |j: &mut Job, id: UnitId| assert_eq!(j.apply(7, &layered_result(j, id, 0.5, true)), Ok(Applied::Merged));
+    merge(&mut j, a);
+    let a1 = lease(&mut j).expect("one batch ahead of the other tile: leased");
+    assert_eq!(j.units[a1 as usize].samples.start, 8);
+    merge(&mut j, a1);
+    assert_eq!(lease(&mut j), None, "two batches ahead of a tile whose first is still out: waits");
+    merge(&mut j, b);
+    let next: Vec<u32> =
+        [lease(&mut j).unwrap(), lease(&mut j).unwrap()].map(|id| j.units[id as usize].samples.start).into();
+    assert_eq!(next, [8, 16], "the tile behind first, then the one ahead");
+}
+
 /// Once its time budget has passed, a job leases nothing more, and ends when the units
 /// out are in: with what is done, and nothing thrown away.
 #[test]
