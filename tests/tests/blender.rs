@@ -24,15 +24,14 @@ fn python_with_bpy() -> Result<String, String> {
     }
 }
 
+/// [`python_with_bpy`], or None after saying SKIPPED and why.
+fn python_or_skip() -> Option<String> {
+    python_with_bpy().map_err(|why| println!("SKIPPED: {why}")).ok()
+}
+
 #[test]
 fn blender_scenes_export_and_render_like_cycles() {
-    let python = match python_with_bpy() {
-        Ok(p) => p,
-        Err(why) => {
-            println!("SKIPPED: {why}");
-            return;
-        }
-    };
+    let Some(python) = python_or_skip() else { return };
     let here = Path::new(env!("CARGO_MANIFEST_DIR"));
     let dir = TempDir::new("blender");
     let coord = Coordinator::start(&dir.path("store"), &[]);
@@ -66,13 +65,7 @@ fn blender_scenes_export_and_render_like_cycles() {
 /// once; frame 7 submitted alone is the group's frame 7, bit for bit.
 #[test]
 fn a_blender_animation_renders_as_a_group_of_frames() {
-    let python = match python_with_bpy() {
-        Ok(p) => p,
-        Err(why) => {
-            println!("SKIPPED: {why}");
-            return;
-        }
-    };
+    let Some(python) = python_or_skip() else { return };
     let here = Path::new(env!("CARGO_MANIFEST_DIR"));
     let dir = TempDir::new("blender-animation");
     let mut cmd = Command::new(&python);

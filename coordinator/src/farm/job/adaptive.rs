@@ -104,13 +104,7 @@ impl Job {
     /// leasable, unless the tile has converged (then the full form skips the rest).
     pub(super) fn settle_merged(&mut self, t: usize) {
         let Some(target) = self.adaptive else { return };
-        let ids = &self.tile_units[t];
-        let mut k = self.tile_open[t];
-        while k < ids.len() && self.units[ids[k] as usize].state == UnitState::Done {
-            k += 1;
-        }
-        self.tile_open[t] = k;
-        let Some(&first) = ids.get(k) else { return };
+        let Some(first) = self.first_open(t) else { return };
         if matches!(self.units[first as usize].state, UnitState::Leased { .. }) || self.checking.contains(&first) {
             return;
         }
@@ -145,13 +139,7 @@ impl Job {
     fn furthest_behind(&mut self) -> Option<u32> {
         let mut behind = None::<u32>;
         for t in 0..self.tile_units.len() {
-            let ids = &self.tile_units[t];
-            let mut k = self.tile_open[t];
-            while k < ids.len() && self.units[ids[k] as usize].state == UnitState::Done {
-                k += 1;
-            }
-            self.tile_open[t] = k;
-            if let Some(&id) = ids.get(k)
+            if let Some(id) = self.first_open(t)
                 && !self.skipped.contains(&id)
             {
                 let start = self.units[id as usize].samples.start;
@@ -159,6 +147,17 @@ impl Job {
             }
         }
         behind
+    }
+
+    /// Tile `t`'s first unit not done, advancing its cursor past the done ones.
+    fn first_open(&mut self, t: usize) -> Option<UnitId> {
+        let ids = &self.tile_units[t];
+        let mut k = self.tile_open[t];
+        while k < ids.len() && self.units[ids[k] as usize].state == UnitState::Done {
+            k += 1;
+        }
+        self.tile_open[t] = k;
+        ids.get(k).copied()
     }
 
     /// Samples (pixels × samples per pixel) of unit `id`.
