@@ -13,7 +13,7 @@ pub use layers::{FirstHit, LayerSums, PixelLayers};
 
 /// Fixed-point scale: radiance 1.0 is 2^32. Resolution 2.3e-10; the i128 range
 /// (±1.7e38 / 2^32 ≈ 4e28) cannot overflow from finite f32 samples within a pixel.
-const FIXED_ONE: f64 = 4294967296.0;
+pub(crate) const FIXED_ONE: f64 = 4294967296.0;
 
 /// A rectangle of pixels: `x0..x0+width`, `y0..y0+height`, row 0 at the top.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]

@@ -424,6 +424,26 @@ radiance = [0.05, 0.06, 0.08]
             assert_eq!(layered, avx2, "{name} with layers");
             assert_eq!((&layered.0.sums, &layered.0.counts), (&base.0.sums, &base.0.counts), "{name}");
             assert!(layered.0.layers.iter().any(|l| l[crate::film::layers::HITS_AT] > 0), "{name}: no hits");
+            // The first-hit layers, which the paths record from the surface data they
+            // shade with, are what the AOV integrators find along the same camera rays;
+            // also where paths end at their first hit (`max_depth = 1`).
+            use crate::film::layers::{ALBEDO_AT, DEPTH_AT, NORMAL_AT};
+            let aovs = [
+                (Integrator::Albedo, ALBEDO_AT, 3),
+                (Integrator::Normals, NORMAL_AT, 3),
+                (Integrator::Depth, DEPTH_AT, 1),
+            ]
+            .map(|(integrator, at, n)| (integrator, at, n, render_unit_loop(&scene, integrator, tile, samples)));
+            scene.settings.max_depth = 1;
+            // SAFETY: AVX2 was detected above.
+            let shallow = unsafe { render_unit_avx2(&scene, Integrator::Path, tile, samples) };
+            for (integrator, at, n, aov) in &aovs {
+                for layered in [&layered, &shallow] {
+                    for (i, (l, s)) in layered.0.layers.iter().zip(&aov.0.sums).enumerate() {
+                        assert_eq!(l[*at..at + n], s[..*n], "{name} {integrator:?}: pixel {i}");
+                    }
+                }
+            }
         }
         assert!(in_packets >= 7, "only {in_packets} scenes traced in packets");
     }

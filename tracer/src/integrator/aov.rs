@@ -4,6 +4,7 @@ use glam::Vec3;
 
 use super::{Integrator, RayCount};
 use crate::accel::Hit;
+use crate::bsdf::Bsdf;
 use crate::film::FirstHit;
 use crate::geometry::Ray;
 use crate::scene::Scene;
@@ -17,8 +18,21 @@ pub fn first_hit(scene: &Scene, ray: &Ray, hit: Option<Hit>) -> FirstHit {
         return FirstHit::default();
     };
     let si = scene.interaction(ray, &hit);
-    let albedo = scene.materials[si.material as usize].bsdf_at(si.uv, &scene.textures).albedo();
-    FirstHit { albedo: albedo.clamp(Vec3::ZERO, Vec3::ONE), normal: si.ns, depth: Some(hit.t * ray.dir.length()) }
+    surface(&scene.materials[si.material as usize].bsdf_at(si.uv, &scene.textures), si.ns, hit.t * ray.dir.length())
+}
+
+/// The first-hit layers of a surface with BSDF `bsdf` and shading normal `ns`, met at
+/// distance `depth` from the camera. The path integrators record these from the surface
+/// data they shade with, so the layers cost no second look-up.
+#[inline(always)]
+pub fn surface(bsdf: &Bsdf, ns: Vec3, depth: f32) -> FirstHit {
+    FirstHit { albedo: albedo(bsdf), normal: ns, depth: Some(depth) }
+}
+
+/// The albedo layer's value for a surface with BSDF `bsdf`.
+#[inline(always)]
+pub fn albedo(bsdf: &Bsdf) -> Vec3 {
+    bsdf.albedo().clamp(Vec3::ZERO, Vec3::ONE)
 }
 
 pub fn li(kind: Integrator, scene: &Scene, ray: Ray, count: &mut RayCount, first: Option<&mut FirstHit>) -> Vec3 {

@@ -114,6 +114,14 @@ impl Shadows {
     }
 }
 
+/// The lanes of a round: those holding a path, and of those the ones whose first
+/// segment (the camera ray) is being scattered and whose first-hit layers are wanted.
+#[derive(Clone, Copy)]
+struct Lanes {
+    live: u32,
+    fresh: u32,
+}
+
 /// What the wide route needs of a material.
 #[derive(Clone, Copy)]
 struct WideMaterial {
@@ -123,6 +131,8 @@ struct WideMaterial {
     glossy: Option<BlinnPhong>,
     kd: Vec3,
     emissive: bool,
+    /// The albedo layer's value.
+    albedo: Vec3,
 }
 
 impl WideMaterial {
@@ -136,7 +146,8 @@ impl WideMaterial {
                     Bsdf::Glossy { kd, ks, exponent } => (Some(BlinnPhong::new(kd, ks, exponent)), Vec3::ZERO),
                     _ => (None, Vec3::ZERO),
                 };
-                WideMaterial { ok: Self::takes(scene, m), glossy, kd, emissive: m.is_emissive() }
+                let albedo = aov::albedo(&m.bsdf);
+                WideMaterial { ok: Self::takes(scene, m), glossy, kd, emissive: m.is_emissive(), albedo }
             })
             .collect()
     }
@@ -273,11 +284,7 @@ pub(crate) fn render_unit(
         };
         count.rays += u64::from(live.count_ones());
         let hits = queries.intersect(scene, &rays);
-        if layers {
-            for l in each(fresh) {
-                firsts[l] = aov::first_hit(scene, &paths.get(l).ray, hits.get(l));
-            }
-        }
+        let lanes = Lanes { live, fresh: if layers { fresh } else { 0 } };
         fresh = 0;
 
         let mut shadows = Shadows {
@@ -290,7 +297,7 @@ pub(crate) fn render_unit(
             weight: simd.zero(),
             pdf: simd.one(),
         };
-        let go_on = scatter(scene, &materials, &mut paths, &mut samplers, &hits, live, opt, &mut shadows);
+        let go_on = scatter(scene, &materials, &mut paths, &mut samplers, &hits, lanes, opt, &mut shadows, &mut firsts);
 
         // With stochastic opacity a shadow ray walks through the surfaces, one lane
         // alone; samples at the shading point need no ray.
@@ -335,10 +342,16 @@ fn scatter(
     paths: &mut Paths,
     samplers: &mut SamplerLanes,
     hits: &PacketHits,
-    live: u32,
+    lanes: Lanes,
     opt: &Options,
     shadows: &mut Shadows,
+    firsts: &mut [FirstHit; PACKET],
 ) -> u32 {
+    let Lanes { live, fresh } = lanes;
+    // Camera rays that escaped: nothing there.
+    for l in each(fresh & !hits.found) {
+        firsts[l] = FirstHit::default();
+    }
     let g = &scene.geometry;
     let ntri = g.triangle_count();
     let (mut tri, mut sph, mut one, mut go_on) = (0u32, 0u32, 0u32, 0u32);
@@ -367,7 +380,8 @@ fn scatter(
     }
     for l in each(one) {
         let (mut path, mut sampler) = (paths.get(l), samplers.get(l));
-        let (q, go) = path.scatter(scene, hits.get(l), &mut sampler, opt);
+        let first = (fresh & (1 << l) != 0).then(|| &mut firsts[l]);
+        let (q, go) = path.scatter(scene, hits.get(l), &mut sampler, opt, first);
         paths.set(l, &path);
         samplers.set(l, &sampler);
         if let Some(q) = q {
@@ -388,6 +402,7 @@ fn scatter(
             material,
             opt,
             shadows,
+            (fresh, firsts),
         );
     }
     go_on
@@ -412,6 +427,7 @@ fn scatter_wide(
     material: U8,
     opt: &Options,
     shadows: &mut Shadows,
+    (fresh, firsts): (u32, &mut [FirstHit; PACKET]),
 ) -> u32 {
     let (use_nee, use_bsdf_hits) = match opt.strategy {
         Strategy::Mis => (true, true),
@@ -423,6 +439,11 @@ fn scatter_wide(
     let (p, ng, ns) = scene.interaction_wide(paths.origin, paths.dir, hit, tri, sph);
     let wo = -paths.dir;
     let mat = |l: usize| &materials[material.0[l] as usize];
+    // The first-hit layers (as `aov::surface`), from this interaction.
+    for l in each(fresh & lanes.bits()) {
+        let depth = hit.1.0[l] * paths.dir.get(l).length();
+        firsts[l] = FirstHit { albedo: mat(l).albedo, normal: ns.get(l), depth: Some(depth) };
+    }
 
     // One-sided emission: only the front face emits. (Rare: lane by lane.)
     let front = ng.dot(wo).gt(0.0);

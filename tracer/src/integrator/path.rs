@@ -14,7 +14,7 @@
 
 use glam::{Vec2, Vec3};
 
-use super::RayCount;
+use super::{RayCount, aov};
 use crate::accel::Hit;
 use crate::bsdf::Bsdf;
 use crate::film::FirstHit;
@@ -79,10 +79,7 @@ pub fn li(
     loop {
         count.rays += 1;
         let hit = scene.intersect(&path.ray, f32::INFINITY);
-        if let Some(f) = first.take() {
-            *f = super::aov::first_hit(scene, &path.ray, hit);
-        }
-        let (shadow, go_on) = path.scatter(scene, hit, sampler, opt);
+        let (shadow, go_on) = path.scatter(scene, hit, sampler, opt, first.take());
         if let Some(q) = shadow {
             path.add_light(&q, transmittance(scene, &q, count));
         }
@@ -143,7 +140,9 @@ impl PathState {
     /// emission found there, next-event estimation, BSDF sampling and Russian
     /// roulette. Returns the light sample whose shadow ray the caller must answer (by
     /// [`PathState::add_light`], before the next call) and whether the path goes on,
-    /// with [`PathState::ray`] its next segment.
+    /// with [`PathState::ray`] its next segment. With `first` (the camera ray's segment
+    /// of a film that keeps layers), also records what the segment met there, from the
+    /// same surface data the path shades with.
     #[inline(always)]
     // Long on purpose: The path integrator's step as the math reads (emission, NEE, BSDF sampling, roulette); one inlined function keeps the path state in registers (see eight_paths.rs, its twin, step for step).
     pub fn scatter(
@@ -152,6 +151,7 @@ impl PathState {
         hit: Option<Hit>,
         sampler: &mut Sampler,
         opt: &Options,
+        first: Option<&mut FirstHit>,
     ) -> (Option<ShadowQuery>, bool) {
         let (use_nee, use_bsdf_hits) = match opt.strategy {
             Strategy::Mis => (true, true),
@@ -160,6 +160,9 @@ impl PathState {
         };
         let ray = self.ray;
         let Some(hit) = hit else {
+            if let Some(f) = first {
+                *f = FirstHit::default();
+            }
             if let Some(env) = scene.lights.environment() {
                 let prev_p = self.prev_p;
                 let w = emitter_weight(self.depth, self.prev_delta, opt.strategy, self.prev_pdf, || {
@@ -171,10 +174,17 @@ impl PathState {
         };
         let si = scene.interaction(&ray, &hit);
         let material = &scene.materials[si.material as usize];
+        // The first hit's layers, for the paths that end before their BSDF is known.
+        let record_first = |first: Option<&mut FirstHit>| {
+            if let Some(f) = first {
+                *f = aov::surface(&material.bsdf_at(si.uv, &scene.textures), si.ns, hit.t * ray.dir.length());
+            }
+        };
 
         // Stochastic opacity (`d < 1`, `Ni = 1`): pass straight through with probability
         // 1 - d. Not a scattering event, so depth and the MIS state are unchanged.
         if material.opacity < 1.0 && sampler.next_1d() >= material.opacity {
+            record_first(first);
             self.ray.origin = offset_origin(si.p, si.ng, ray.dir);
             return (None, true);
         }
@@ -194,10 +204,14 @@ impl PathState {
 
         self.depth += 1;
         if opt.max_depth >= 0 && self.depth >= opt.max_depth as u32 {
+            record_first(first);
             return (None, false);
         }
 
         let bsdf = material.bsdf_at(si.uv, &scene.textures);
+        if let Some(f) = first {
+            *f = aov::surface(&bsdf, si.ns, hit.t * ray.dir.length());
+        }
         // Reflection-only surfaces are two-sided: shade the side the ray arrives from.
         // Glass keeps its outward normal so it knows whether the ray is inside.
         let two_sided = !matches!(bsdf, Bsdf::Glass { .. });
