@@ -272,10 +272,7 @@ fn write_denoised_exr(
 ) -> Result<(), String> {
     use exr::prelude::*;
     let (w, h) = image.size();
-    attributes.other.insert(
-        Text::from(keys::DENOISER),
-        AttributeValue::Text(Text::from("Intel Open Image Denoise 2, RT filter, HDR, guided by albedo and N")),
-    );
+    attributes.other.insert(Text::from(keys::DENOISER), AttributeValue::Text(Text::from(DENOISER)));
     let channels = layer_channels!(SpecificChannels::build())
         .with_channel("denoised.R")
         .with_channel("denoised.G")
@@ -292,6 +289,39 @@ fn write_denoised_exr(
         Image::from_layer(Layer::new((w as usize, h as usize), attributes, Encoding::SMALL_LOSSLESS, channels));
     exr.attributes.chromaticities = Some(REC709);
     exr.write().to_buffered(out).map_err(|e| e.to_string())
+}
+
+/// What the `tilefarm/denoiser` attribute says made a denoised layer.
+const DENOISER: &str = "Intel Open Image Denoise 2, RT filter, HDR, guided by albedo and N";
+
+/// The EXR file `exr` with `denoised` (its pixels in row order) as the denoised beauty
+/// layer `denoised.R/G/B` beside the raw one, and the denoiser recorded: every other
+/// channel and header attribute as the file had it (for an image made elsewhere, such as
+/// a farm's, and denoised here). A denoised layer the file already had is replaced.
+pub fn add_denoised_layer(exr: &[u8], denoised: &[Vec3]) -> Result<Vec<u8>, String> {
+    use exr::prelude::*;
+    let mut image = read()
+        .no_deep_data()
+        .largest_resolution_level()
+        .all_channels()
+        .first_valid_layer()
+        .all_attributes()
+        .from_buffered(std::io::Cursor::new(exr))
+        .map_err(|e| e.to_string())?;
+    let layer = &mut image.layer_data;
+    if denoised.len() != layer.size.area() {
+        return Err(format!("{} denoised pixels for an image of {}", denoised.len(), layer.size.area()));
+    }
+    let mut list: Vec<_> =
+        layer.channel_data.list.drain(..).filter(|c| !c.name.to_string().starts_with("denoised.")).collect();
+    for (k, name) in ["denoised.R", "denoised.G", "denoised.B"].into_iter().enumerate() {
+        list.push(AnyChannel::new(name, FlatSamples::F32(denoised.iter().map(|p| p[k]).collect())));
+    }
+    layer.channel_data = AnyChannels::sort(list.into_iter().collect());
+    layer.attributes.other.insert(Text::from(keys::DENOISER), AttributeValue::Text(Text::from(DENOISER)));
+    let mut out = std::io::Cursor::new(Vec::new());
+    image.write().to_buffered(&mut out).map_err(|e| e.to_string())?;
+    Ok(out.into_inner())
 }
 
 /// The layer's header attributes: the software, and with `info` what made the image.
@@ -438,6 +468,53 @@ mod tests {
         assert_eq!(read_exr(&path).unwrap(), img, "a denoised layer round-trips beside the raw one");
         write_image(&img, &dir.join("t.png")).unwrap();
         assert!(write_image(&img, &dir.join("t.bmpx")).is_err());
+        std::fs::remove_dir_all(&dir).ok();
+    }
+
+    /// A denoised layer added to a file made elsewhere keeps every channel and header
+    /// attribute of it, and adding one again replaces it.
+    #[test]
+    fn a_denoised_layer_joins_a_file_as_it_was() {
+        let mut img = crate::film::Image::new(4, 3);
+        for (i, p) in img.pixels.iter_mut().enumerate() {
+            *p = Vec3::new(i as f32 * 0.1, 2.5, 1.0 / 7.0);
+        }
+        img.counts = (1..=12).collect();
+        img.layers = (0..12)
+            .map(|i| crate::film::PixelLayers {
+                albedo: Vec3::splat(i as f32 / 12.0),
+                normal: Vec3::Y,
+                depth: i as f32,
+                variance: Vec3::splat(1e-3),
+            })
+            .collect();
+        let cam = crate::camera::Camera::look_at(Vec3::ZERO, Vec3::Z, Vec3::Y, 40.0, 4, 3).unwrap();
+        let info = RenderInfo::of_view(&cam, &crate::scene::RenderSettings::default(), "s.toml", "path");
+        let raw = exr_bytes(&img, Some(&info)).unwrap();
+        let d1: Vec<Vec3> = (0..12).map(|i| Vec3::new(i as f32, 0.5, 0.25)).collect();
+        let d2: Vec<Vec3> = (0..12).map(|i| Vec3::new(0.125, i as f32, 1.0)).collect();
+        let once = add_denoised_layer(&raw, &d1).unwrap();
+        let twice = add_denoised_layer(&once, &d2).unwrap();
+        let dir = std::env::temp_dir().join(format!("tilefarm-adddenoised-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let path = dir.join("t.exr");
+        for (bytes, denoised) in [(&once, &d1), (&twice, &d2)] {
+            std::fs::write(&path, bytes).unwrap();
+            let back = read_exr(&path).unwrap();
+            let expected = crate::film::Image { denoised: denoised.clone(), ..img.clone() };
+            assert_eq!(back, expected);
+            let attrs = |b: &[u8]| {
+                let meta = exr::meta::MetaData::read_from_buffered(std::io::Cursor::new(b), false).unwrap();
+                meta.headers[0].own_attributes.clone()
+            };
+            let (before, after) = (attrs(&raw), attrs(bytes));
+            let key = exr::meta::attribute::Text::from(keys::DENOISER);
+            assert!(after.other.contains_key(&key));
+            let mut without = after.clone();
+            without.other.remove(&key);
+            assert_eq!(without, before, "every other attribute is kept");
+        }
+        assert!(add_denoised_layer(&raw, &d1[..11]).is_err(), "a wrong pixel count is refused");
         std::fs::remove_dir_all(&dir).ok();
     }
 

@@ -95,6 +95,22 @@ pub struct ImageArgs {
     /// No progress bar.
     #[arg(long, short)]
     pub quiet: bool,
+    /// Denoise the image on this machine with Intel Open Image Denoise (a build with
+    /// `--features denoise`): an EXR keeps the farm's raw image and adds denoised.R/G/B;
+    /// a PNG shows the denoised image. The job needs the AOV layers: `submit --denoise`
+    /// asks for them (as --aovs does).
+    #[arg(long)]
+    pub denoise: bool,
+}
+
+impl ImageArgs {
+    /// Refuses --denoise before anything is submitted or fetched where it cannot work.
+    fn check(&self) -> anyhow::Result<()> {
+        if self.denoise {
+            tracer::denoise::check_available().map_err(|e| anyhow::anyhow!("--denoise: {e}"))?;
+        }
+        Ok(())
+    }
 }
 
 #[derive(Args)]
@@ -143,6 +159,19 @@ fn job_name(scene: &std::path::Path) -> String {
     folder.map_or(stem, |f| f.to_string_lossy().into_owned())
 }
 
+/// The job's options with the AOV layers that --denoise needs; refuses --denoise where
+/// it cannot work, before anything is uploaded.
+fn with_layers_for(mut job: JobArgs, image: &ImageArgs, wait: bool) -> anyhow::Result<JobArgs> {
+    image.check()?;
+    anyhow::ensure!(
+        !image.denoise || wait,
+        "--denoise denoises the image that --wait writes; without --wait, submit with --aovs and run \
+         `coordinator fetch JOB --denoise` when it is done"
+    );
+    job.aovs |= image.denoise;
+    Ok(job)
+}
+
 fn runtime() -> anyhow::Result<tokio::runtime::Runtime> {
     tokio::runtime::Builder::new_multi_thread().worker_threads(2).enable_all().build().context("async runtime")
 }
@@ -152,6 +181,7 @@ pub fn submit(args: SubmitArgs) -> anyhow::Result<()> {
         return runtime()?.block_on(submit_frames(args));
     }
     let scene_path = args.scenes[0].clone();
+    let args = SubmitArgs { job: with_layers_for(args.job, &args.image, args.wait)?, ..args };
     runtime()?.block_on(async move {
         if args.wait {
             tracer::output::check_output_paths(&args.image.output, args.image.preview.as_deref())?;
@@ -180,8 +210,7 @@ pub fn submit(args: SubmitArgs) -> anyhow::Result<()> {
                 Watch::Stream(s) => s,
                 Watch::NotFound(m) => anyhow::bail!("{m}"),
             };
-            wait(&mut client, stream, &job, args.image.quiet, &args.image.output, args.image.preview.as_deref())
-                .await?;
+            wait(&mut client, stream, &job, &args.image, &args.image.output, args.image.preview.as_deref()).await?;
         }
         Ok(())
     })
@@ -192,6 +221,7 @@ pub fn submit(args: SubmitArgs) -> anyhow::Result<()> {
 async fn submit_frames(args: SubmitArgs) -> anyhow::Result<()> {
     use crate::commands::frames::{GroupUpload, frame_output, frame_scenes, group_name};
     let frames = frame_scenes(&args.scenes, args.frames)?;
+    let args = SubmitArgs { job: with_layers_for(args.job, &args.image, args.wait)?, ..args };
     if args.wait {
         for (f, _) in &frames {
             tracer::output::check_output_paths(&frame_output(&args.image.output, *f), None)?;
@@ -222,9 +252,7 @@ async fn submit_frames(args: SubmitArgs) -> anyhow::Result<()> {
                 Watch::NotFound(m) => anyhow::bail!("frame {frame}: {m}"),
             };
             let out = frame_output(&args.image.output, *frame);
-            wait(&mut client, stream, job, args.image.quiet, &out, None)
-                .await
-                .with_context(|| format!("frame {frame}"))?;
+            wait(&mut client, stream, job, &args.image, &out, None).await.with_context(|| format!("frame {frame}"))?;
         }
     }
     Ok(())
@@ -242,15 +270,28 @@ fn decode_exr(exr: &[u8], job: &str) -> anyhow::Result<tracer::film::Image> {
     Ok(image?)
 }
 
-/// Writes a fetched image: an EXR as the coordinator made it (header and all), a PNG
-/// tone-mapped from it. Returns the image.
+/// Writes a fetched image: an EXR as the coordinator made it (header and all; with
+/// `denoise`, a denoised layer added), a PNG tone-mapped from it. Returns the image.
 async fn fetch_and_write(
     client: &mut FarmClient,
     job: &str,
     output: &std::path::Path,
+    denoise: bool,
 ) -> anyhow::Result<tracer::film::Image> {
-    let exr = client.fetch_exr(job).await?;
-    let image = decode_exr(&exr, job)?;
+    let mut exr = client.fetch_exr(job).await?;
+    let mut image = decode_exr(&exr, job)?;
+    if denoise {
+        anyhow::ensure!(
+            !image.layers.is_empty(),
+            "--denoise: job {job} was rendered without the AOV layers the denoiser needs (submit it with --aovs \
+             or --denoise)"
+        );
+        let started = std::time::Instant::now();
+        image.denoised = tracer::denoise::denoise(&image).map_err(|e| anyhow::anyhow!("--denoise: {e}"))?;
+        exr = tracer::output::add_denoised_layer(&exr, &image.denoised)
+            .map_err(|e| anyhow::anyhow!("--denoise: adding the denoised layer to job {job}'s EXR: {e}"))?;
+        tracing::info!("denoised in {:.2} s", started.elapsed().as_secs_f64());
+    }
     match tracer::output::Format::of(output)? {
         tracer::output::Format::Exr => {
             std::fs::write(output, &exr).with_context(|| format!("writing {}", output.display()))?
@@ -262,6 +303,7 @@ async fn fetch_and_write(
 
 /// `coordinator fetch`: follows a job to its end and writes its image.
 pub fn fetch(args: FetchArgs) -> anyhow::Result<()> {
+    args.image.check()?;
     tracer::output::check_output_paths(&args.image.output, args.image.preview.as_deref())?;
     runtime()?.block_on(async move {
         let mut client = args.coordinator.connect().await?;
@@ -269,8 +311,11 @@ pub fn fetch(args: FetchArgs) -> anyhow::Result<()> {
         let stream = match client.watch(&args.job).await? {
             Watch::Stream(s) => s,
             Watch::NotFound(m) => {
-                let Ok(image) = fetch_and_write(&mut client, &args.job, &args.image.output).await else {
-                    anyhow::bail!("{m}");
+                let image = match fetch_and_write(&mut client, &args.job, &args.image.output, args.image.denoise).await
+                {
+                    Ok(image) => image,
+                    Err(e) if e.to_string().starts_with("--denoise") => return Err(e),
+                    Err(_) => anyhow::bail!("{m}"),
                 };
                 if let Some(p) = &args.image.preview {
                     tracer::output::write_png(&image, p)?;
@@ -279,7 +324,7 @@ pub fn fetch(args: FetchArgs) -> anyhow::Result<()> {
                 return Ok(());
             }
         };
-        wait(&mut client, stream, &args.job, args.image.quiet, &args.image.output, args.image.preview.as_deref()).await
+        wait(&mut client, stream, &args.job, &args.image, &args.image.output, args.image.preview.as_deref()).await
     })
 }
 
@@ -305,11 +350,11 @@ async fn wait(
     client: &mut FarmClient,
     stream: StatusStream,
     job: &str,
-    quiet: bool,
+    how: &ImageArgs,
     output: &std::path::Path,
     preview: Option<&std::path::Path>,
 ) -> anyhow::Result<()> {
-    let mut bar = JobBar::new(quiet);
+    let mut bar = JobBar::new(how.quiet);
     let followed = follow(&mut RemoteJob { client: &mut *client, job, stream }, &mut bar, preview).await;
     bar.finish();
     let status = match followed? {
@@ -320,7 +365,7 @@ async fn wait(
     };
     match status.state {
         JobState::Done => {
-            let image = fetch_and_write(client, job, output).await?;
+            let image = fetch_and_write(client, job, output, how.denoise).await?;
             if let Some(p) = preview {
                 tracer::output::write_png(&image, p)?;
             }
@@ -330,7 +375,7 @@ async fn wait(
         JobState::Failed => anyhow::bail!("job {job} failed: {}", status.error),
         JobState::Cancelled if status.width > 0 => {
             // What was rendered before the cancel is still worth having.
-            fetch_and_write(client, job, output).await?;
+            fetch_and_write(client, job, output, how.denoise).await?;
             anyhow::bail!(
                 "job {job} was cancelled; wrote the image so far ({:.1}% of its samples; the samples channel \
                  shows each pixel's) to {}",
