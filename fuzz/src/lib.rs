@@ -74,7 +74,7 @@ pub fn wire(data: &[u8]) {
         }
         3 => {
             if let Ok(m) = proto::SubmitJobRequest::decode(bytes) {
-                let _ = proto::wire::submission_from_proto(m.scene, m.assets, m.settings.as_ref());
+                let _ = proto::wire::submission_from_proto(m.scene, m.assets, m.settings.as_ref(), m.group);
             }
         }
         4 => {

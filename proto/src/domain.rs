@@ -44,6 +44,9 @@ pub struct JobSpec {
     pub batch_spp: Option<u32>,
     /// `--spp-map`: each tile's samples per pixel, instead of the same spp for all.
     pub spp_map: Option<SppMap>,
+    /// The job group (an animation) this job is a frame of: the coordinator starts and
+    /// renders a group's frames in submission order. Workers ignore it.
+    pub group: Option<String>,
 }
 
 /// Samples per pixel for each tile of a `width`×`height` image cut into tiles of side
@@ -150,6 +153,7 @@ mod tests {
             tile_size: None,
             batch_spp: None,
             spp_map: None,
+            group: None,
         }
     }
 

@@ -69,6 +69,7 @@ pub fn job_to_proto(j: &JobSpec) -> crate::JobSpec {
         scene: Some((&j.scene).into()),
         assets: j.assets.iter().map(Into::into).collect(),
         settings: Some(settings_to_proto(j)),
+        group: j.group.clone().unwrap_or_default(),
     }
 }
 
@@ -78,7 +79,9 @@ pub fn submission_from_proto(
     scene: Option<crate::AssetRef>,
     assets: Vec<crate::AssetRef>,
     settings: Option<&crate::RenderSettings>,
+    group: String,
 ) -> Result<JobSpec, String> {
+    let group = group_from_proto(group)?;
     let (overrides, integrator) = settings_from_proto(settings).map_err(|e| format!("settings: {e}"))?;
     let scene = asset_from_proto(scene, "scene file")?;
     let assets = assets.into_iter().map(|a| asset_from_proto(Some(a), "asset")).collect::<Result<Vec<_>, _>>()?;
@@ -92,7 +95,24 @@ pub fn submission_from_proto(
             Some(map)
         }
     };
-    Ok(JobSpec { job_id: String::new(), scene, assets, overrides, integrator, tile_size, batch_spp, spp_map })
+    Ok(JobSpec { job_id: String::new(), scene, assets, overrides, integrator, tile_size, batch_spp, spp_map, group })
+}
+
+/// Longest job group name, in characters.
+pub const MAX_GROUP_CHARS: usize = 200;
+
+/// A job group's name from the wire: empty for none; else at most [`MAX_GROUP_CHARS`]
+/// printable characters.
+fn group_from_proto(group: String) -> Result<Option<String>, String> {
+    if group.is_empty() {
+        return Ok(None);
+    }
+    if group.chars().count() > MAX_GROUP_CHARS || group.chars().any(char::is_control) || group.trim() != group {
+        return Err(format!(
+            "group: a name of 1 to {MAX_GROUP_CHARS} printable characters, without spaces at its ends, is needed"
+        ));
+    }
+    Ok(Some(group))
 }
 
 /// A job spec as bytes (its wire encoding), for files that keep it, such as checkpoints.
@@ -103,7 +123,7 @@ pub fn job_to_bytes(j: &JobSpec) -> Vec<u8> {
 /// The inverse of [`job_to_bytes`], checked as a submission is.
 pub fn job_from_bytes(bytes: &[u8]) -> Result<JobSpec, String> {
     let j = crate::JobSpec::decode(bytes).map_err(|e| e.to_string())?;
-    let mut spec = submission_from_proto(j.scene, j.assets, j.settings.as_ref())?;
+    let mut spec = submission_from_proto(j.scene, j.assets, j.settings.as_ref(), j.group)?;
     spec.job_id = j.job_id;
     Ok(spec)
 }
@@ -140,8 +160,8 @@ pub fn job_from_proto(j: crate::JobSpec) -> Result<JobSpec, String> {
     if j.job_id.is_empty() {
         return Err("job id is empty".into());
     }
-    let mut spec =
-        submission_from_proto(j.scene, j.assets, j.settings.as_ref()).map_err(|e| format!("job {}: {e}", j.job_id))?;
+    let mut spec = submission_from_proto(j.scene, j.assets, j.settings.as_ref(), j.group)
+        .map_err(|e| format!("job {}: {e}", j.job_id))?;
     spec.job_id = j.job_id;
     Ok(spec)
 }
@@ -316,6 +336,7 @@ mod tests {
                         tile_spp: vec![8, 16, 24, 32],
                     }),
                 }),
+                group: "shot".into(),
             }),
             unit_id: 7,
             tile,
@@ -384,9 +405,27 @@ mod tests {
         assert_eq!(job_from_bytes(&job_to_bytes(&job)).unwrap(), job);
         assert_eq!(job_from_proto(job_to_proto(&job)).unwrap(), job);
         assert_eq!(job.spp_map.as_ref().map(|m| (m.width, m.height, m.tile_spp.len())), Some((64, 40, 4)));
-        let plain = JobSpec { tile_size: None, batch_spp: None, overrides: Overrides::default(), spp_map: None, ..job };
+        assert_eq!(job.group.as_deref(), Some("shot"));
+        let plain = JobSpec {
+            tile_size: None,
+            batch_spp: None,
+            overrides: Overrides::default(),
+            spp_map: None,
+            group: None,
+            ..job
+        };
         assert_eq!(job_from_bytes(&job_to_bytes(&plain)).unwrap(), plain);
         assert!(job_from_bytes(b"\xff\xff").is_err());
+    }
+
+    /// A group's name is bounded and printable.
+    #[test]
+    fn a_bad_group_name_is_refused() {
+        for bad in [" shot".to_string(), "a\nb".into(), "x".repeat(MAX_GROUP_CHARS + 1)] {
+            let mut j = unit(None, 0, 1).job.unwrap();
+            j.group = bad.clone();
+            assert!(job_from_proto(j).unwrap_err().contains("group"), "{bad:?}");
+        }
     }
 
     /// A map whose tiles do not fit its size is refused before it is used.

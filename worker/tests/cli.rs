@@ -154,6 +154,7 @@ mod fake {
                 tile_size: 8,
                 ..Default::default()
             }),
+            group: String::new(),
         }
     }
 

@@ -115,13 +115,18 @@ impl ImageArgs {
 
 #[derive(Args)]
 pub struct StatusArgs {
+    /// Only this job, or this job group's frames [default: every job].
+    #[arg(value_name = "JOB|GROUP")]
+    pub only: Option<String>,
     #[command(flatten)]
     pub coordinator: FarmAddress,
 }
 
 #[derive(Args)]
 pub struct UpdateArgs {
-    /// The job id that `submit` printed (`status` lists them).
+    /// The job id that `submit` printed (`status` lists them), or a job group's name:
+    /// every frame of it not yet finished.
+    #[arg(value_name = "JOB|GROUP")]
     pub job: String,
     #[command(flatten)]
     pub coordinator: FarmAddress,
@@ -142,7 +147,9 @@ pub struct UpdateArgs {
 
 #[derive(Args)]
 pub struct CancelArgs {
-    /// The job id that `submit` printed (`status` lists them).
+    /// The job id that `submit` printed (`status` lists them), or a job group's name:
+    /// every frame of it not yet finished.
+    #[arg(value_name = "JOB|GROUP")]
     pub job: String,
     #[command(flatten)]
     pub coordinator: FarmAddress,
@@ -233,7 +240,8 @@ async fn submit_frames(args: SubmitArgs) -> anyhow::Result<()> {
     let mut jobs = Vec::with_capacity(frames.len());
     for (frame, scene) in &frames {
         let (scene_ref, assets) = upload.frame(&mut client, scene).await?;
-        let spec = args.job.spec_with_map(scene_ref, assets)?;
+        let mut spec = args.job.spec_with_map(scene_ref, assets)?;
+        spec.group = Some(group.clone());
         let job = client.submit(format!("{group}.{frame:04}"), args.priority, &spec).await?;
         println!("{job}");
         jobs.push((*frame, job));
@@ -391,8 +399,25 @@ async fn wait(
 pub fn status(args: StatusArgs) -> anyhow::Result<()> {
     runtime()?.block_on(async move {
         let mut client = args.coordinator.connect().await?;
-        let jobs = client.jobs().await?;
+        let mut jobs = client.jobs().await?;
         let workers = client.workers().await?;
+        if let Some(only) = &args.only {
+            jobs.retain(|j| &j.job_id == only || &j.group == only);
+            anyhow::ensure!(!jobs.is_empty(), "no job or job group {only} on the farm");
+        }
+        let mut groups: Vec<&str> = Vec::new();
+        for j in jobs.iter().filter(|j| !j.group.is_empty()) {
+            if !groups.contains(&j.group.as_str()) {
+                groups.push(&j.group);
+            }
+        }
+        if !groups.is_empty() {
+            println!("groups:");
+        }
+        for g in groups {
+            let frames: Vec<&JobStatus> = jobs.iter().filter(|j| j.group == g).collect();
+            println!("  {}", crate::commands::progress::group_line(g, &frames));
+        }
         println!("jobs:");
         if jobs.is_empty() {
             println!("  (none)");
@@ -434,17 +459,44 @@ pub fn update(args: UpdateArgs) -> anyhow::Result<()> {
     }
     runtime()?.block_on(async move {
         let mut client = args.coordinator.connect().await?;
-        let s = client.update(&args.job, &change).await?;
-        println!("{}", crate::commands::progress::status_line(&s));
+        let Some(frames) = group_frames(&mut client, &args.job).await? else {
+            let s = client.update(&args.job, &change).await?;
+            println!("{}", crate::commands::progress::status_line(&s));
+            return Ok(());
+        };
+        anyhow::ensure!(
+            change.spp.is_none(),
+            "--spp on a job group: raise its frames' spp one by one, once they run (queued frames have not loaded)"
+        );
+        for f in frames {
+            let s = client.update(&f, &change).await?;
+            println!("{}", crate::commands::progress::status_line(&s));
+        }
         Ok(())
     })
+}
+
+/// The unfinished frames of the job group `name`, last first (so that cancelling them
+/// never lets a queued frame start on the way); None when no job group has that name.
+async fn group_frames(client: &mut FarmClient, name: &str) -> anyhow::Result<Option<Vec<String>>> {
+    let jobs = client.jobs().await?;
+    if jobs.iter().any(|j| j.job_id == name) || !jobs.iter().any(|j| j.group == name) {
+        return Ok(None);
+    }
+    Ok(Some(jobs.into_iter().rev().filter(|j| j.group == name && !j.state.is_final()).map(|j| j.job_id).collect()))
 }
 
 pub fn cancel(args: CancelArgs) -> anyhow::Result<()> {
     runtime()?.block_on(async move {
         let mut client = args.coordinator.connect().await?;
-        let s = client.cancel(&args.job).await?;
-        println!("{} {}", s.job_id, s.state.name());
+        let jobs = match group_frames(&mut client, &args.job).await? {
+            Some(frames) => frames,
+            None => vec![args.job.clone()],
+        };
+        for job in jobs {
+            let s = client.cancel(&job).await?;
+            println!("{} {}", s.job_id, s.state.name());
+        }
         Ok(())
     })
 }

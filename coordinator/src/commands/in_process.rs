@@ -118,6 +118,7 @@ mod tests {
             tile_size: None,
             batch_spp: None,
             spp_map: None,
+            group: None,
         };
         let job = shared.farm().add_job("j".into(), None, spec);
         let executor = FailOnPanic { pool: Panicking, shared: Arc::clone(&shared), job: job.clone() };

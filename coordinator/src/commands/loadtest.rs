@@ -155,6 +155,7 @@ async fn submit_job(jobs: &mut FarmClient, args: &LoadtestArgs) -> anyhow::Resul
         tile_size: Some(args.tile),
         batch_spp: Some(1),
         spp_map: None,
+        group: None,
     };
     let job = jobs.submit("loadtest".into(), 0, &spec).await.context("submitting the job")?;
     Ok((spec, job))
@@ -211,7 +212,7 @@ async fn drive(server: &Server, args: &LoadtestArgs) -> anyhow::Result<()> {
         match s.state {
             JobState::Running | JobState::Done => break,
             JobState::Failed | JobState::Cancelled => anyhow::bail!("the job failed: {}", s.error),
-            JobState::Loading => {}
+            JobState::Queued | JobState::Loading => {}
         }
     }
     drop(watch);
@@ -229,7 +230,7 @@ async fn drive(server: &Server, args: &LoadtestArgs) -> anyhow::Result<()> {
         match s.state {
             JobState::Done => break,
             JobState::Failed | JobState::Cancelled => anyhow::bail!("the job ended early: {}", s.error),
-            JobState::Loading | JobState::Running => {}
+            JobState::Queued | JobState::Loading | JobState::Running => {}
         }
     }
     let secs = start.elapsed().as_secs_f64();

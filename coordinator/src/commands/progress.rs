@@ -166,6 +166,36 @@ pub fn status_line(j: &JobStatus) -> String {
     line
 }
 
+/// One line for a job group (an animation): its frames by state, its samples, and an
+/// estimate of the time left (queued frames are taken to be as large as the loaded ones).
+pub fn group_line(name: &str, frames: &[&JobStatus]) -> String {
+    let count = |s: JobState| frames.iter().filter(|f| f.state == s).count();
+    let states =
+        [JobState::Done, JobState::Running, JobState::Loading, JobState::Queued, JobState::Cancelled, JobState::Failed];
+    let parts: Vec<String> =
+        states.iter().filter(|&&s| count(s) > 0).map(|&s| format!("{} {}", count(s), s.name())).collect();
+    let known: Vec<&&JobStatus> = frames.iter().filter(|f| f.samples_total > 0).collect();
+    let done: u64 = frames.iter().map(|f| f.samples_done).sum();
+    let mut line = format!("group {name}: {} frames ({})", frames.len(), parts.join(", "));
+    if !known.is_empty() {
+        let per_frame = known.iter().map(|f| f.samples_total as f64).sum::<f64>() / known.len() as f64;
+        let total = per_frame
+            * frames.iter().filter(|f| !matches!(f.state, JobState::Cancelled | JobState::Failed)).count() as f64;
+        line +=
+            &format!("  {} / ~{} samples ({:.0}%)", si(done as f64), si(total), 100.0 * done as f64 / total.max(1.0));
+        let rate: f64 = frames.iter().filter(|f| f.state == JobState::Running).map(|f| f.samples_per_s).sum();
+        if rate > 0.0 {
+            let left = (total - done as f64).max(0.0) / rate;
+            line += &format!(
+                "  {}samples/s  ETA ~{}",
+                si_unit(rate),
+                format_duration(Duration::from_secs_f64(left.min(1e9)))
+            );
+        }
+    }
+    line
+}
+
 /// The closing line of a finished job; `earlier` are the samples (and rays) that a
 /// checkpoint already held, which this run's speed must not count.
 pub fn summary(s: &JobStatus, earlier_samples: u64, earlier_rays: u64) -> String {

@@ -146,6 +146,7 @@ impl JobArgs {
             tile_size: Some(self.tile),
             batch_spp: Some(self.batch_spp),
             spp_map: None,
+            group: None,
         }
     }
 

@@ -308,7 +308,9 @@ async fn save_jobs(shared: &Arc<Shared>, root: &Path, saved: &mut HashMap<String
         let farm = shared.farm();
         farm.jobs
             .iter()
-            .filter(|e| e.job.width > 0 && !e.job.is_evicted())
+            // Frames of a group are kept from their submission: a queued frame has no
+            // image yet, but must come back after a restart.
+            .filter(|e| (e.job.width > 0 || e.job.group.is_some()) && !e.job.is_evicted())
             .map(|e| (e, (e.job.units_done, e.job.phase == crate::farm::job::JobPhase::Cancelled)))
             .filter(|(e, now)| saved.get(&e.job.id) != Some(now))
             .map(|(e, now)| (e.job.id.clone(), now, checkpoint::Snapshot::of(&e.spec, &e.job)))
@@ -369,7 +371,10 @@ async fn store_finished(
 fn restore_jobs(shared: &Arc<Shared>, root: &Path) -> anyhow::Result<()> {
     let Ok(entries) = std::fs::read_dir(root) else { return Ok(()) };
     let mut dirs: Vec<PathBuf> = entries.flatten().map(|e| e.path()).filter(|p| p.is_dir()).collect();
-    dirs.sort();
+    // In submission order (job-2 before job-10): a group's frames start in that order,
+    // and it breaks the fair share's ties.
+    let number = |p: &PathBuf| p.file_name()?.to_str()?.strip_prefix("job-")?.parse::<u64>().ok();
+    dirs.sort_by_key(|p| (number(p).unwrap_or(u64::MAX), p.clone()));
     for dir in dirs {
         let snap = match checkpoint::read(&dir) {
             Ok(Some(s)) => s,
@@ -380,11 +385,23 @@ fn restore_jobs(shared: &Arc<Shared>, root: &Path) -> anyhow::Result<()> {
                 continue;
             }
         };
-        // The checkpoint's samples per pixel, not the first submission's.
         let mut spec = snap.spec;
-        spec.overrides.spp = None;
         let (done, total) = (snap.job.units.iter().filter(|u| u.done).count(), snap.job.units.len());
-        let id = submit_job(shared, snap.name, snap.owner, spec, Some(snap.job))
+        // A frame saved before it started has nothing to restore: it starts afresh in its
+        // turn, or not at all if it was cancelled.
+        let restore = match snap.job.width {
+            0 if snap.job.cancelled => {
+                let _ = std::fs::remove_dir_all(&dir);
+                continue;
+            }
+            0 => None,
+            _ => {
+                // The checkpoint's samples per pixel, not the first submission's.
+                spec.overrides.spp = None;
+                Some(snap.job)
+            }
+        };
+        let id = submit_job(shared, snap.name, snap.owner, spec, restore)
             .with_context(|| format!("restoring {}", dir.display()))?;
         tracing::info!(job = %id, done, total, "job restored from its checkpoint");
     }

@@ -103,6 +103,7 @@ impl FarmClient {
             settings: Some(proto::wire::settings_to_proto(spec)),
             name,
             priority,
+            group: spec.group.clone().unwrap_or_default(),
         };
         Ok(self.jobs.submit_job(request).await.map_err(message)?.into_inner().job_id)
     }

@@ -130,6 +130,7 @@ fn exposition(shared: &Shared) -> anyhow::Result<String> {
         for e in &farm.jobs {
             let j = &e.job;
             let state = match &j.phase {
+                JobPhase::Queued => "queued",
                 JobPhase::Loading => "loading",
                 JobPhase::Running if j.share.paused => "paused",
                 JobPhase::Running => "running",

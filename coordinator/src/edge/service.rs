@@ -272,7 +272,7 @@ impl proto::jobs_server::Jobs for JobsService {
         let caller = proto::auth::caller(&req);
         let owner = (caller.role == Role::User).then(|| caller.name.clone());
         let r = req.into_inner();
-        let spec = proto::wire::submission_from_proto(r.scene, r.assets, r.settings.as_ref())
+        let spec = proto::wire::submission_from_proto(r.scene, r.assets, r.settings.as_ref(), r.group)
             .map_err(Status::invalid_argument)?;
         let priority = crate::farm::schedule::priority(r.priority).map_err(Status::invalid_argument)?;
         let job_id = crate::farm::lifecycle::submit_job(&self.0, r.name, owner, spec, None).map_err(error_to_status)?;

@@ -16,6 +16,7 @@ const MAX_NAME_CHARS: usize = 200;
 
 fn state_to_proto(s: JobState) -> proto::JobState {
     match s {
+        JobState::Queued => proto::JobState::Queued,
         JobState::Loading => proto::JobState::Loading,
         JobState::Running => proto::JobState::Running,
         JobState::Done => proto::JobState::Done,
@@ -49,6 +50,7 @@ pub fn status_to_proto(s: JobStatus) -> proto::JobStatus {
         paused: s.paused,
         owner: s.owner,
         submitted_unix_s: s.submitted_unix_s,
+        group: s.group,
     }
 }
 
@@ -56,6 +58,7 @@ pub fn status_to_proto(s: JobStatus) -> proto::JobStatus {
 /// length (they are printed).
 pub fn status_from_proto(s: proto::JobStatus) -> Result<JobStatus, String> {
     let state = match proto::JobState::try_from(s.state) {
+        Ok(proto::JobState::Queued) => JobState::Queued,
         Ok(proto::JobState::Loading) => JobState::Loading,
         Ok(proto::JobState::Running) => JobState::Running,
         Ok(proto::JobState::Done) => JobState::Done,
@@ -88,6 +91,7 @@ pub fn status_from_proto(s: proto::JobStatus) -> Result<JobStatus, String> {
         paused: s.paused,
         owner: s.owner.chars().take(MAX_NAME_CHARS).collect(),
         submitted_unix_s: seconds(s.submitted_unix_s),
+        group: s.group.chars().take(proto::wire::MAX_GROUP_CHARS).collect(),
     })
 }
 
@@ -140,12 +144,20 @@ mod tests {
             paused: true,
             owner: "ana".into(),
             submitted_unix_s: 1.8e9,
+            group: "shot".into(),
         }
     }
 
     #[test]
     fn a_status_round_trips() {
-        for state in [JobState::Loading, JobState::Running, JobState::Done, JobState::Failed, JobState::Cancelled] {
+        for state in [
+            JobState::Queued,
+            JobState::Loading,
+            JobState::Running,
+            JobState::Done,
+            JobState::Failed,
+            JobState::Cancelled,
+        ] {
             let s = status(state);
             assert_eq!(status_from_proto(status_to_proto(s.clone())).unwrap(), s);
         }

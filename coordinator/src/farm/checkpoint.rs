@@ -438,6 +438,7 @@ mod tests {
             tile_size: None,
             batch_spp: None,
             spp_map: None,
+            group: Some("shot".into()),
         };
         Snapshot::of(&spec, &job)
     }
@@ -454,6 +455,19 @@ mod tests {
     }
 
     /// A version-2 file (before layers) still reads: the same bytes less the layers flag.
+    /// A queued frame of a group, saved before it started: nothing rendered, its group
+    /// kept, so that a restarted farm queues it again.
+    #[test]
+    fn a_queued_frame_round_trips() {
+        let mut s = snapshot();
+        let job = Job::loading("job-2".into(), "shot.0002".into());
+        s = Snapshot::of(&s.spec, &job);
+        assert_eq!((s.job.width, s.job.units.len(), s.job.tiles.len()), (0, 0, 0));
+        let back = decode(&encode(&s)).unwrap();
+        assert_eq!(back, s);
+        assert_eq!(back.spec.group.as_deref(), Some("shot"));
+    }
+
     #[test]
     fn version_two_checkpoints_still_read() {
         let s = snapshot();

@@ -22,6 +22,9 @@ pub use crate::farm::unit::{Applied, Rejection, Spare, Unit, UnitId, UnitRecord,
 
 #[derive(Clone, Debug, PartialEq, Eq)]
 pub enum JobPhase {
+    /// A frame of a job group waiting for earlier frames to finish (see
+    /// `Farm::due_frames`); nothing of it is loaded yet.
+    Queued,
     /// The scene is being loaded and checked.
     Loading,
     Running,
@@ -59,6 +62,8 @@ pub struct Job {
     /// The user who submitted the job (None: an admin, or a farm without users); only
     /// they and admins may watch, fetch or cancel it.
     pub owner: Option<String>,
+    /// The job group it is a frame of (its spec's).
+    pub group: Option<String>,
     pub phase: JobPhase,
     pub width: u32,
     pub height: u32,
@@ -193,6 +198,7 @@ impl Job {
             id,
             name,
             owner: None,
+            group: None,
             phase: JobPhase::Loading,
             width: 0,
             height: 0,
@@ -636,7 +642,7 @@ impl Job {
                     Err(Rejection::UnknownUnit(r.unit))
                 };
             }
-            JobPhase::Loading => return Err(Rejection::NotRunning("still loading")),
+            JobPhase::Queued | JobPhase::Loading => return Err(Rejection::NotRunning("still loading")),
             JobPhase::Failed(_) | JobPhase::Cancelled => {
                 return if r.unit < self.units_total() {
                     Ok(Applied::Discarded)

@@ -130,7 +130,7 @@ impl Shared {
 
     /// Merges a unit's result; a result that finishes its job ends the job's render
     /// (its scene leaves memory, the farm's log records it).
-    pub fn submit_result(&self, worker: WorkerId, job: &str, r: &UnitResult) -> Result<Applied, FarmError> {
+    pub fn submit_result(self: &Arc<Self>, worker: WorkerId, job: &str, r: &UnitResult) -> Result<Applied, FarmError> {
         let mut out = self.submit_results(worker, std::iter::once((job, r)))?;
         out.pop().expect("one outcome per result")
     }
@@ -138,12 +138,13 @@ impl Shared {
     /// Merges a worker's results under one lock; one outcome per result, in order. An
     /// unknown worker fails the whole call (it must register again).
     pub fn submit_results<'a>(
-        &self,
+        self: &Arc<Self>,
         worker: WorkerId,
         results: impl IntoIterator<Item = (&'a str, &'a UnitResult)>,
     ) -> Result<Vec<Result<Applied, FarmError>>, FarmError> {
         let mut outcomes = Vec::new();
         let arrived = Instant::now();
+        let mut ended = false;
         {
             let mut farm = self.farm();
             let now = Instant::now();
@@ -159,6 +160,7 @@ impl Shared {
                     Ok((applied, finished)) => {
                         if finished && let Ok(e) = farm.entry_mut(job) {
                             finish(e);
+                            ended = true;
                         }
                         Ok(applied)
                     }
@@ -167,27 +169,36 @@ impl Shared {
             }
         }
         self.changed.notify_one();
+        if ended {
+            start_due_frames(self);
+        }
         Ok(outcomes)
     }
 
-    pub fn cancel(&self, job: &str) -> Result<JobStatus, FarmError> {
-        let mut farm = self.farm();
-        let e = farm.entry_mut(job)?;
-        e.job.cancel();
-        e.scene = None;
-        tracing::info!(job = %job, "job cancelled");
-        farm.status(job, Instant::now())
+    pub fn cancel(self: &Arc<Self>, job: &str) -> Result<JobStatus, FarmError> {
+        let status = {
+            let mut farm = self.farm();
+            let e = farm.entry_mut(job)?;
+            e.job.cancel();
+            e.scene = None;
+            e.pending_restore = None;
+            tracing::info!(job = %job, "job cancelled");
+            farm.status(job, Instant::now())
+        };
+        start_due_frames(self);
+        status
     }
 
     /// Ends a job with `error` (a job event: the farm's log keeps it at info, and the
     /// job's owner gets the error itself, once, from the job's status).
-    pub fn fail(&self, job: &str, error: String) {
+    pub fn fail(self: &Arc<Self>, job: &str, error: String) {
         if let Ok(e) = self.farm().entry_mut(job) {
             tracing::info!(job = %job, "job failed: {error}");
             e.job.fail(error);
             e.scene = None;
         }
         self.changed.notify_one();
+        start_due_frames(self);
     }
 
     /// Stores the image of every finished job not stored yet as `<images>/<job>.exr`
@@ -352,7 +363,7 @@ pub fn submit_job(
     name: String,
     owner: Option<String>,
     spec: JobSpec,
-    restore: Option<Restored>,
+    mut restore: Option<Restored>,
 ) -> Result<String, FarmError> {
     {
         let store = shared.store();
@@ -377,16 +388,55 @@ pub fn submit_job(
     let name = if name.trim().is_empty() { spec.scene.path.clone() } else { name.chars().take(200).collect() };
     let (scene, files) = (spec.scene.path.clone(), spec.assets.len() + 1);
     let who = owner.clone().unwrap_or_else(|| "admin".into());
-    let id = shared.farm().add_job(name.clone(), owner, spec);
+    let queued = {
+        let mut farm = shared.farm();
+        let id = farm.add_job(name.clone(), owner, spec);
+        let e = farm.entry_mut(&id)?;
+        let queued = e.job.phase == JobPhase::Queued;
+        if queued {
+            e.pending_restore = restore.take();
+        }
+        (id, queued)
+    };
+    let (id, queued) = queued;
     tracing::info!(job = %id, name = %name, scene = %scene, files, owner = %who, "job submitted");
+    if queued {
+        start_due_frames(shared);
+    } else {
+        spawn_load(shared, id.clone(), restore);
+    }
+    Ok(id)
+}
+
+/// Loads a job's scene in the background and starts the job (or restores it).
+fn spawn_load(shared: &Arc<Shared>, job: String, restore: Option<Restored>) {
     let shared = Arc::clone(shared);
-    let job = id.clone();
     std::thread::spawn(move || {
         if let Err(err) = load_job(&shared, &job, restore) {
             shared.fail(&job, format!("{err:#}"));
         }
     });
-    Ok(id)
+}
+
+/// Starts loading the queued frames of job groups that may start now
+/// ([`Farm::due_frames`]). Called whenever a job ends or a frame is submitted.
+///
+/// [`Farm::due_frames`]: super::state::Farm::due_frames
+pub fn start_due_frames(shared: &Arc<Shared>) {
+    let due: Vec<(String, Option<Restored>)> = {
+        let mut farm = shared.farm();
+        let ids = farm.due_frames();
+        ids.into_iter()
+            .map(|id| {
+                let restore = farm.entry_mut(&id).ok().and_then(|e| e.pending_restore.take());
+                (id, restore)
+            })
+            .collect()
+    };
+    for (job, restore) in due {
+        tracing::info!(job = %job, "frame starts: earlier frames of its group are done or rendering");
+        spawn_load(shared, job, restore);
+    }
 }
 
 /// Where a job's scene file lies in the store's folder for the job. `fresh` lays the

@@ -5,6 +5,8 @@ use super::job::{Job, JobPhase};
 
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum JobState {
+    /// A frame waiting for earlier frames of its group.
+    Queued,
     Loading,
     Running,
     Done,
@@ -20,6 +22,7 @@ impl JobState {
 
     pub fn name(self) -> &'static str {
         match self {
+            JobState::Queued => "queued",
             JobState::Loading => "loading",
             JobState::Running => "running",
             JobState::Done => "done",
@@ -67,10 +70,13 @@ pub struct JobStatus {
     pub owner: String,
     /// When it was submitted, in seconds since the Unix epoch.
     pub submitted_unix_s: f64,
+    /// The job group (an animation) it is a frame of; empty: none.
+    pub group: String,
 }
 
 pub fn status_of(j: &Job, workers: usize) -> JobStatus {
     let (state, error) = match &j.phase {
+        JobPhase::Queued => (JobState::Queued, String::new()),
         JobPhase::Loading => (JobState::Loading, String::new()),
         JobPhase::Running => (JobState::Running, String::new()),
         JobPhase::Done => (JobState::Done, String::new()),
@@ -101,5 +107,6 @@ pub fn status_of(j: &Job, workers: usize) -> JobStatus {
         paused: j.share.paused,
         owner: j.owner.clone().unwrap_or_default(),
         submitted_unix_s: j.submitted_at.duration_since(std::time::UNIX_EPOCH).map_or(0.0, |d| d.as_secs_f64()),
+        group: j.group.clone().unwrap_or_default(),
     }
 }

@@ -112,6 +112,7 @@ fn jobs_are_laid_out_and_bad_paths_refused() {
         tile_size: None,
         batch_spp: None,
         spp_map: None,
+        group: None,
     };
     let scene_path = cache.lay_out_job(&job).unwrap();
     assert_eq!(scene_path, root.join("jobs/job1/scene.toml"));
@@ -159,6 +160,7 @@ fn a_job_loads_with_its_overrides_and_a_broken_scene_names_its_file() {
         tile_size: None,
         batch_spp: None,
         spp_map: None,
+        group: None,
     };
     let loaded = load_job(&cache, &job).unwrap();
     assert_eq!((loaded.scene.camera.width, loaded.scene.camera.height), (32, 16));
@@ -194,6 +196,7 @@ fn a_scene_loads_prepared_the_second_time_and_a_damaged_entry_is_rebuilt() {
         tile_size: None,
         batch_spp: None,
         spp_map: None,
+        group: None,
     };
     let entry = || {
         let dir = root.join("prepared");
@@ -247,6 +250,7 @@ fn the_scene_cache_keeps_the_most_recent() {
         tile_size: None,
         batch_spp: None,
         spp_map: None,
+        group: None,
     };
     let mk = |id: &str| {
         Arc::new(LoadedJob {

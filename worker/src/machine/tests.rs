@@ -22,6 +22,7 @@ fn spec(id: &str) -> Arc<JobSpec> {
         tile_size: None,
         batch_spp: None,
         spp_map: None,
+        group: None,
     })
 }
 
