@@ -405,6 +405,9 @@ pub fn status(args: StatusArgs) -> anyhow::Result<()> {
             jobs.retain(|j| &j.job_id == only || &j.group == only);
             anyhow::ensure!(!jobs.is_empty(), "no job or job group {only} on the farm");
         }
+        // Written at once, and a reader that stops early (`status | head`) is no error.
+        use std::fmt::Write as _;
+        let mut out = String::new();
         let mut groups: Vec<&str> = Vec::new();
         for j in jobs.iter().filter(|j| !j.group.is_empty()) {
             if !groups.contains(&j.group.as_str()) {
@@ -412,25 +415,26 @@ pub fn status(args: StatusArgs) -> anyhow::Result<()> {
             }
         }
         if !groups.is_empty() {
-            println!("groups:");
+            writeln!(out, "groups:")?;
         }
         for g in groups {
             let frames: Vec<&JobStatus> = jobs.iter().filter(|j| j.group == g).collect();
-            println!("  {}", crate::commands::progress::group_line(g, &frames));
+            writeln!(out, "  {}", crate::commands::progress::group_line(g, &frames))?;
         }
-        println!("jobs:");
+        writeln!(out, "jobs:")?;
         if jobs.is_empty() {
-            println!("  (none)");
+            writeln!(out, "  (none)")?;
         }
         for j in jobs {
-            println!("  {}", crate::commands::progress::status_line(&j));
+            writeln!(out, "  {}", crate::commands::progress::status_line(&j))?;
             for w in &j.warnings {
-                println!("      ! {w}");
+                writeln!(out, "      ! {w}")?;
             }
         }
-        println!("workers:");
+        writeln!(out, "workers:")?;
         for w in workers {
-            println!(
+            writeln!(
+                out,
                 "  {:<4} {:<20} {:>3} threads  {:>3} held  {:>6} done  seen {:.1}s ago{}",
                 w.id,
                 w.hostname,
@@ -439,10 +443,23 @@ pub fn status(args: StatusArgs) -> anyhow::Result<()> {
                 w.units_done,
                 w.last_seen_s,
                 if w.quarantined { "  QUARANTINED (returned a wrong result)" } else { "" }
-            );
+            )?;
         }
-        Ok(())
+        print_all(&out)
     })
+}
+
+/// Writes `text` to standard output; a reader that has gone (a closed pipe) ends it
+/// quietly.
+fn print_all(text: &str) -> anyhow::Result<()> {
+    use std::io::Write;
+    let mut stdout = std::io::stdout().lock();
+    match stdout.write_all(text.as_bytes()).and_then(|()| stdout.flush()) {
+        Err(e) if e.kind() != std::io::ErrorKind::BrokenPipe => {
+            Err(anyhow::Error::from(e).context("writing the status"))
+        }
+        _ => Ok(()),
+    }
 }
 
 pub fn update(args: UpdateArgs) -> anyhow::Result<()> {

@@ -174,13 +174,15 @@ pub fn group_line(name: &str, frames: &[&JobStatus]) -> String {
         [JobState::Done, JobState::Running, JobState::Loading, JobState::Queued, JobState::Cancelled, JobState::Failed];
     let parts: Vec<String> =
         states.iter().filter(|&&s| count(s) > 0).map(|&s| format!("{} {}", count(s), s.name())).collect();
-    let known: Vec<&&JobStatus> = frames.iter().filter(|f| f.samples_total > 0).collect();
-    let done: u64 = frames.iter().map(|f| f.samples_done).sum();
+    // Cancelled and failed frames will render no more: not counted.
+    let live: Vec<&&JobStatus> =
+        frames.iter().filter(|f| !matches!(f.state, JobState::Cancelled | JobState::Failed)).collect();
+    let known: Vec<&&&JobStatus> = live.iter().filter(|f| f.samples_total > 0).collect();
+    let done: u64 = live.iter().map(|f| f.samples_done).sum();
     let mut line = format!("group {name}: {} frames ({})", frames.len(), parts.join(", "));
     if !known.is_empty() {
         let per_frame = known.iter().map(|f| f.samples_total as f64).sum::<f64>() / known.len() as f64;
-        let total = per_frame
-            * frames.iter().filter(|f| !matches!(f.state, JobState::Cancelled | JobState::Failed)).count() as f64;
+        let total = per_frame * live.len() as f64;
         line +=
             &format!("  {} / ~{} samples ({:.0}%)", si(done as f64), si(total), 100.0 * done as f64 / total.max(1.0));
         let rate: f64 = frames.iter().filter(|f| f.state == JobState::Running).map(|f| f.samples_per_s).sum();
@@ -225,6 +227,52 @@ mod tests {
         assert_eq!(si(3.41e9), "3.41 G");
         assert_eq!(format_duration(Duration::from_secs(75)), "1:15");
         assert_eq!(format_duration(Duration::from_secs(3725)), "1:02:05");
+    }
+
+    /// A group's line: frames by state; samples and the time left counted over the frames
+    /// that will still render, queued ones taken as large as the loaded ones.
+    #[test]
+    fn a_group_line_counts_what_is_left() {
+        let frame = |state, done, total, rate| JobStatus {
+            job_id: String::new(),
+            state,
+            error: String::new(),
+            units_done: 0,
+            units_total: 0,
+            samples_done: done,
+            samples_total: total,
+            workers: 1,
+            width: 0,
+            height: 0,
+            scene: String::new(),
+            elapsed_s: 0.0,
+            load_s: 0.0,
+            render_s: 0.0,
+            rays: 0,
+            samples_per_s: rate,
+            warnings: vec![],
+            units_checked: 0,
+            units_discarded: 0,
+            priority: 50,
+            paused: false,
+            owner: String::new(),
+            submitted_unix_s: 0.0,
+            group: "g".into(),
+        };
+        let frames = [
+            frame(JobState::Done, 1000, 1000, 0.0),
+            frame(JobState::Running, 500, 1000, 10.0),
+            frame(JobState::Queued, 0, 0, 0.0),
+            frame(JobState::Cancelled, 200, 1000, 0.0),
+        ];
+        let line = group_line("g", &frames.iter().collect::<Vec<_>>());
+        assert_eq!(
+            line,
+            "group g: 4 frames (1 done, 1 running, 1 queued, 1 cancelled)  1.50 k / ~3.00 k samples (50%)  \
+             10.0 samples/s  ETA ~2:30"
+        );
+        let cancelled = [frame(JobState::Cancelled, 200, 1000, 0.0)];
+        assert_eq!(group_line("g", &cancelled.iter().collect::<Vec<_>>()), "group g: 1 frames (1 cancelled)");
     }
 
     /// A job followed from the middle: the samples it had before count for nothing.
