@@ -317,7 +317,41 @@ def headless_and_add_on(coordinator, work, spp):
         if not loaded:
             raise SystemExit("the render operator did not open the farm's image")
         checks["farm"] = "same bits as a local render"
+        checks.update(progress_and_cancel(coordinator, work, scene))
     return checks
+
+
+def progress_and_cancel(coordinator, work, scene):
+    """The add-on's submission as its modal operator drives it (polled every half second
+    for the status bar's text) on a long render: the percent passes through values
+    between 0 and 100, and Esc's cancel cancels the job on the farm."""
+    from tilefarm_blender import farm
+
+    spp = scene.cycles.samples
+    cycles_settings(scene, 1 << 16, seed=1)
+    folder = os.path.join(work, "long")
+    export_scene(folder, scene)
+    cycles_settings(scene, spp, seed=1)  # the scene as the later checks expect it
+    url = os.environ["TILEFARM_COORDINATOR"]
+    sub = farm.Submission(coordinator, url, os.environ.get("TILEFARM_TOKEN", ""),
+                          os.path.join(folder, "scene.toml"), os.path.join(work, "long.exr"), "progress")
+    seen, text, start = set(), "", time.monotonic()
+    while len(seen) < 2 and time.monotonic() - start < 120:
+        time.sleep(0.5)
+        code = sub.poll()
+        if code is not None:
+            raise SystemExit(f"the long render ended early ({code}): {sub.error()}")
+        if 0 < sub.percent < 100:
+            seen.add(sub.percent)
+            text = sub.status_text(time.monotonic() - start)
+    if len(seen) < 2:
+        raise SystemExit(f"the status bar's percent did not move: {sorted(seen)}; heard {sub.lines[-5:]}")
+    sub.cancel()
+    status = subprocess.run([coordinator, "status", sub.job], capture_output=True, text=True, timeout=60,
+                            env=dict(os.environ, TILEFARM_COORDINATOR=url))
+    if sub.proc.poll() is None or " cancelled " not in status.stdout:
+        raise SystemExit(f"cancelling did not cancel {sub.job} on the farm:\n{status.stdout}{status.stderr}")
+    return {"status_bar": text, "percents_seen": sorted(seen), "cancelled_on_the_farm": sub.job}
 
 
 def installed_extension(work):

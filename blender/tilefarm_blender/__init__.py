@@ -138,7 +138,7 @@ class TILEFARM_OT_render(bpy.types.Operator):
         code = self._job.poll()
         if code is None:
             elapsed = time.monotonic() - self._started
-            context.workspace.status_text_set(f"tilefarm: {self._job.percent:.0f}% after {elapsed:.0f} s (Esc cancels)")
+            context.workspace.status_text_set(self._job.status_text(elapsed))
             return {"RUNNING_MODAL"}
         context.window_manager.event_timer_remove(self._timer)
         context.workspace.status_text_set(None)

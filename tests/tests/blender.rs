@@ -3,7 +3,8 @@
 //! TILEFARM_BPY_PYTHON; without one that can `import bpy`, the test says SKIPPED).
 //! `blender/tests/compare_cycles.py` builds the scenes in `bpy`, exports them, renders
 //! them with tilefarm and Cycles and compares them; here it also gets a farm (a
-//! coordinator and a worker), for the add-on's render operator.
+//! coordinator and a worker), for the add-on's render operator and its progress and
+//! cancel as the status bar uses them.
 
 use std::path::Path;
 use std::process::Command;
@@ -56,6 +57,7 @@ fn blender_scenes_export_and_render_like_cycles() {
         String::from_utf8_lossy(&out.stderr)
     );
     assert!(figures.contains("\"farm\": \"same bits as a local render\""), "the farm check ran: {figures}");
+    assert!(figures.contains("\"cancelled_on_the_farm\""), "the progress and cancel check ran: {figures}");
     assert!(figures.contains("\"extension\": \"bl_ext.user_default.tilefarm\""), "the extension installed: {figures}");
 }
 

@@ -13,17 +13,44 @@ pub struct JobBar {
     rate: Rate,
     /// The job's scene warnings have been printed.
     warned: bool,
+    /// Where standard error is not a terminal (a log, a pipe read by another program such
+    /// as the Blender add-on), the bar cannot draw: progress goes there as plain lines.
+    lines: Option<Lines>,
+}
+
+/// The plain progress lines' pace: one when the whole percent changes, at most one a
+/// second (a long job writes at most about a hundred).
+#[derive(Default)]
+struct Lines {
+    last: Option<(Instant, u64)>,
+}
+
+impl Lines {
+    const EVERY: Duration = Duration::from_secs(1);
+
+    fn due(&mut self, now: Instant, percent: u64) -> bool {
+        let due = match self.last {
+            None => true,
+            Some((at, p)) => p != percent && now.duration_since(at) >= Self::EVERY,
+        };
+        if due {
+            self.last = Some((now, percent));
+        }
+        due
+    }
 }
 
 impl JobBar {
     pub fn new(quiet: bool) -> Self {
+        use std::io::IsTerminal;
         let bar = if quiet { ProgressBar::hidden() } else { ProgressBar::new(1) };
         bar.set_style(
             ProgressStyle::with_template("{spinner} [{elapsed_precise}] {wide_bar} {percent:>3}% {msg}")
                 .expect("static template"),
         );
         bar.enable_steady_tick(Duration::from_millis(250));
-        Self { bar, rate: Rate::default(), warned: false }
+        let lines = (!quiet && !std::io::stderr().is_terminal()).then(Lines::default);
+        Self { bar, rate: Rate::default(), warned: false, lines }
     }
 
     pub fn update(&mut self, s: &JobStatus) {
@@ -45,7 +72,7 @@ impl JobBar {
             }
             _ => "?".into(),
         };
-        self.bar.set_message(format!(
+        let message = format!(
             "{} / {} samples · {} · ETA {eta} · units {}/{} · {} worker{}",
             si(s.samples_done as f64),
             si(s.samples_total as f64),
@@ -54,7 +81,16 @@ impl JobBar {
             s.units_total,
             s.workers,
             if s.workers == 1 { "" } else { "s" }
-        ));
+        );
+        if let Some(lines) = &mut self.lines
+            && s.samples_total > 0
+        {
+            let percent = s.samples_done * 100 / s.samples_total;
+            if lines.due(now, percent) {
+                eprintln!("progress: {percent}% · {message}");
+            }
+        }
+        self.bar.set_message(message);
     }
 
     /// A warning printed above the bar (which is redrawn below it).
@@ -273,6 +309,21 @@ mod tests {
         );
         let cancelled = [frame(JobState::Cancelled, 200, 1000, 0.0)];
         assert_eq!(group_line("g", &cancelled.iter().collect::<Vec<_>>()), "group g: 1 frames (1 cancelled)");
+    }
+
+    /// Plain progress lines: the first at once, then one per whole-percent change at
+    /// most every second.
+    #[test]
+    fn plain_progress_lines_are_paced() {
+        let mut l = Lines::default();
+        let t = Instant::now();
+        let s = Duration::from_millis;
+        assert!(l.due(t, 0));
+        assert!(!l.due(t + s(1500), 0), "no change");
+        assert!(!l.due(t + s(1600) - s(700), 3), "too soon");
+        assert!(l.due(t + s(1600), 3));
+        assert!(!l.due(t + s(2000), 4));
+        assert!(l.due(t + s(2700), 100));
     }
 
     /// A job followed from the middle: the samples it had before count for nothing.
