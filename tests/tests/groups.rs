@@ -10,7 +10,7 @@ use std::time::Duration;
 use tilefarm_e2e::{Coordinator, TempDir, bin, eventually, free_port, list_jobs, run, scenes};
 
 const LIMIT: Duration = Duration::from_secs(180);
-/// `farm::state::FRAMES_IN_FLIGHT`.
+/// `farm::groups::FRAMES_IN_FLIGHT`.
 const IN_FLIGHT: usize = 3;
 
 /// Frames `1..=n` of the Cornell box as `DIR/NAME.####.toml`, each with its own seed.

@@ -1,11 +1,12 @@
 //! The farm's state: jobs ([`job`]) and their units ([`unit`]), lease deadlines ([`leases`]),
-//! the unit order ([`schedule`]), registered workers and the jobs in submission order
+//! the unit order ([`schedule`]), job groups' frame order ([`groups`]), registered workers and the jobs in submission order
 //! ([`state`]), checkpoints ([`checkpoint`]), the content-addressed asset store
 //! ([`assets`]), what a job's status says ([`status`]), and the job lifecycle
 //! ([`lifecycle`]) that ties them together, and what it counts for metrics ([`meters`]). No wire types: the edge maps them.
 
 pub mod assets;
 pub mod checkpoint;
+pub mod groups;
 pub mod ids;
 pub mod job;
 pub mod leases;

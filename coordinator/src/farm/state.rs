@@ -129,16 +129,6 @@ pub struct JobChange {
     pub spp: Option<u32>,
 }
 
-/// Most frames of one job group loading or running at once ([`Farm::due_frames`]).
-pub const FRAMES_IN_FLIGHT: usize = 3;
-
-/// A job group: its owner's, by name (two users' groups of one name are two groups).
-type GroupKey = (Option<String>, String);
-
-fn group_key(j: &Job) -> Option<GroupKey> {
-    Some((j.owner.clone(), j.group.clone()?))
-}
-
 /// Most live registrations one identity (a worker certificate, a token) may hold.
 pub const MAX_REGISTRATIONS_PER_IDENTITY: usize = 1024;
 
@@ -330,35 +320,10 @@ impl Farm {
         Ok(())
     }
 
-    /// The queued frames of job groups that may start now, marked as loading: a group's
-    /// frames start in submission order, at most [`FRAMES_IN_FLIGHT`] loading or
-    /// running at once. So a group's memory stays that of a few images, and the next
-    /// frame is ready to take workers when the one before has no units left to give.
+    /// The queued frames of job groups that may start now, marked as loading
+    /// ([`super::groups::due_frames`]).
     pub fn due_frames(&mut self) -> Vec<String> {
-        use super::job::JobPhase;
-        let mut in_flight: HashMap<GroupKey, usize> = HashMap::new();
-        for e in &self.jobs {
-            if let (Some(g), JobPhase::Loading | JobPhase::Running) = (group_key(&e.job), &e.job.phase) {
-                *in_flight.entry(g).or_default() += 1;
-            }
-        }
-        let mut due = Vec::new();
-        for e in &mut self.jobs {
-            let Some(g) = group_key(&e.job) else { continue };
-            if e.job.phase != JobPhase::Queued {
-                continue;
-            }
-            let n = in_flight.entry(g).or_default();
-            if *n < FRAMES_IN_FLIGHT {
-                *n += 1;
-                e.job.phase = JobPhase::Loading;
-                due.push(e.job.id.clone());
-            } else {
-                // Later frames wait behind this one.
-                *n = usize::MAX;
-            }
-        }
-        due
+        super::groups::due_frames(self.jobs.iter_mut().map(|e| &mut e.job))
     }
 
     /// Job ids up to `n` are taken (by finished jobs whose images are stored).
@@ -427,17 +392,10 @@ impl Farm {
     }
 
     /// Which jobs may be given a unit now: those running and not paused, with units left
-    /// (not `dry`); of a job group's, only the first in submission order, so that a
-    /// group's frames render one after another and the next fills the workers only once
-    /// the one before has no unit left to give.
+    /// (not `dry`), and of a job group's only the first ([`super::groups::first_frames`]).
     fn eligible(&self, dry: &[bool]) -> Vec<bool> {
-        let mut served_groups = std::collections::HashSet::new();
-        let running =
-            |k: usize, e: &JobEntry| !dry[k] && e.job.phase == super::job::JobPhase::Running && !e.job.share.paused;
-        let first_of_group = |e: &JobEntry, seen: &mut std::collections::HashSet<GroupKey>| {
-            group_key(&e.job).is_none_or(|g| seen.insert(g))
-        };
-        self.jobs.iter().enumerate().map(|(k, e)| running(k, e) && first_of_group(e, &mut served_groups)).collect()
+        let running = |k: usize, j: &Job| !dry[k] && j.phase == super::job::JobPhase::Running && !j.share.paused;
+        super::groups::first_frames(self.jobs.iter().enumerate().map(|(k, e)| (&e.job, running(k, &e.job))))
     }
 
     /// Jobs still loading (their scenes being checked), oldest first, at most `max`:
@@ -617,10 +575,11 @@ fn first_worker_id() -> WorkerId {
 }
 
 #[cfg(test)]
-mod tests {
+pub(super) mod tests {
     use super::*;
 
-    fn spec() -> JobSpec {
+    /// A job of a scene in the store, as submitted.
+    pub(in crate::farm) fn spec() -> JobSpec {
         let scene = proto::domain::AssetRef { path: "scene.toml".into(), sha256: "ab".repeat(32), size: 10 };
         JobSpec {
             job_id: String::new(),
@@ -633,38 +592,6 @@ mod tests {
             spp_map: None,
             group: None,
         }
-    }
-
-    /// A job group's frames start in order, at most `FRAMES_IN_FLIGHT` at once, and take
-    /// units one frame after another; other jobs (and another user's group of the same
-    /// name) keep their fair share beside them.
-    #[test]
-    fn a_groups_frames_start_and_render_in_order_a_few_at_a_time() {
-        use super::super::job::JobPhase;
-        let mut f = Farm::new(FarmConfig::default());
-        let now = Instant::now();
-        let w = f.register("h".into(), 2, now);
-        let frame = |group: &str| JobSpec { group: Some(group.into()), ..spec() };
-        let alone = f.add_job("alone".into(), None, spec());
-        let frames: Vec<String> = (1..=5).map(|i| f.add_job(format!("shot.{i:04}"), None, frame("shot"))).collect();
-        let bobs = f.add_job("shot.0001".into(), Some("bob".into()), frame("shot"));
-        assert!(frames.iter().all(|id| f.entry(id).unwrap().job.phase == JobPhase::Queued));
-        assert_eq!(f.entry(&alone).unwrap().job.phase, JobPhase::Loading, "a job alone loads at once");
-        let due = f.due_frames();
-        assert_eq!(due, [&frames[..FRAMES_IN_FLIGHT], std::slice::from_ref(&bobs)].concat());
-        assert!(f.due_frames().is_empty(), "three of the group in flight");
-        // 4 tiles × 2 batches: 8 units a frame.
-        for id in due.iter().chain([&alone]) {
-            f.entry_mut(id).unwrap().job.start(16, 16, 4, 8, 2, true);
-        }
-        let order: Vec<String> = f.lease(w, 30, now).unwrap().into_iter().map(|l| l.spec.job_id.clone()).collect();
-        let ours: Vec<usize> = order.iter().filter_map(|id| frames.iter().position(|f| f == id)).collect();
-        assert_eq!(ours, [vec![0; 8], vec![1; 6]].concat(), "frame 1's units all before frame 2's: {order:?}");
-        let count = |id: &String| order.iter().filter(|o| *o == id).count();
-        assert_eq!((count(&alone), count(&bobs)), (8, 8), "the others' shares, beside the group's: {order:?}");
-        // A frame ends: the next queued one starts.
-        f.entry_mut(&frames[0]).unwrap().job.cancel();
-        assert_eq!(f.due_frames(), [frames[3].clone()]);
     }
 
     #[test]
