@@ -1,13 +1,15 @@
 //! Job groups (animations) on a real farm: `submit PATTERN --frames A-B` makes one group
 //! of frames. Frames start in order, a few at a time, the rest queued; `status`,
-//! `cancel` and `update` take the group's name; a killed and restarted coordinator
+//! `fetch`, `cancel` and `update` take the group's name; a killed and restarted coordinator
 //! brings every frame back from its checkpoints, the queued ones too, and finishes them.
 
 use std::path::{Path, PathBuf};
 use std::process::Command;
 use std::time::Duration;
 
-use tilefarm_e2e::{Coordinator, TempDir, bin, eventually, free_port, list_jobs, run, scenes};
+use tilefarm_e2e::{
+    Coordinator, TempDir, assert_same_bits, bin, eventually, free_port, list_jobs, read_exr, run, scenes,
+};
 
 const LIMIT: Duration = Duration::from_secs(180);
 /// `farm::groups::FRAMES_IN_FLIGHT`.
@@ -88,6 +90,15 @@ fn a_job_group_renders_in_order_is_cancelled_by_name_and_survives_a_restart() {
     let text = String::from_utf8_lossy(&status.stdout);
     assert!(text.contains("group walk: 6 frames") && text.contains("queued"), "{text}");
     eventually("the group renders", LIMIT, || all_done(&url, "walk", 6));
+    // `fetch NAME` writes every frame, numbered; the same bits as fetching the frame alone.
+    let out = coordinator(&url, &["fetch", "walk", "-q", "-o", dir.path("walk.####.exr").to_str().unwrap()]);
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    let third = &group(&url, "walk")[2].job_id;
+    let out = coordinator(&url, &["fetch", third, "-q", "-o", dir.path("third.exr").to_str().unwrap()]);
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    assert!((1..=6).all(|n| dir.path(&format!("walk.{n:04}.exr")).is_file()));
+    assert_same_bits(&read_exr(&dir.path("walk.0003.exr")), &read_exr(&dir.path("third.exr")), "frame 3");
+    assert_ne!(read_exr(&dir.path("walk.0001.exr")).pixels, read_exr(&dir.path("walk.0002.exr")).pixels);
 
     // 2. A group cancelled by its name: every frame not yet done ends, none starts after.
     let pattern = frames(&dir.0, "pan", 6);

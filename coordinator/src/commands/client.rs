@@ -75,7 +75,10 @@ pub struct SubmitArgs {
 
 #[derive(Args)]
 pub struct FetchArgs {
-    /// The job id that `submit` printed (`status` lists them).
+    /// The job id that `submit` printed (`status` lists them), or a job group's name:
+    /// each of its frames in order, to the output with the frame number in place of its
+    /// `####` (or before its extension).
+    #[arg(value_name = "JOB|GROUP")]
     pub job: String,
     #[command(flatten)]
     pub coordinator: FarmAddress,
@@ -315,25 +318,52 @@ pub fn fetch(args: FetchArgs) -> anyhow::Result<()> {
     tracer::output::check_output_paths(&args.image.output, args.image.preview.as_deref())?;
     runtime()?.block_on(async move {
         let mut client = args.coordinator.connect().await?;
-        // A job that finished long ago is no longer listed, but its image is stored.
-        let stream = match client.watch(&args.job).await? {
-            Watch::Stream(s) => s,
-            Watch::NotFound(m) => {
-                let image = match fetch_and_write(&mut client, &args.job, &args.image.output, args.image.denoise).await
-                {
-                    Ok(image) => image,
-                    Err(e) if e.to_string().starts_with("--denoise") => return Err(e),
-                    Err(_) => anyhow::bail!("{m}"),
-                };
-                if let Some(p) = &args.image.preview {
-                    tracer::output::write_png(&image, p)?;
-                }
-                println!("{} finished earlier; wrote {}", args.job, args.image.output.display());
-                return Ok(());
-            }
+        let Some(frames) = group_members(&mut client, &args.job).await? else {
+            let preview = args.image.preview.as_deref();
+            return follow_and_write(&mut client, &args.job, &args.image, &args.image.output, preview).await;
         };
-        wait(&mut client, stream, &args.job, &args.image, &args.image.output, args.image.preview.as_deref()).await
+        // A group: each frame in order, to the output with its frame number.
+        for (n, job) in frames.iter().map(|j| (frame_number(j), &j.job_id)) {
+            let out = crate::commands::frames::frame_output(&args.image.output, n);
+            tracer::output::check_output_paths(&out, None)?;
+            follow_and_write(&mut client, job, &args.image, &out, None)
+                .await
+                .with_context(|| format!("frame {n} ({job})"))?;
+        }
+        Ok(())
     })
+}
+
+/// Follows `job` to its end and writes its image; a job that finished long ago (no
+/// longer listed, its image stored) is written at once.
+async fn follow_and_write(
+    client: &mut FarmClient,
+    job: &str,
+    how: &ImageArgs,
+    output: &std::path::Path,
+    preview: Option<&std::path::Path>,
+) -> anyhow::Result<()> {
+    let stream = match client.watch(job).await? {
+        Watch::Stream(s) => s,
+        Watch::NotFound(m) => {
+            let image = match fetch_and_write(client, job, output, how.denoise).await {
+                Ok(image) => image,
+                Err(e) if e.to_string().starts_with("--denoise") => return Err(e),
+                Err(_) => anyhow::bail!("{m}"),
+            };
+            if let Some(p) = preview {
+                tracer::output::write_png(&image, p)?;
+            }
+            println!("{job} finished earlier; wrote {}", output.display());
+            return Ok(());
+        }
+    };
+    wait(client, stream, job, how, output, preview).await
+}
+
+/// A frame's number: its job's name ends in it (`shot.0007`, as `submit` names frames).
+fn frame_number(j: &JobStatus) -> u32 {
+    j.scene.rsplit('.').next().and_then(|n| n.parse().ok()).unwrap_or(0)
 }
 
 /// A farm's job, followed over gRPC.
@@ -493,14 +523,21 @@ pub fn update(args: UpdateArgs) -> anyhow::Result<()> {
     })
 }
 
-/// The unfinished frames of the job group `name`, last first (so that cancelling them
-/// never lets a queued frame start on the way); None when no job group has that name.
-async fn group_frames(client: &mut FarmClient, name: &str) -> anyhow::Result<Option<Vec<String>>> {
+/// The frames of the job group `name` as listed, in submission order; None when `name`
+/// is a job's id, or no job group has that name.
+async fn group_members(client: &mut FarmClient, name: &str) -> anyhow::Result<Option<Vec<JobStatus>>> {
     let jobs = client.jobs().await?;
     if jobs.iter().any(|j| j.job_id == name) || !jobs.iter().any(|j| j.group == name) {
         return Ok(None);
     }
-    Ok(Some(jobs.into_iter().rev().filter(|j| j.group == name && !j.state.is_final()).map(|j| j.job_id).collect()))
+    Ok(Some(jobs.into_iter().filter(|j| j.group == name).collect()))
+}
+
+/// The unfinished frames of the job group `name`, last first (so that cancelling them
+/// never lets a queued frame start on the way); None as for [`group_members`].
+async fn group_frames(client: &mut FarmClient, name: &str) -> anyhow::Result<Option<Vec<String>>> {
+    let members = group_members(client, name).await?;
+    Ok(members.map(|m| m.into_iter().rev().filter(|j| !j.state.is_final()).map(|j| j.job_id).collect()))
 }
 
 pub fn cancel(args: CancelArgs) -> anyhow::Result<()> {
