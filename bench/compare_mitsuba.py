@@ -528,6 +528,21 @@ def fmt3(v, f="{:.4f}"):
     return "(" + ", ".join(f.format(x) for x in v) + ")"
 
 
+def choose_libllvm() -> None:
+    """Points Dr.Jit at the newest system libLLVM of version 16 or later, unless
+    DRJIT_LIBLLVM_PATH is set. Left to itself Dr.Jit can load Debian's LLVM 14 or 15,
+    which abort while compiling for AVX-512 ("Cannot select ... fminimum")."""
+    if os.environ.get("DRJIT_LIBLLVM_PATH"):
+        return
+    found = []
+    for lib in Path("/usr/lib").glob("*/libLLVM*.so*"):
+        m = re.match(r"libLLVM[-.]?(?:so\.)?(\d+)", lib.name)
+        if m and int(m.group(1)) >= 16:
+            found.append((int(m.group(1)), str(lib)))
+    if found:
+        os.environ["DRJIT_LIBLLVM_PATH"] = max(found)[1]
+
+
 def llvm_available(mi) -> tuple[bool, str]:
     try:
         mi.set_variant("llvm_ad_rgb")
@@ -572,6 +587,7 @@ def main():
                     help="folder for the images")
     args = ap.parse_args()
 
+    choose_libllvm()
     import mitsuba as mi
 
     mi.set_variant("scalar_rgb")
