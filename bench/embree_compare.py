@@ -23,7 +23,10 @@ This host's speed drifts by tens of percent within minutes, so the two alternate
 by pass (`--passes` pairs per query kind, the order flipping every pair) and the ratio
 printed is the median of the pairs' ratios, with its quartiles.
 
-Usage: python3 bench/embree_compare.py [--triangles 1000000] [--rays 100000] [--repeat 3] [--passes 20]
+With `--accel bvh8`, tilefarm's side is the eight-wide BVH (`tracer/src/accel/bvh8`)
+instead of the kd-tree.
+
+Usage: python3 bench/embree_compare.py [--triangles 1000000] [--rays 100000] [--repeat 3] [--passes 20] [--accel bvh8]
 """
 
 import argparse
@@ -83,6 +86,8 @@ def main():
     ap.add_argument("--repeat", type=int, default=3, help="tilefarm builds (median)")
     ap.add_argument("--passes", type=int, default=20,
                     help="alternated passes per query kind; the ratio is the median over pass pairs")
+    ap.add_argument("--accel", choices=("kdtree", "bvh8"), default="kdtree",
+                    help="tilefarm's structure: the kd-tree the renderer uses, or the eight-wide BVH")
     a = ap.parse_args()
 
     with tempfile.TemporaryDirectory() as tmp:
@@ -108,7 +113,7 @@ def main():
     # flipping every pair, and each pair gives a ratio; the summary is their median.
     # tilefarm runs as one long-lived process (`KDTREE_SERVE`) that times a pass when
     # asked; Embree runs on this thread.
-    env = dict(os.environ, KDTREE_SERVE=f"{a.triangles},{a.repeat},{a.rays}")
+    env = dict(os.environ, KDTREE_SERVE=f"{a.triangles},{a.repeat},{a.rays}", KDTREE_SERVE_ACCEL=a.accel)
     tf = subprocess.Popen(["cargo", "bench", "-q", "-p", "tracer", "--bench", "kdtree"],
                           cwd=ROOT, env=env, stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True)
     try:

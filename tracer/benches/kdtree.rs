@@ -31,6 +31,7 @@ use std::time::Instant;
 
 use criterion::{Criterion, Throughput, criterion_group, criterion_main};
 use glam::Vec3;
+use tracer::accel::bvh8::{Bvh8, Bvh8Params};
 use tracer::accel::ray_packets::RayPacket;
 use tracer::accel::{BuildParams, KdTree};
 use tracer::geometry::{Aabb, Ray};
@@ -360,18 +361,49 @@ fn ab(spec: &str) {
     }
 }
 
-/// `KDTREE_SERVE=TRIANGLES,REPEAT,RAYS`: see the module comment.
+/// `KDTREE_SERVE=TRIANGLES,REPEAT,RAYS`: see the module comment. With
+/// `KDTREE_SERVE_ACCEL=bvh8` the eight-wide BVH answers instead of the kd-tree.
 fn serve(spec: &str) {
     use std::io::{BufRead, Write};
     let v: Vec<usize> = spec.split(',').filter_map(|x| x.parse().ok()).collect();
     let (n, reps, nrays) =
         (v.first().copied().unwrap_or(1_000_000), v.get(1).copied().unwrap_or(3), v.get(2).copied().unwrap_or(RAYS));
+    let bvh = std::env::var("KDTREE_SERVE_ACCEL").is_ok_and(|a| a == "bvh8");
     let mut geo = Geometry::new(displaced_sphere(n, 0), vec![]);
-    let builds: Vec<(KdTree, f64)> = (0..reps.max(1)).map(|_| timed_build(&geo, &BuildParams::default())).collect();
-    let build = median(builds.iter().map(|b| b.1).collect());
-    let mut tree = builds.into_iter().next_back().unwrap().0;
-    geo.store_in_leaf_order(&mut tree);
+    // Both answer for the same rays: the kd-tree's bounds are the mesh's.
+    let mut tree = timed_build(&geo, &BuildParams::default()).0;
     let rays = random_rays(tree.bounds(), nrays, 1);
+    type Query = Box<dyn Fn(&str, &Geometry) -> usize>;
+    let (build, query): (f64, Query) = if bvh {
+        let builds: Vec<(Bvh8, f64)> = (0..reps.max(1))
+            .map(|_| {
+                let t = Instant::now();
+                let b = Bvh8::build(&geo, &Bvh8Params::default());
+                (b, t.elapsed().as_secs_f64())
+            })
+            .collect();
+        let build = median(builds.iter().map(|b| b.1).collect());
+        let mut b = builds.into_iter().next_back().unwrap().0;
+        store_in_bvh_order(&mut geo, &mut b);
+        (
+            build,
+            Box::new(move |q, geo| match q {
+                "closest" => rays.iter().filter(|(r, _)| b.intersect(geo, r, f32::INFINITY).is_some()).count(),
+                _ => rays.iter().filter(|(r, len)| b.occluded(geo, r, *len)).count(),
+            }),
+        )
+    } else {
+        let builds: Vec<f64> = (1..reps.max(1)).map(|_| timed_build(&geo, &BuildParams::default()).1).collect();
+        let build = median(builds.into_iter().chain([timed_build(&geo, &BuildParams::default()).1]).collect());
+        geo.store_in_leaf_order(&mut tree);
+        (
+            build,
+            Box::new(move |q, geo| match q {
+                "closest" => closest(&tree, geo, &rays),
+                _ => any(&tree, geo, &rays),
+            }),
+        )
+    };
     let mut out = std::io::stdout().lock();
     writeln!(out, "ready {} triangles, build median {build:.4} s", geo.triangle_count()).unwrap();
     out.flush().unwrap();
@@ -379,14 +411,26 @@ fn serve(spec: &str) {
         let line = line.unwrap();
         let t = Instant::now();
         let count = match line.trim() {
-            "closest" => closest(&tree, &geo, &rays),
-            "any" => any(&tree, &geo, &rays),
+            q @ ("closest" | "any") => query(q, &geo),
             "" => continue,
             other => panic!("KDTREE_SERVE: unknown command {other:?} (closest, any)"),
         };
         writeln!(out, "{} {:.6} {count}", line.trim(), t.elapsed().as_secs_f64()).unwrap();
         out.flush().unwrap();
     }
+}
+
+/// Stores the triangles in the BVH's leaf order and renames its indices to match (as
+/// [`Geometry::store_in_leaf_order`] does for a kd-tree).
+fn store_in_bvh_order(geo: &mut Geometry, b: &mut Bvh8) {
+    let ntri = geo.triangle_count();
+    let order: Vec<u32> = b.leaf_order(geo.prim_count()).into_iter().filter(|&i| (i as usize) < ntri).collect();
+    let mut new_index: Vec<u32> = (0..geo.prim_count() as u32).collect();
+    for (new, &old) in order.iter().enumerate() {
+        new_index[old as usize] = new as u32;
+    }
+    b.remap(&new_index);
+    geo.permute_triangles(&order);
 }
 
 /// A pinhole camera's rays (as [`camera_rays`]) in packets of 4×2 pixels, closest hit.

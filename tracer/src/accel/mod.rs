@@ -3,6 +3,7 @@
 //! the scene's triangles and spheres.
 
 mod block_test;
+pub mod bvh8;
 pub mod instances;
 pub mod kdtree;
 #[cfg(target_arch = "x86_64")]

@@ -252,6 +252,25 @@ pub(super) fn default_max_depth(n: usize) -> u32 {
     (8.0 + 1.3 * (n.max(1) as f64).log2()).round() as u32
 }
 
+/// Pads the non-flat axes of extent `b` by `pad`.
+fn pad_by(b: Aabb, pad: f32) -> Aabb {
+    let mut r = b;
+    for a in 0..3 {
+        if b.min[a] < b.max[a] {
+            r.min[a] -= pad;
+            r.max[a] += pad;
+        }
+    }
+    r
+}
+
+/// A primitive's extent padded as the kd-tree pads it, in a scene whose largest
+/// coordinate magnitude is `magnitude` (see the module comment): what other hierarchies
+/// over the same tests need as well.
+pub(in crate::accel) fn pad_extent(b: Aabb, magnitude: f32) -> Aabb {
+    pad_by(b, magnitude * PAD_REL)
+}
+
 pub(super) fn build<P: Primitives>(prims: &P, params: &BuildParams) -> Built {
     let n = prims.len();
     assert!(n < 1 << 30, "kd-tree: at most 2^30 primitives");
@@ -287,14 +306,7 @@ pub(super) fn build<P: Primitives>(prims: &P, params: &BuildParams) -> Built {
 impl<P: Primitives> Ctx<'_, P> {
     /// Pads the non-flat axes of an extent (see the module comment).
     fn padded(&self, b: Aabb) -> Aabb {
-        let mut r = b;
-        for a in 0..3 {
-            if b.min[a] < b.max[a] {
-                r.min[a] -= self.pad;
-                r.max[a] += self.pad;
-            }
-        }
-        r
+        pad_by(b, self.pad)
     }
 
     /// Extent of primitive `g` in `cell`: the primitive clipped to the cell grown by the

@@ -10,6 +10,8 @@ mod packet;
 mod traverse;
 mod treelet;
 
+pub(in crate::accel) use self::build::pad_extent;
+pub(in crate::accel) use self::traverse::{Closest, Setup, any_leaf, clip_to_cell, gatherable, prefetch};
 use self::treelet::{Treelet, to_treelets};
 use super::block_test::InstructionSet;
 use super::{Hit, Primitives, Ray};
@@ -343,4 +345,4 @@ fn binary_stats(nodes: &[Node], depth_limit: usize) -> KdTreeStats {
 }
 
 #[cfg(test)]
-mod tests;
+pub(in crate::accel) mod tests;

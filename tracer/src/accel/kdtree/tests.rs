@@ -6,7 +6,7 @@ use proptest::prelude::*;
 
 /// Proptest settings for CI: a fixed seed, so a run is repeatable (a new failure is
 /// hunted with `PROPTEST_RNG_SEED=<n>`, which this leaves in charge).
-fn pinned(cases: u32) -> ProptestConfig {
+pub(in crate::accel) fn pinned(cases: u32) -> ProptestConfig {
     let mut c = ProptestConfig { cases, failure_persistence: None, ..ProptestConfig::default() };
     if std::env::var_os("PROPTEST_RNG_SEED").is_none() {
         c.rng_seed = proptest::test_runner::RngSeed::Fixed(0x7469_6c65_6661_726d);
@@ -21,34 +21,34 @@ use crate::scene::generate::displaced_sphere;
 use crate::shapes::{Geometry, NONE, Sphere, Tri, TriangleMesh};
 
 /// Small deterministic generator so that one proptest seed describes a whole scene.
-pub(super) struct Rng(pub(super) u64);
+pub(in crate::accel) struct Rng(pub(in crate::accel) u64);
 
 impl Rng {
-    pub(super) fn next(&mut self) -> u64 {
+    pub(in crate::accel) fn next(&mut self) -> u64 {
         self.0 = self.0.wrapping_add(0x9E37_79B9_7F4A_7C15);
         let mut z = self.0;
         z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
         z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
         z ^ (z >> 31)
     }
-    fn f(&mut self) -> f32 {
+    pub(in crate::accel) fn f(&mut self) -> f32 {
         (self.next() >> 40) as f32 / (1u64 << 24) as f32
     }
-    pub(super) fn range(&mut self, lo: f32, hi: f32) -> f32 {
+    pub(in crate::accel) fn range(&mut self, lo: f32, hi: f32) -> f32 {
         lo + (hi - lo) * self.f()
     }
-    fn below(&mut self, n: u64) -> u64 {
+    pub(in crate::accel) fn below(&mut self, n: u64) -> u64 {
         self.next() % n
     }
-    fn v(&mut self, lo: f32, hi: f32) -> Vec3 {
+    pub(in crate::accel) fn v(&mut self, lo: f32, hi: f32) -> Vec3 {
         Vec3::new(self.range(lo, hi), self.range(lo, hi), self.range(lo, hi))
     }
     /// A point on the grid of quarters in [-1, 1]: exact split positions and ties.
-    fn grid(&mut self) -> Vec3 {
+    pub(in crate::accel) fn grid(&mut self) -> Vec3 {
         let mut g = || (self.below(9) as f32 - 4.0) * 0.25;
         Vec3::new(g(), g(), g())
     }
-    fn dir(&mut self) -> Vec3 {
+    pub(in crate::accel) fn dir(&mut self) -> Vec3 {
         loop {
             let d = self.v(-1.0, 1.0);
             if d.length_squared() > 1e-4 && d.length_squared() <= 1.0 {
@@ -58,7 +58,7 @@ impl Rng {
     }
 }
 
-fn geometry(tris: &[[Vec3; 3]], spheres: Vec<Sphere>) -> Geometry {
+pub(in crate::accel) fn geometry(tris: &[[Vec3; 3]], spheres: Vec<Sphere>) -> Geometry {
     let mut mesh = TriangleMesh::default();
     for t in tris {
         let base = mesh.positions.len() as u32;
@@ -72,7 +72,7 @@ fn geometry(tris: &[[Vec3; 3]], spheres: Vec<Sphere>) -> Geometry {
 /// triangles, axis-aligned and coplanar ones on a grid, degenerate ones, clusters,
 /// shared-edge fans, and spheres (some duplicated, some tiny).
 // Long on purpose: A test-scene generator: one arm per kind of hard case.
-fn random_scene(seed: u64, n: usize) -> Geometry {
+pub(in crate::accel) fn random_scene(seed: u64, n: usize) -> Geometry {
     let mut r = Rng(seed);
     let mut tris: Vec<[Vec3; 3]> = Vec::with_capacity(n);
     let mut spheres = Vec::new();
@@ -159,7 +159,7 @@ fn random_scene(seed: u64, n: usize) -> Geometry {
     geometry(&tris, spheres)
 }
 
-fn random_ray(r: &mut Rng) -> Ray {
+pub(in crate::accel) fn random_ray(r: &mut Rng) -> Ray {
     let origin = match r.below(5) {
         0 | 1 => r.v(-1.2, 1.2),
         2 => r.v(-4.0, 4.0),
@@ -190,7 +190,7 @@ fn random_ray(r: &mut Rng) -> Ray {
     Ray::new(origin, dir)
 }
 
-fn key(h: Option<Hit>) -> Option<(u32, u32, u32, u32)> {
+pub(in crate::accel) fn key(h: Option<Hit>) -> Option<(u32, u32, u32, u32)> {
     h.map(|h| (h.t.to_bits(), h.prim, h.u.to_bits(), h.v.to_bits()))
 }
 

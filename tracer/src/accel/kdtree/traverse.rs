@@ -34,11 +34,11 @@ use super::treelet::{RayLanes, step_avx2};
 #[cfg(target_arch = "x86_64")]
 use crate::accel::block_test::{LANES, Lanes, gather_test_avx2};
 use crate::accel::{Hit, PrimHit, Primitives, RayPrecomp, brute_force_intersect};
-use crate::geometry::Ray;
+use crate::geometry::{Aabb, Ray};
 
 /// Hints the cache to load `p`'s line (no effect on results; nothing is dereferenced).
 #[inline(always)]
-fn prefetch<T>(p: *const T) {
+pub(in crate::accel) fn prefetch<T>(p: *const T) {
     // SAFETY: a prefetch is a hint; it never faults and reads no memory into the
     // program, whatever the address (SSE is part of the x86_64 baseline).
     #[cfg(target_arch = "x86_64")]
@@ -66,10 +66,37 @@ const TINY: f32 = 1e-30;
 /// to the brute-force loop.
 const CANDIDATES: usize = 16;
 
-pub(super) struct Setup {
-    pub(super) lo: f32,
-    pub(super) hi: f32,
-    pub(super) slack: f32,
+pub(in crate::accel) struct Setup {
+    pub(in crate::accel) lo: f32,
+    pub(in crate::accel) hi: f32,
+    pub(in crate::accel) slack: f32,
+}
+
+/// Clips the ray to `cell` (the primitives' padded extents), widened by the slack
+/// that covers the rounding of plane distances and hit distances.
+#[inline(always)]
+pub(in crate::accel) fn clip_to_cell(b: &Aabb, ray: &Ray, inv: Vec3, tmax: f32) -> Option<Setup> {
+    let t0 = (b.min - ray.origin) * inv;
+    let t1 = (b.max - ray.origin) * inv;
+    let (mut near, mut far) = (f32::NEG_INFINITY, f32::INFINITY);
+    for a in 0..3 {
+        // NaN (0 · inf): the ray lies in a face's plane and never leaves the slab.
+        let (n, f) = if t0[a] <= t1[a] {
+            (t0[a], t1[a])
+        } else if t1[a] < t0[a] {
+            (t1[a], t0[a])
+        } else {
+            continue;
+        };
+        near = near.max(n);
+        far = far.min(f);
+    }
+    let reach = (b.min - ray.origin).abs().max((b.max - ray.origin).abs()).max_element();
+    // 1 / max|d| as min|1/d| (the same value: reciprocals are monotone): no division.
+    let slack = SLACK_REL * reach * inv.abs().min_element();
+    let lo = (near - slack).max(0.0);
+    let hi = far.min(tmax) + slack;
+    (lo <= hi).then_some(Setup { lo, hi, slack })
 }
 
 impl KdTree {
@@ -79,28 +106,7 @@ impl KdTree {
         if self.root & 3 == EMPTY {
             return None;
         }
-        let b = &self.cell;
-        let t0 = (b.min - ray.origin) * inv;
-        let t1 = (b.max - ray.origin) * inv;
-        let (mut near, mut far) = (f32::NEG_INFINITY, f32::INFINITY);
-        for a in 0..3 {
-            // NaN (0 · inf): the ray lies in a face's plane and never leaves the slab.
-            let (n, f) = if t0[a] <= t1[a] {
-                (t0[a], t1[a])
-            } else if t1[a] < t0[a] {
-                (t1[a], t0[a])
-            } else {
-                continue;
-            };
-            near = near.max(n);
-            far = far.min(f);
-        }
-        let reach = (b.min - ray.origin).abs().max((b.max - ray.origin).abs()).max_element();
-        // 1 / max|d| as min|1/d| (the same value: reciprocals are monotone): no division.
-        let slack = SLACK_REL * reach * inv.abs().min_element();
-        let lo = (near - slack).max(0.0);
-        let hi = far.min(tmax) + slack;
-        (lo <= hi).then_some(Setup { lo, hi, slack })
+        clip_to_cell(&self.cell, ray, inv, tmax)
     }
 
     /// Walks the tree front to back, a treelet (three levels) per step, calling `leaf`
@@ -252,20 +258,20 @@ impl KdTree {
 
 /// One ray's closest-hit query across the leaves a walk visits: the candidates and the
 /// mailbox.
-pub(super) struct Closest {
+pub(in crate::accel) struct Closest {
     c: Candidates,
     mb: Mailbox,
 }
 
 impl Closest {
     #[inline(always)]
-    pub(super) fn new(tmax: f32, slack: f32) -> Self {
+    pub(in crate::accel) fn new(tmax: f32, slack: f32) -> Self {
         Self { c: Candidates::new(tmax, slack), mb: Mailbox::new() }
     }
 
     /// Tests a leaf's primitives `ids`; returns the walk's new bound, or NaN to stop.
     #[inline(always)]
-    pub(super) fn leaf<P: Primitives, const AVX2: bool>(
+    pub(in crate::accel) fn leaf<P: Primitives, const AVX2: bool>(
         &mut self,
         prims: &P,
         corners: &[[glam::Vec3; 3]],
@@ -297,7 +303,13 @@ impl Closest {
 
     /// The answer once the walk is over.
     #[inline(always)]
-    pub(super) fn finish<P: Primitives>(self, prims: &P, ray: &Ray, pre: &RayPrecomp, tmax: f32) -> Option<Hit> {
+    pub(in crate::accel) fn finish<P: Primitives>(
+        self,
+        prims: &P,
+        ray: &Ray,
+        pre: &RayPrecomp,
+        tmax: f32,
+    ) -> Option<Hit> {
         if self.c.overflow {
             return brute_force_intersect(prims, ray, tmax);
         }
@@ -309,7 +321,7 @@ impl Closest {
 /// at the first hit, else `tmax`. No mailbox: the query ends at its first hit, so few
 /// primitives come up twice and the bookkeeping would not pay.
 #[inline(always)]
-pub(super) fn any_leaf<P: Primitives, const AVX2: bool>(
+pub(in crate::accel) fn any_leaf<P: Primitives, const AVX2: bool>(
     prims: &P,
     corners: &[[glam::Vec3; 3]],
     ids: &[u32],
@@ -336,7 +348,7 @@ const GATHER_MIN_PRIMS: usize = 2;
 /// The set's triangles for the eight-lane leaf test, or nothing if it has none or too
 /// many to address.
 #[inline(always)]
-pub(super) fn gatherable<P: Primitives>(prims: &P) -> &[[glam::Vec3; 3]] {
+pub(in crate::accel) fn gatherable<P: Primitives>(prims: &P) -> &[[glam::Vec3; 3]] {
     let c = prims.triangle_corners();
     if c.len() <= crate::accel::block_test::GATHER_MAX_TRIANGLES { c } else { &[] }
 }

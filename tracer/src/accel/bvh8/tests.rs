@@ -1,0 +1,129 @@
+//! The hierarchy against brute force, on the kd-tree's hard cases (`kdtree/tests.rs`).
+
+use glam::Vec3;
+use proptest::prelude::*;
+
+use super::*;
+use crate::accel::kdtree::tests::{Rng, geometry, key, pinned, random_ray, random_scene};
+use crate::accel::{brute_force_intersect, brute_force_occluded};
+use crate::scene::generate::displaced_sphere;
+use crate::shapes::{Geometry, Sphere};
+
+fn check<P: Primitives>(prims: &P, bvh: &Bvh8, ray: &Ray, tmax: f32) -> Result<(), TestCaseError> {
+    let expect = brute_force_intersect(prims, ray, tmax);
+    prop_assert_eq!(key(bvh.intersect(prims, ray, tmax)), key(expect), "intersect, ray {:?} tmax {}", ray, tmax);
+    let expect_occ = brute_force_occluded(prims, ray, tmax);
+    prop_assert_eq!(bvh.occluded(prims, ray, tmax), expect_occ, "occluded, ray {:?} tmax {}", ray, tmax);
+    // The path of CPUs without AVX2 too.
+    let base = bvh.intersect_impl::<P, false>(prims, ray, tmax);
+    prop_assert_eq!(key(base), key(expect), "intersect (baseline), ray {:?} tmax {}", ray, tmax);
+    prop_assert_eq!(bvh.occluded_impl::<P, false>(prims, ray, tmax), expect_occ, "occluded (baseline)");
+    Ok(())
+}
+
+/// Rays with infinite, random finite and hit-distance tmax (ties with the limit).
+fn check_rays<P: Primitives>(prims: &P, bvh: &Bvh8, r: &mut Rng, rays: usize) -> Result<(), TestCaseError> {
+    for _ in 0..rays {
+        let ray = random_ray(r);
+        check(prims, bvh, &ray, f32::INFINITY)?;
+        check(prims, bvh, &ray, r.range(0.0, 4.0))?;
+        if let Some(h) = brute_force_intersect(prims, &ray, f32::INFINITY) {
+            check(prims, bvh, &ray, h.t)?;
+            check(prims, bvh, &ray, f32::from_bits(h.t.to_bits() + 1))?;
+        }
+    }
+    Ok(())
+}
+
+fn random_params(r: &mut Rng) -> Bvh8Params {
+    match r.below(3) {
+        0 => Bvh8Params::default(),
+        1 => Bvh8Params { traversal_cost: 1.0, intersection_cost: 4.0 },
+        _ => Bvh8Params { traversal_cost: r.range(0.1, 4.0), intersection_cost: r.range(0.05, 4.0) },
+    }
+}
+
+proptest! {
+    #![proptest_config(pinned(160))]
+
+    #[test]
+    fn agrees_with_brute_force_on_random_scenes(seed in any::<u64>(), size in 0usize..4, rays_seed in any::<u64>()) {
+        let n = [0, 1 + (seed % 16) as usize, 50 + (seed % 200) as usize, 500 + (seed % 2500) as usize][size];
+        let geo = random_scene(seed, n);
+        let mut r = Rng(rays_seed);
+        let bvh = Bvh8::build(&geo, &random_params(&mut r));
+        let rays = if n > 1000 { 60 } else { 150 };
+        check_rays(&geo, &bvh, &mut r, rays)?;
+    }
+
+    #[test]
+    fn leaf_order_storage_gives_the_same_hits(seed in any::<u64>(), size in 1usize..4, rays_seed in any::<u64>()) {
+        let n = [0, 1 + (seed % 16) as usize, 50 + (seed % 200) as usize, 500 + (seed % 2500) as usize][size];
+        let mut geo = random_scene(seed, n);
+        let mut bvh = Bvh8::build(&geo, &Bvh8Params::default());
+        let ntri = geo.triangle_count();
+        let order: Vec<u32> = bvh.leaf_order(geo.prim_count()).into_iter().filter(|&i| (i as usize) < ntri).collect();
+        let mut new_index: Vec<u32> = (0..geo.prim_count() as u32).collect();
+        for (new, &old) in order.iter().enumerate() {
+            new_index[old as usize] = new as u32;
+        }
+        bvh.remap(&new_index);
+        geo.permute_triangles(&order);
+        check_rays(&geo, &bvh, &mut Rng(rays_seed), 60)?;
+    }
+}
+
+/// A closed mesh (every ray crossing an edge hits one of its two triangles) with spheres;
+/// nodes hold several children and leaves fit one eight-lane pass.
+#[test]
+fn agrees_with_brute_force_on_displaced_sphere_with_spheres() {
+    let mesh = displaced_sphere(20_000, 3);
+    let mut r = Rng(7);
+    let spheres =
+        (0..300).map(|_| Sphere { center: r.v(-1.5, 1.5), radius: r.range(0.01, 0.15), material: 0 }).collect();
+    let geo = Geometry::new(mesh, spheres);
+    let bvh = Bvh8::build(&geo, &Bvh8Params::default());
+    let s = bvh.stats();
+    assert!(s.mean_children > 3.0 && s.mean_leaf_prims <= MAX_LEAF as f64 && s.max_depth < 20, "{s:?}");
+    for _ in 0..600 {
+        let ray = random_ray(&mut r);
+        check(&geo, &bvh, &ray, f32::INFINITY).unwrap();
+        check(&geo, &bvh, &ray, r.range(0.0, 3.0)).unwrap();
+    }
+}
+
+#[test]
+fn empty_and_invalid_sets_never_hit() {
+    let geo = Geometry::default();
+    let bvh = Bvh8::build(&geo, &Bvh8Params::default());
+    assert!(bvh.bounds().is_empty());
+    assert_eq!(bvh.heap_bytes(), 0);
+    let ray = Ray::new(Vec3::ZERO, Vec3::X);
+    assert_eq!(bvh.intersect(&geo, &ray, f32::INFINITY), None);
+    assert!(!bvh.occluded(&geo, &ray, f32::INFINITY));
+    let geo = geometry(&[[Vec3::NAN, Vec3::X, Vec3::Y]], vec![]);
+    let bvh = Bvh8::build(&geo, &Bvh8Params::default());
+    assert_eq!(bvh.intersect(&geo, &Ray::new(Vec3::new(0.1, 0.1, 1.0), -Vec3::Z), f32::INFINITY), None);
+}
+
+/// Many primitives with one centroid (split by index) and a deep, skewed set: the build
+/// ends, and the answers stay brute force's.
+#[test]
+fn coincident_and_skewed_sets() {
+    let t = [Vec3::new(-1.0, -1.0, 0.0), Vec3::new(1.0, -1.0, 0.0), Vec3::new(0.0, 1.0, 0.0)];
+    let mut tris = vec![t; 100];
+    // Triangles halving in size towards the origin: one split per level.
+    for k in 0..80 {
+        let s = 0.5f32.powi(k);
+        tris.push([Vec3::new(s, 0.0, 1.0), Vec3::new(2.0 * s, 0.0, 1.0), Vec3::new(s, s, 1.0)]);
+    }
+    let geo = geometry(&tris, vec![]);
+    let bvh = Bvh8::build(&geo, &Bvh8Params::default());
+    let mut r = Rng(3);
+    check_rays(&geo, &bvh, &mut r, 400).unwrap();
+    for k in 0..80 {
+        let s = 0.5f32.powi(k);
+        let ray = Ray::new(Vec3::new(1.2 * s, 0.1 * s, 0.0), Vec3::Z);
+        check(&geo, &bvh, &ray, f32::INFINITY).unwrap();
+    }
+}
