@@ -1,12 +1,12 @@
 #!/usr/bin/env python3
-"""Single-ray throughput of tilefarm's kd-tree against Embree, same mesh, same rays.
+"""Single-ray throughput of tilefarm's BVH (or kd-tree) against Embree, same mesh, same rays.
 
 Needs: `pip install embreex numpy` (this script installs nothing) and a Rust toolchain.
 
 What is measured, on one thread each:
-  * tilefarm: `KdTree::intersect` / `KdTree::occluded` called once per ray in a loop
-    (`KDTREE_SERVE=N,REPEAT,RAYS cargo bench -p tracer --bench kdtree`, a process that
-    times one pass over the rays whenever asked).
+  * tilefarm: `Bvh8::intersect` / `Bvh8::occluded` (or the kd-tree's) called once per
+    ray in a loop (`KDTREE_SERVE=N,REPEAT,RAYS KDTREE_SERVE_ACCEL=bvh8 cargo bench -p
+    tracer --bench kdtree`, a process that times one pass over the rays whenever asked).
   * Embree (embreex 4.x): `EmbreeScene.run(origins, dirs, query=...)`, whose C loop calls
     `rtcIntersect1` / `rtcOccluded1` once per ray on the calling thread and writes the
     hit to NumPy arrays: single-ray queries, like ours, plus a few stores per ray. The
@@ -23,10 +23,10 @@ This host's speed drifts by tens of percent within minutes, so the two alternate
 by pass (`--passes` pairs per query kind, the order flipping every pair) and the ratio
 printed is the median of the pairs' ratios, with its quartiles.
 
-With `--accel bvh8`, tilefarm's side is the eight-wide BVH (`tracer/src/accel/bvh8`)
-instead of the kd-tree.
+tilefarm's side is the eight-wide BVH that traces a scene's own primitives
+(`tracer/src/accel/bvh8`), or with `--accel kdtree` the kd-tree (instanced meshes).
 
-Usage: python3 bench/embree_compare.py [--triangles 1000000] [--rays 100000] [--repeat 3] [--passes 20] [--accel bvh8]
+Usage: python3 bench/embree_compare.py [--triangles 1000000] [--rays 100000] [--repeat 3] [--passes 20] [--accel kdtree]
 """
 
 import argparse
@@ -86,8 +86,9 @@ def main():
     ap.add_argument("--repeat", type=int, default=3, help="tilefarm builds (median)")
     ap.add_argument("--passes", type=int, default=20,
                     help="alternated passes per query kind; the ratio is the median over pass pairs")
-    ap.add_argument("--accel", choices=("kdtree", "bvh8"), default="kdtree",
-                    help="tilefarm's structure: the kd-tree the renderer uses, or the eight-wide BVH")
+    ap.add_argument("--accel", choices=("bvh8", "kdtree"), default="bvh8",
+                    help="tilefarm's structure: the eight-wide BVH of a scene's own primitives, or the kd-tree "
+                         "of instanced meshes")
     a = ap.parse_args()
 
     with tempfile.TemporaryDirectory() as tmp:

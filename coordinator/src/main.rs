@@ -35,7 +35,7 @@ enum Command {
     Cancel(client::CancelArgs),
     /// Make a farm's CA, certificates and access tokens (`certs init DIR`).
     Certs(certs::CertsArgs),
-    /// Measure kd-tree build time, ray throughput and render speed.
+    /// Measure BVH build time, ray throughput and render speed.
     Bench(bench::BenchArgs),
     /// Measure how many unit results a coordinator merges per second: a `serve` child
     /// and many simulated workers on loopback that return tiny units at once.

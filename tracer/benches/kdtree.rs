@@ -197,10 +197,12 @@ fn median(mut v: Vec<f64>) -> f64 {
     v[v.len() / 2]
 }
 
-/// `KDTREE_SCENE=scene.toml`: the scene's own tree and geometry, surface and camera rays.
+/// `KDTREE_SCENE=scene.toml`: a kd-tree over the scene's geometry (as the loader stores
+/// it, in its BVH's leaf order), surface and camera rays.
 fn scene_quick(path: &str, reps: usize) {
     let sc = tracer::scene::load_scene(std::path::Path::new(path)).unwrap();
-    let (tree, geo) = (&sc.accel, &sc.geometry);
+    let geo = &sc.geometry;
+    let tree = &KdTree::build(geo, &BuildParams::for_scene(geo.triangle_count(), geo.spheres.len()));
     for mode in ["surface", "camera"] {
         let rays = if mode == "surface" { surface_rays(geo, RAYS) } else { camera_rays(tree.bounds(), RAYS) };
         for any_hit in [false, true] {

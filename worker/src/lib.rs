@@ -64,7 +64,7 @@ pub struct Args {
     #[arg(long, value_name = "DIR")]
     cache: Option<PathBuf>,
 
-    /// Folder where loaded scenes are kept prepared (mesh and kd-tree), so that the next
+    /// Folder where loaded scenes are kept prepared (mesh and BVH), so that the next
     /// job of the same scene starts without parsing and building; it must be private to
     /// this user [default: prepared/ in the --cache folder].
     #[arg(long, value_name = "DIR")]

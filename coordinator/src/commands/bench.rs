@@ -1,4 +1,4 @@
-//! `coordinator bench`: kd-tree build time, memory, ray throughput (primary, shadow,
+//! `coordinator bench`: BVH build time, memory, ray throughput (primary, shadow,
 //! diffuse bounce) and full-render speed, per scene. Figures are medians of repeated
 //! runs, since the machines we run on are shared and noisy.
 
@@ -7,7 +7,7 @@ use std::time::Instant;
 
 use clap::Args;
 use glam::{Vec2, Vec3};
-use tracer::accel::{BuildParams, KdTree};
+use tracer::accel::bvh8::{Bvh8, Bvh8Params};
 use tracer::film::SampleRange;
 use tracer::geometry::{Frame, Ray, offset_origin};
 use tracer::integrator::Integrator;
@@ -141,7 +141,7 @@ fn bench_scene(name: &str, scene: &Scene, args: &BenchArgs) {
     let builds: Vec<f64> = (0..repeat)
         .map(|_| {
             let t = Instant::now();
-            let tree = KdTree::build(geom, &BuildParams::for_scene(geom.triangle_count(), geom.spheres.len()));
+            let tree = Bvh8::build(geom, &Bvh8Params::default());
             std::hint::black_box(&tree);
             t.elapsed().as_secs_f64()
         })
@@ -153,17 +153,18 @@ fn bench_scene(name: &str, scene: &Scene, args: &BenchArgs) {
     let gb = geom.bytes();
     let tree_bytes = scene.accel.heap_bytes();
     println!(
-        "kd-tree build: {:.3} ms (median of {repeat}); {} nodes in {} treelets, {} leaves, depth {}, {} refs",
+        "BVH build: {:.3} ms (median of {repeat}); {} nodes of 8 ({:.2} children each), {} leaves ({:.2} primitives \
+         each), depth {}",
         median(builds) * 1e3,
         stats.nodes,
-        stats.treelets,
+        stats.mean_children,
         stats.leaves,
-        stats.max_depth,
-        stats.prim_refs
+        stats.mean_leaf_prims,
+        stats.max_depth
     );
     if let Some(p) = &scene.packed {
         println!(
-            "rays are traced by packed brute force ({} triangles in blocks of 8, {} B, {}), not the kd-tree",
+            "rays are traced by packed brute force ({} triangles in blocks of 8, {} B, {}), not the BVH",
             p.len(),
             p.bytes(),
             p.instruction_set()

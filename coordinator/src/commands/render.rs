@@ -238,7 +238,7 @@ pub struct RunArgs {
     /// under 1% of the time).
     #[arg(long, default_value_t = 5_000)]
     pub checkpoint_interval_ms: u64,
-    /// Where local workers keep loaded scenes prepared (mesh and kd-tree), so that the
+    /// Where local workers keep loaded scenes prepared (mesh and BVH), so that the
     /// next render of the same scene starts without parsing and building
     /// [default: ~/.cache/tilefarm/prepared, or $XDG_CACHE_HOME/tilefarm/prepared].
     #[arg(long, value_name = "DIR", env = "TILEFARM_SCENE_CACHE")]

@@ -109,7 +109,7 @@ pub struct FarmArgs {
     /// Most MiB of uploaded scene files the store keeps; an upload past it is refused.
     #[arg(long, value_name = "MIB", default_value_t = 65_536)]
     pub max_store_mb: u64,
-    /// Most MiB of prepared scenes (mesh and kd-tree, kept after a scene's first load so
+    /// Most MiB of prepared scenes (mesh and BVH, kept after a scene's first load so
     /// that loading it again reads them back) to keep; the least recently used go first.
     /// 0 keeps none.
     #[arg(long, value_name = "MIB", default_value_t = tracer::scene::prepared::DEFAULT_MAX_BYTES >> 20)]

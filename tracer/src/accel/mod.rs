@@ -51,6 +51,18 @@ impl RayPrecomp {
 
 pub use crate::memory::advise_huge_pages;
 
+/// A structure over a primitive set whose leaves can give the set its storage order
+/// ([`crate::shapes::Geometry::store_in_leaf_order`]).
+pub trait LeafOrdered {
+    /// A permutation of the primitive indices `0..n` (`order[new] = old`): every index
+    /// the leaves list, in order of its first listing in depth-first leaf order, then
+    /// the unlisted ones in index order.
+    fn leaf_order(&self, n: usize) -> Vec<u32>;
+
+    /// Renames primitive `i` to `new_index[i]` throughout, after the set was permuted.
+    fn remap(&mut self, new_index: &[u32]);
+}
+
 /// A set of primitives addressed by index `0..len()`.
 pub trait Primitives: Sync {
     fn len(&self) -> usize;

@@ -3,7 +3,7 @@
 
 use glam::Vec3;
 
-use super::{KdTree, PrimHit, Primitives, RayPrecomp};
+use super::{LeafOrdered, PrimHit, Primitives, RayPrecomp};
 use crate::geometry::clip::clipped_triangle_bounds;
 use crate::geometry::sphere::intersect_sphere;
 use crate::geometry::triangle::intersect_triangle_corners;
@@ -11,12 +11,12 @@ use crate::geometry::{Aabb, Ray};
 use crate::shapes::{Geometry, PrimRef};
 
 impl Geometry {
-    /// Stores the triangles in `tree`'s leaf order ([`KdTree::leaf_order`]) and renames
+    /// Stores the triangles in `tree`'s leaf order ([`LeafOrdered::leaf_order`]) and renames
     /// the tree's indices to match, so that a leaf's triangles are adjacent in memory
     /// (on large meshes nearly every triangle test is a cache miss otherwise). `tree`
     /// must have been built over `self`. Spheres keep their indices. Returns the
     /// permutation applied to the triangles, `order[new] = old`.
-    pub fn store_in_leaf_order(&mut self, tree: &mut KdTree) -> Vec<u32> {
+    pub fn store_in_leaf_order(&mut self, tree: &mut impl LeafOrdered) -> Vec<u32> {
         let ntri = self.triangle_count();
         let order: Vec<u32> = tree.leaf_order(self.prim_count()).into_iter().filter(|&i| (i as usize) < ntri).collect();
         let mut new_index: Vec<u32> = (0..self.prim_count() as u32).collect();

@@ -1,5 +1,5 @@
 //! Assembling a [`Scene`] from a TOML scene file or a bare OBJ: loading meshes, placing
-//! them, classifying materials, collecting lights and building the kd-tree.
+//! them, classifying materials, collecting lights and building the hierarchy (BVH).
 
 use std::path::Path;
 
@@ -10,9 +10,10 @@ pub(super) use super::builder::Depth;
 use super::file::{LightDesc, SceneFile, SphereDesc, UpAxis};
 use super::obj::{ObjError, ObjModel, load_obj_as};
 use super::{Geometry, Scene, Sphere};
+use crate::accel::Primitives;
+use crate::accel::bvh8::{Bvh8, Bvh8Params};
 use crate::accel::instances::Instances;
 use crate::accel::triangle_blocks::PackedTriangles;
-use crate::accel::{BuildParams, KdTree, Primitives};
 use crate::camera::Camera;
 use crate::light::{Light, LightSet};
 use crate::material::{Material, MaterialDesc};
@@ -344,7 +345,7 @@ fn sphere_material(
     })
 }
 
-/// Collects area lights and builds the kd-tree.
+/// Collects area lights and builds the hierarchy.
 // Long on purpose: The scene's last steps in order (store, accelerator, lights, checks), sharing its parts.
 fn finish(
     b: Builder,
@@ -358,12 +359,11 @@ fn finish(
     // From here on the scene keeps only the compact runtime form of the mesh.
     let t = std::time::Instant::now();
     let mut geometry = Geometry::new(mesh, spheres);
-    let mut accel =
-        KdTree::build(&geometry, &BuildParams::for_scene(geometry.triangle_count(), geometry.spheres.len()));
-    tracing::debug!("kd-tree of {} primitives built in {:.2?}", geometry.len(), t.elapsed());
+    let mut accel = Bvh8::build(&geometry, &Bvh8Params::default());
+    tracing::debug!("BVH of {} primitives built in {:.2?}", geometry.len(), t.elapsed());
     // The eight-ray packets trace the scene's own primitives only.
     let packed = if instances.is_some() { None } else { PackedTriangles::for_small_scene(&geometry) };
-    // When the tree traces the scene, the triangles are stored in its leaf order from
+    // When the hierarchy traces the scene, the triangles are stored in its leaf order from
     // here on, for memory locality (`order[new] = old`). Small scenes, traced by packed
     // brute force in index order, keep the file's order.
     let order: Vec<u32> = match packed {
@@ -485,7 +485,7 @@ mod tests {
     use crate::material::MaterialDesc;
     use crate::scene::generate::displaced_sphere;
 
-    /// The loader stores triangles in the kd-tree's leaf order: hits, materials and area
+    /// The loader stores triangles in the hierarchy's leaf order: hits, materials and area
     /// lights must all speak of the same (permuted) triangles, and the lights keep the
     /// file's order.
     #[test]
@@ -500,7 +500,7 @@ mod tests {
             ObjModel { mesh, materials: vec![MaterialDesc::default_grey("grey"), emissive], ..ObjModel::default() };
         let s = scene_from_bare_obj(model, UpAxis::Y);
         let g = &s.geometry;
-        assert!(s.packed.is_none(), "the test is about the kd-tree path");
+        assert!(s.packed.is_none(), "the test is about the hierarchy's path");
         // The permutation moved triangles (else the test proves nothing).
         assert!((0..g.triangle_count()).any(|i| *g.triangle(i) != file_order[i]));
         let mut seen = Vec::new();

@@ -24,9 +24,10 @@ pub use overrides::Overrides;
 
 use glam::{Vec2, Vec3};
 
+use crate::accel::Hit;
+use crate::accel::bvh8::Bvh8;
 use crate::accel::instances::Instances;
 use crate::accel::triangle_blocks::PackedTriangles;
-use crate::accel::{Hit, KdTree};
 use crate::camera::Camera;
 use crate::geometry::Ray;
 use crate::light::LightSet;
@@ -41,9 +42,10 @@ pub struct Scene {
     pub camera: Camera,
     pub settings: RenderSettings,
     pub geometry: Geometry,
-    pub accel: KdTree,
+    /// The hierarchy over `geometry` (its triangles stored in the hierarchy's leaf order).
+    pub accel: Bvh8,
     /// Scenes of a few hundred triangles are traced by brute force in blocks instead of
-    /// the tree ([`PackedTriangles::for_small_scene`]); same answers, bit for bit.
+    /// the hierarchy ([`PackedTriangles::for_small_scene`]); same answers, bit for bit.
     pub packed: Option<PackedTriangles>,
     /// Meshes placed more than once, stored once each (their triangles are numbered
     /// after `geometry`'s primitives). A scene with instances has no `packed`.

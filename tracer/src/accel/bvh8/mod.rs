@@ -9,9 +9,10 @@
 //! nearest are collected and replayed in index order, boxes are padded as the kd-tree
 //! pads primitive extents, and ray intervals are widened by the same slack.
 //!
-//! Experimental: the renderer still uses the kd-tree; this exists to measure whether a
-//! wide BVH is the way to Embree's single-ray speed (`KDTREE_BVH=... cargo bench -p
-//! tracer --bench kdtree`, `bench/RESULTS.md`).
+//! It traces each scene's own primitives (`Scene::accel`): against the kd-tree it is
+//! 1.25-1.5x as fast on single rays (`BVH8=TRIANGLES cargo bench -p tracer --bench
+//! bvh8`, `bench/RESULTS.md`). Instanced meshes and the eight-ray packet queries still
+//! use the kd-tree.
 //!
 //! [`brute_force_intersect`]: crate::accel::brute_force_intersect
 //! [`brute_force_occluded`]: crate::accel::brute_force_occluded
@@ -125,6 +126,16 @@ pub struct Bvh8 {
     simd: InstructionSet,
 }
 
+impl super::LeafOrdered for Bvh8 {
+    fn leaf_order(&self, n: usize) -> Vec<u32> {
+        Bvh8::leaf_order(self, n)
+    }
+
+    fn remap(&mut self, new_index: &[u32]) {
+        Bvh8::remap(self, new_index)
+    }
+}
+
 impl Bvh8 {
     pub fn build<P: Primitives>(prims: &P, params: &Bvh8Params) -> Bvh8 {
         build::build(prims, params)
@@ -142,6 +153,12 @@ impl Bvh8 {
     /// Heap memory held.
     pub fn heap_bytes(&self) -> usize {
         self.nodes.capacity() * size_of::<Node8>() + self.leaves.capacity() * size_of::<u32>()
+    }
+
+    /// See [`crate::memory::advise_huge_pages`].
+    pub(crate) fn advise_huge_pages(&self) {
+        crate::accel::advise_huge_pages(&self.nodes);
+        crate::accel::advise_huge_pages(&self.leaves);
     }
 
     /// The instruction set the queries use, for reports.

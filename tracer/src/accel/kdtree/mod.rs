@@ -190,6 +190,16 @@ pub struct KdTree {
     simd: InstructionSet,
 }
 
+impl super::LeafOrdered for KdTree {
+    fn leaf_order(&self, n: usize) -> Vec<u32> {
+        KdTree::leaf_order(self, n)
+    }
+
+    fn remap(&mut self, new_index: &[u32]) {
+        KdTree::remap(self, new_index)
+    }
+}
+
 impl KdTree {
     pub fn build<P: Primitives>(prims: &P, params: &BuildParams) -> KdTree {
         let b = build::build(prims, params);

@@ -1,5 +1,5 @@
 //! A folder of prepared scenes kept between jobs: the second job of a scene (or a
-//! restarted process) reads the built mesh and kd-tree back instead of parsing and
+//! restarted process) reads the built mesh and BVH back instead of parsing and
 //! building again.
 //!
 //! An entry's name is the caller's key (over everything the loaded scene depends on:
