@@ -225,6 +225,15 @@ impl PackedTriangles {
                 _mm256_cmp_ps::<_CMP_EQ_OQ>(w, z),
             );
             let zero = _mm256_and_ps(zero, open_v);
+            // Most triangles miss every lane by the signs of the edge functions alone
+            // (`verdict`'s first rejection); the rest of the test is skipped for them.
+            let mixed = _mm256_castsi256_ps(_mm256_srai_epi32::<31>(_mm256_castps_si256(_mm256_or_ps(
+                _mm256_xor_ps(u, v),
+                _mm256_xor_ps(u, w),
+            ))));
+            if _mm256_movemask_ps(_mm256_or_ps(_mm256_andnot_ps(mixed, open_v), zero)) == 0 {
+                continue;
+            }
             let inv_det = _mm256_div_ps(_mm256_set1_ps(1.0), det);
             let t = _mm256_mul_ps(t_scaled, inv_det);
             let ok =
