@@ -33,7 +33,8 @@ pub(crate) enum InstructionSet {
     Baseline,
     #[cfg(target_arch = "x86_64")]
     Avx2,
-    /// Sixteen lanes; the rest of the query is compiled for AVX2 as well.
+    /// Sixteen lanes (AVX-512F and VL); the rest of the query is compiled for AVX2 as
+    /// well.
     #[cfg(target_arch = "x86_64")]
     Avx512,
 }
@@ -58,7 +59,9 @@ impl InstructionSet {
         #[cfg(target_arch = "x86_64")]
         {
             let avx2 = std::is_x86_feature_detected!("avx2") && cap != "baseline";
-            if avx2 && std::is_x86_feature_detected!("avx512f") && cap != "avx2" {
+            // VL as well: the eight-lane kernels then use its 32 vector registers.
+            let avx512 = std::is_x86_feature_detected!("avx512f") && std::is_x86_feature_detected!("avx512vl");
+            if avx2 && avx512 && cap != "avx2" {
                 return InstructionSet::Avx512;
             }
             if avx2 {

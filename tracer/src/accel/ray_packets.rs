@@ -24,7 +24,7 @@ use core::arch::x86_64::*;
 
 use glam::Vec3;
 
-use super::block_test::lane_arithmetic;
+use super::block_test::{InstructionSet, lane_arithmetic};
 use super::triangle_blocks::PackedTriangles;
 use super::{Hit, Primitives, RayPrecomp};
 use crate::geometry::Ray;
@@ -158,8 +158,7 @@ impl PackedTriangles {
     #[inline]
     pub fn intersect8<P: Primitives>(&self, prims: &P, rays: &RayPacket) -> PacketHits {
         assert!(self.packets(), "packet queries need AVX2");
-        // SAFETY: `packets()` holds only where the CPU reported AVX2.
-        let best = unsafe { self.each8(prims, rays, false) };
+        let best = self.each8_dispatch(prims, rays, false);
         let mut out = PacketHits { t: [0.0; PACKET], u: [0.0; PACKET], v: [0.0; PACKET], prim: [0; PACKET], found: 0 };
         // SAFETY: as above.
         unsafe { best.store(&mut out) };
@@ -173,10 +172,28 @@ impl PackedTriangles {
     #[inline]
     pub fn occluded8<P: Primitives>(&self, prims: &P, rays: &RayPacket) -> u32 {
         assert!(self.packets(), "packet queries need AVX2");
-        // SAFETY: `packets()` holds only where the CPU reported AVX2.
-        let best = unsafe { self.each8(prims, rays, true) };
+        let best = self.each8_dispatch(prims, rays, true);
         // SAFETY: as above.
         (unsafe { _mm256_movemask_ps(best.found) }) as u32 & rays.active
+    }
+
+    /// [`Self::each8`] compiled for this CPU: with AVX-512VL's 32 vector registers where
+    /// it has them (the eight-lane arithmetic needs more than AVX2's 16, and spilled;
+    /// the operations are the same, so are the bits).
+    #[inline]
+    fn each8_dispatch<P: Primitives>(&self, prims: &P, rays: &RayPacket, any: bool) -> Best {
+        match self.simd {
+            // SAFETY: `Avx512` is only chosen when the CPU reports AVX2, AVX-512F and VL.
+            InstructionSet::Avx512 => unsafe { self.each8_vl(prims, rays, any) },
+            // SAFETY: `packets()` (asserted by the callers) holds only where the CPU
+            // reported AVX2.
+            _ => unsafe { self.each8(prims, rays, any) },
+        }
+    }
+
+    #[target_feature(enable = "avx2,avx512f,avx512vl")]
+    fn each8_vl<P: Primitives>(&self, prims: &P, rays: &RayPacket, any: bool) -> Best {
+        self.each8(prims, rays, any)
     }
 
     /// Brute force's loop for every lane. `any`: stop a lane at its first hit (and the

@@ -83,7 +83,7 @@ pub struct PackedTriangles {
     sphere_blocks: Vec<SphereBlock>,
     spheres: usize,
     #[serde(skip, default = "InstructionSet::detect")]
-    simd: InstructionSet,
+    pub(super) simd: InstructionSet,
     /// The triangles again, one by one, and the spheres (center, radius): for packets.
     corners4: Vec<Corners4>,
     sphere_list: Vec<(Vec3, f32)>,
