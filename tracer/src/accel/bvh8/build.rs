@@ -37,9 +37,16 @@ impl Binary {
     }
 }
 
+/// A primitive as the build moves it: padded box, centroid, index. Partitioning these
+/// (rather than indices into a table of boxes) keeps every pass sequential in memory.
+#[derive(Clone, Copy)]
+struct Ref {
+    b: Aabb,
+    c: Vec3,
+    id: u32,
+}
+
 struct Ctx<'a> {
-    /// Padded box and centroid of every primitive, by index.
-    boxes: &'a [(Aabb, Vec3)],
     params: &'a Bvh8Params,
 }
 
@@ -50,17 +57,20 @@ pub(super) fn build<P: Primitives>(prims: &P, params: &Bvh8Params) -> Bvh8 {
     let valid = |b: &Aabb| !b.is_empty() && b.min.is_finite() && b.max.is_finite();
     let scene = raw.iter().filter(|b| valid(b)).fold(Aabb::EMPTY, |a, b| a.union(*b));
     let magnitude = scene.min.abs().max(scene.max.abs()).max_element();
-    let boxes: Vec<(Aabb, Vec3)> = raw
+    let mut refs: Vec<Ref> = raw
         .par_iter()
-        .map(|b| {
+        .enumerate()
+        .filter(|(_, b)| valid(b))
+        .map(|(i, b)| {
             let p = pad_extent(*b, magnitude);
-            (p, (p.min + p.max) * 0.5)
+            Ref { b: p, c: (p.min + p.max) * 0.5, id: i as u32 }
         })
         .collect();
-    let mut ids: Vec<u32> = (0..n as u32).filter(|&i| valid(&raw[i as usize])).collect();
     drop(raw);
-    let ctx = Ctx { boxes: &boxes, params };
-    let root = (!ids.is_empty()).then(|| split(&ctx, &mut ids, 0, 0));
+    let ctx = Ctx { params };
+    let root = (!refs.is_empty()).then(|| split(&ctx, &mut refs, 0, 0));
+    let ids: Vec<u32> = refs.iter().map(|r| r.id).collect();
+    drop(refs);
     let mut out = Collapse { ids: &ids, nodes: Vec::new(), leaves: Vec::new(), leaf_count: 0, filled: 0, depth: 0 };
     let root_ref = match &root {
         Some(r) => out.reference(r, 0),
@@ -80,34 +90,32 @@ pub(super) fn build<P: Primitives>(prims: &P, params: &Bvh8Params) -> Bvh8 {
     Bvh8 { nodes, leaves, root: root_ref, bounds: scene, cell, stats, simd: InstructionSet::detect() }
 }
 
-/// Splits `ids` (at `start` in the whole array) by the best binned SAH plane, or makes
+/// Splits `refs` (at `start` in the whole array) by the best binned SAH plane, or makes
 /// a leaf when that is cheaper (and the leaf fits one eight-lane pass).
-fn split(ctx: &Ctx, ids: &mut [u32], start: usize, depth: usize) -> Binary {
-    let n = ids.len();
-    let (b, cb) = ids.iter().fold((Aabb::EMPTY, Aabb::EMPTY), |(b, cb), &i| {
-        let (pb, c) = ctx.boxes[i as usize];
-        (b.union(pb), cb.grow(c))
-    });
+fn split(ctx: &Ctx, refs: &mut [Ref], start: usize, depth: usize) -> Binary {
+    let n = refs.len();
+    let (b, cb) = refs.iter().fold((Aabb::EMPTY, Aabb::EMPTY), |(b, cb), r| (b.union(r.b), cb.grow(r.c)));
     let leaf = Binary::Leaf { b, start, len: n };
     if n == 1 || depth >= MAX_BINARY_DEPTH {
         return leaf;
     }
     let (ct, ci) = (ctx.params.traversal_cost, ctx.params.intersection_cost);
     let area = b.surface_area();
-    let best = best_split(ctx, ids, &cb);
+    let binner = Binner::new(&cb);
+    let best = best_split(refs, &cb, &binner);
     let left = match best {
         Some((axis, bin, cost)) => {
             let split_cost = ct + ci * cost / area;
             if n <= MAX_LEAF && ci * n as f32 <= split_cost {
                 return leaf;
             }
-            partition(ids, |i| bin_of(&cb, axis, ctx.boxes[i as usize].1) <= bin)
+            partition(refs, |r| binner.bin(axis, r.c) <= bin)
         }
         // All centroids in one point: halve by index until leaves fit.
         None if n <= MAX_LEAF => return leaf,
         None => n / 2,
     };
-    let (l, r) = ids.split_at_mut(left);
+    let (l, r) = refs.split_at_mut(left);
     let (l, r) = if n >= PARALLEL_MIN {
         rayon::join(|| split(ctx, l, start, depth + 1), || split(ctx, r, start + left, depth + 1))
     } else {
@@ -116,32 +124,48 @@ fn split(ctx: &Ctx, ids: &mut [u32], start: usize, depth: usize) -> Binary {
     Binary::Inner { b, kids: Box::new([l, r]) }
 }
 
-/// Bin of centroid `c` along `axis` in centroid bounds `cb`: the same function in the
-/// sweep and the partition, so the sides have the sweep's counts.
-#[inline]
-fn bin_of(cb: &Aabb, axis: usize, c: Vec3) -> usize {
-    let k = BINS as f32 * (1.0 - 1.0 / 65536.0) / (cb.max[axis] - cb.min[axis]);
-    // `as` saturates (and maps NaN to 0); the `min` keeps the last bin.
-    (((c[axis] - cb.min[axis]) * k) as usize).min(BINS - 1)
+/// The bins of a node's centroid bounds: the same function in the sweep and the
+/// partition, so the sides have the sweep's counts.
+struct Binner {
+    min: [f32; 3],
+    scale: [f32; 3],
+}
+
+impl Binner {
+    fn new(cb: &Aabb) -> Self {
+        Self {
+            min: cb.min.to_array(),
+            scale: [0, 1, 2].map(|a| BINS as f32 * (1.0 - 1.0 / 65536.0) / (cb.max[a] - cb.min[a])),
+        }
+    }
+
+    /// Bin of centroid `c` along `axis`.
+    #[inline(always)]
+    fn bin(&self, axis: usize, c: Vec3) -> usize {
+        // `as` saturates (and maps NaN to 0); the `min` keeps the last bin.
+        (((c[axis] - self.min[axis]) * self.scale[axis]) as usize).min(BINS - 1)
+    }
 }
 
 /// The cheapest plane between bins: `(axis, last bin on the left, A_l n_l + A_r n_r)`,
 /// the first of equals (axes in order); `None` when the centroids do not spread on any
-/// axis.
-fn best_split(ctx: &Ctx, ids: &[u32], cb: &Aabb) -> Option<(usize, usize, f32)> {
+/// axis. One pass over the refs bins all three axes.
+fn best_split(refs: &[Ref], cb: &Aabb, binner: &Binner) -> Option<(usize, usize, f32)> {
+    let mut count = [[0u32; BINS]; 3];
+    let mut bounds = [[Aabb::EMPTY; BINS]; 3];
+    for r in refs {
+        for axis in 0..3 {
+            let k = binner.bin(axis, r.c);
+            count[axis][k] += 1;
+            bounds[axis][k] = bounds[axis][k].union(r.b);
+        }
+    }
     let mut best: Option<(usize, usize, f32)> = None;
     for axis in 0..3 {
         if !(cb.max[axis] > cb.min[axis]) {
             continue;
         }
-        let mut count = [0u32; BINS];
-        let mut bounds = [Aabb::EMPTY; BINS];
-        for &i in ids {
-            let (pb, c) = ctx.boxes[i as usize];
-            let k = bin_of(cb, axis, c);
-            count[k] += 1;
-            bounds[k] = bounds[k].union(pb);
-        }
+        let (count, bounds) = (&count[axis], &bounds[axis]);
         // Right sides' costs, from the last bin down.
         let mut right = [0.0f32; BINS];
         let (mut rb, mut rn) = (Aabb::EMPTY, 0u32);
@@ -166,15 +190,16 @@ fn best_split(ctx: &Ctx, ids: &[u32], cb: &Aabb) -> Option<(usize, usize, f32)> 
     best
 }
 
-/// Moves the ids for which `left` holds to the front (stable for neither side); how many.
-fn partition(ids: &mut [u32], left: impl Fn(u32) -> bool) -> usize {
-    let (mut i, mut j) = (0, ids.len());
+/// Moves the refs for which `left` holds to the front (stable for neither side); how
+/// many.
+fn partition(refs: &mut [Ref], left: impl Fn(&Ref) -> bool) -> usize {
+    let (mut i, mut j) = (0, refs.len());
     while i < j {
-        if left(ids[i]) {
+        if left(&refs[i]) {
             i += 1;
         } else {
             j -= 1;
-            ids.swap(i, j);
+            refs.swap(i, j);
         }
     }
     i
