@@ -103,14 +103,8 @@ fn main() {
     let t = Instant::now();
     let mut bvh = Bvh8::build(&bgeo, &params);
     let bvh_build = t.elapsed().as_secs_f64();
+    bgeo.store_in_leaf_order(&mut bvh);
     let ntri = bgeo.triangle_count();
-    let order: Vec<u32> = bvh.leaf_order(bgeo.prim_count()).into_iter().filter(|&i| (i as usize) < ntri).collect();
-    let mut new_index: Vec<u32> = (0..bgeo.prim_count() as u32).collect();
-    for (new, &old) in order.iter().enumerate() {
-        new_index[old as usize] = new as u32;
-    }
-    bvh.remap(&new_index);
-    bgeo.permute_triangles(&order);
 
     let ks = kd.stats();
     let bs = bvh.stats();

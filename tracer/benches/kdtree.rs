@@ -386,7 +386,7 @@ fn serve(spec: &str) {
             .collect();
         let build = median(builds.iter().map(|b| b.1).collect());
         let mut b = builds.into_iter().next_back().unwrap().0;
-        store_in_bvh_order(&mut geo, &mut b);
+        geo.store_in_leaf_order(&mut b);
         (
             build,
             Box::new(move |q, geo| match q {
@@ -420,19 +420,6 @@ fn serve(spec: &str) {
         writeln!(out, "{} {:.6} {count}", line.trim(), t.elapsed().as_secs_f64()).unwrap();
         out.flush().unwrap();
     }
-}
-
-/// Stores the triangles in the BVH's leaf order and renames its indices to match (as
-/// [`Geometry::store_in_leaf_order`] does for a kd-tree).
-fn store_in_bvh_order(geo: &mut Geometry, b: &mut Bvh8) {
-    let ntri = geo.triangle_count();
-    let order: Vec<u32> = b.leaf_order(geo.prim_count()).into_iter().filter(|&i| (i as usize) < ntri).collect();
-    let mut new_index: Vec<u32> = (0..geo.prim_count() as u32).collect();
-    for (new, &old) in order.iter().enumerate() {
-        new_index[old as usize] = new as u32;
-    }
-    b.remap(&new_index);
-    geo.permute_triangles(&order);
 }
 
 /// A pinhole camera's rays (as [`camera_rays`]) in packets of 4×2 pixels, closest hit.

@@ -54,13 +54,49 @@ pub use crate::memory::advise_huge_pages;
 /// A structure over a primitive set whose leaves can give the set its storage order
 /// ([`crate::shapes::Geometry::store_in_leaf_order`]).
 pub trait LeafOrdered {
+    /// Calls `f` with each non-empty leaf's primitives, in depth-first order.
+    fn for_each_leaf(&self, f: &mut dyn FnMut(&[u32]));
+
+    /// Renames primitive `i` to `new_index[i]` throughout, after the set was permuted
+    /// (see [`LeafOrdered::leaf_order`]). Each leaf's list is sorted, so a leaf reads its
+    /// primitives in ascending address order. The answers stay bit-identical to brute
+    /// force over the permuted set: a query's result does not depend on the order within
+    /// a leaf.
+    fn remap(&mut self, new_index: &[u32]);
+
     /// A permutation of the primitive indices `0..n` (`order[new] = old`): every index
     /// the leaves list, in order of its first listing in depth-first leaf order, then
-    /// the unlisted ones in index order.
-    fn leaf_order(&self, n: usize) -> Vec<u32>;
+    /// the unlisted ones in index order. Storing the primitives in this order puts a
+    /// leaf's primitives next to each other in memory, and neighbouring leaves' close by.
+    /// Deterministic: a function of the structure alone.
+    fn leaf_order(&self, n: usize) -> Vec<u32> {
+        let mut seen = vec![false; n];
+        let mut order = Vec::with_capacity(n);
+        self.for_each_leaf(&mut |ids| {
+            for &g in ids {
+                if !std::mem::replace(&mut seen[g as usize], true) {
+                    order.push(g);
+                }
+            }
+        });
+        order.extend((0..n as u32).filter(|&i| !seen[i as usize]));
+        order
+    }
+}
 
-    /// Renames primitive `i` to `new_index[i]` throughout, after the set was permuted.
-    fn remap(&mut self, new_index: &[u32]);
+/// Renames the primitives of leaf lists stored as `[count, ids..]` runs, and sorts each
+/// list: the shared part of [`LeafOrdered::remap`].
+fn remap_leaf_lists(leaves: &mut [u32], new_index: &[u32]) {
+    let mut i = 0;
+    while i < leaves.len() {
+        let n = leaves[i] as usize;
+        let ids = &mut leaves[i + 1..i + 1 + n];
+        for id in ids.iter_mut() {
+            *id = new_index[*id as usize];
+        }
+        ids.sort_unstable();
+        i += 1 + n;
+    }
 }
 
 /// A set of primitives addressed by index `0..len()`.

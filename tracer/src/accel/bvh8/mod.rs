@@ -127,12 +127,33 @@ pub struct Bvh8 {
 }
 
 impl super::LeafOrdered for Bvh8 {
-    fn leaf_order(&self, n: usize) -> Vec<u32> {
-        Bvh8::leaf_order(self, n)
+    fn for_each_leaf(&self, f: &mut dyn FnMut(&[u32])) {
+        let mut stack = vec![self.root];
+        while let Some(r) = stack.pop() {
+            let at = (r >> 2) as usize;
+            match r & 3 {
+                NODE => stack.extend(self.nodes[at].child.iter().rev()),
+                LEAF => f(&self.leaves[at + 1..at + 1 + self.leaves[at] as usize]),
+                ONE => f(&[r >> 2]),
+                _ => {}
+            }
+        }
     }
 
     fn remap(&mut self, new_index: &[u32]) {
-        Bvh8::remap(self, new_index)
+        let rename = |r: &mut u32| {
+            if *r & 3 == ONE {
+                *r = (new_index[(*r >> 2) as usize] << 2) | ONE;
+            }
+        };
+        rename(&mut self.root);
+        super::remap_leaf_lists(&mut self.leaves, new_index);
+        for n in &mut self.nodes {
+            n.child.iter_mut().for_each(rename);
+            for j in 0..WIDTH {
+                n.first[j] = leaf_first(&self.leaves, n.child[j]);
+            }
+        }
     }
 }
 
@@ -184,63 +205,6 @@ impl Bvh8 {
             #[cfg(target_arch = "x86_64")]
             // SAFETY: as in `intersect`.
             InstructionSet::Avx2 | InstructionSet::Avx512 => unsafe { self.occluded_avx2(prims, ray, tmax) },
-        }
-    }
-
-    /// A permutation of the primitive indices `0..n` (`order[new] = old`) that stores
-    /// each leaf's primitives together, leaves in depth-first order, then the unlisted
-    /// ones; [`Bvh8::remap`] renames the hierarchy's indices to match.
-    pub fn leaf_order(&self, n: usize) -> Vec<u32> {
-        let mut seen = vec![false; n];
-        let mut order = Vec::with_capacity(n);
-        self.for_each_leaf(|ids| {
-            for &g in ids {
-                if !std::mem::replace(&mut seen[g as usize], true) {
-                    order.push(g);
-                }
-            }
-        });
-        order.extend((0..n as u32).filter(|&i| !seen[i as usize]));
-        order
-    }
-
-    fn for_each_leaf(&self, mut f: impl FnMut(&[u32])) {
-        let mut stack = vec![self.root];
-        while let Some(r) = stack.pop() {
-            let at = (r >> 2) as usize;
-            match r & 3 {
-                NODE => stack.extend(self.nodes[at].child.iter().rev()),
-                LEAF => f(&self.leaves[at + 1..at + 1 + self.leaves[at] as usize]),
-                ONE => f(&[r >> 2]),
-                _ => {}
-            }
-        }
-    }
-
-    /// Renames primitive `i` to `new_index[i]` throughout, after the primitive set was
-    /// permuted; each leaf's list is sorted again.
-    pub fn remap(&mut self, new_index: &[u32]) {
-        let rename = |r: &mut u32| {
-            if *r & 3 == ONE {
-                *r = (new_index[(*r >> 2) as usize] << 2) | ONE;
-            }
-        };
-        rename(&mut self.root);
-        let mut i = 0;
-        while i < self.leaves.len() {
-            let n = self.leaves[i] as usize;
-            let ids = &mut self.leaves[i + 1..i + 1 + n];
-            for id in ids.iter_mut() {
-                *id = new_index[*id as usize];
-            }
-            ids.sort_unstable();
-            i += 1 + n;
-        }
-        for n in &mut self.nodes {
-            n.child.iter_mut().for_each(rename);
-            for j in 0..WIDTH {
-                n.first[j] = leaf_first(&self.leaves, n.child[j]);
-            }
         }
     }
 }

@@ -4,35 +4,23 @@ use glam::Vec3;
 use proptest::prelude::*;
 
 use super::*;
-use crate::accel::kdtree::tests::{Rng, geometry, key, pinned, random_ray, random_scene};
-use crate::accel::{brute_force_intersect, brute_force_occluded};
+use crate::accel::kdtree::tests::{Exact, Rng, check, check_rays, geometry, pinned, random_ray, random_scene};
 use crate::scene::generate::displaced_sphere;
 use crate::shapes::{Geometry, Sphere};
 
-fn check<P: Primitives>(prims: &P, bvh: &Bvh8, ray: &Ray, tmax: f32) -> Result<(), TestCaseError> {
-    let expect = brute_force_intersect(prims, ray, tmax);
-    prop_assert_eq!(key(bvh.intersect(prims, ray, tmax)), key(expect), "intersect, ray {:?} tmax {}", ray, tmax);
-    let expect_occ = brute_force_occluded(prims, ray, tmax);
-    prop_assert_eq!(bvh.occluded(prims, ray, tmax), expect_occ, "occluded, ray {:?} tmax {}", ray, tmax);
-    // The path of CPUs without AVX2 too.
-    let base = bvh.intersect_impl::<P, false>(prims, ray, tmax);
-    prop_assert_eq!(key(base), key(expect), "intersect (baseline), ray {:?} tmax {}", ray, tmax);
-    prop_assert_eq!(bvh.occluded_impl::<P, false>(prims, ray, tmax), expect_occ, "occluded (baseline)");
-    Ok(())
-}
-
-/// Rays with infinite, random finite and hit-distance tmax (ties with the limit).
-fn check_rays<P: Primitives>(prims: &P, bvh: &Bvh8, r: &mut Rng, rays: usize) -> Result<(), TestCaseError> {
-    for _ in 0..rays {
-        let ray = random_ray(r);
-        check(prims, bvh, &ray, f32::INFINITY)?;
-        check(prims, bvh, &ray, r.range(0.0, 4.0))?;
-        if let Some(h) = brute_force_intersect(prims, &ray, f32::INFINITY) {
-            check(prims, bvh, &ray, h.t)?;
-            check(prims, bvh, &ray, f32::from_bits(h.t.to_bits() + 1))?;
-        }
+impl Exact for Bvh8 {
+    fn hit<P: Primitives>(&self, prims: &P, ray: &Ray, tmax: f32) -> Option<Hit> {
+        self.intersect(prims, ray, tmax)
     }
-    Ok(())
+    fn occ<P: Primitives>(&self, prims: &P, ray: &Ray, tmax: f32) -> bool {
+        self.occluded(prims, ray, tmax)
+    }
+    fn hit_baseline<P: Primitives>(&self, prims: &P, ray: &Ray, tmax: f32) -> Option<Hit> {
+        self.intersect_impl::<P, false>(prims, ray, tmax)
+    }
+    fn occ_baseline<P: Primitives>(&self, prims: &P, ray: &Ray, tmax: f32) -> bool {
+        self.occluded_impl::<P, false>(prims, ray, tmax)
+    }
 }
 
 fn random_params(r: &mut Rng) -> Bvh8Params {
@@ -61,14 +49,7 @@ proptest! {
         let n = [0, 1 + (seed % 16) as usize, 50 + (seed % 200) as usize, 500 + (seed % 2500) as usize][size];
         let mut geo = random_scene(seed, n);
         let mut bvh = Bvh8::build(&geo, &Bvh8Params::default());
-        let ntri = geo.triangle_count();
-        let order: Vec<u32> = bvh.leaf_order(geo.prim_count()).into_iter().filter(|&i| (i as usize) < ntri).collect();
-        let mut new_index: Vec<u32> = (0..geo.prim_count() as u32).collect();
-        for (new, &old) in order.iter().enumerate() {
-            new_index[old as usize] = new as u32;
-        }
-        bvh.remap(&new_index);
-        geo.permute_triangles(&order);
+        geo.store_in_leaf_order(&mut bvh);
         check_rays(&geo, &bvh, &mut Rng(rays_seed), 60)?;
     }
 }

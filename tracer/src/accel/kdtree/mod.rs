@@ -191,12 +191,30 @@ pub struct KdTree {
 }
 
 impl super::LeafOrdered for KdTree {
-    fn leaf_order(&self, n: usize) -> Vec<u32> {
-        KdTree::leaf_order(self, n)
+    fn for_each_leaf(&self, f: &mut dyn FnMut(&[u32])) {
+        let mut stack = vec![self.root];
+        while let Some(r) = stack.pop() {
+            let at = (r >> 2) as usize;
+            match r & 3 {
+                treelet::TREELET => stack.extend(self.treelets[at].child.iter().rev()),
+                treelet::LEAF => f(&self.leaves[at + 1..at + 1 + self.leaves[at] as usize]),
+                treelet::ONE => f(&[r >> 2]),
+                _ => {}
+            }
+        }
     }
 
     fn remap(&mut self, new_index: &[u32]) {
-        KdTree::remap(self, new_index)
+        let rename = |r: &mut u32| {
+            if *r & 3 == treelet::ONE {
+                *r = (new_index[(*r >> 2) as usize] << 2) | treelet::ONE;
+            }
+        };
+        rename(&mut self.root);
+        for t in &mut self.treelets {
+            t.child.iter_mut().for_each(rename);
+        }
+        super::remap_leaf_lists(&mut self.leaves, new_index);
     }
 }
 
@@ -268,67 +286,6 @@ impl KdTree {
             #[cfg(target_arch = "x86_64")]
             // SAFETY: as in `intersect`.
             InstructionSet::Avx2 | InstructionSet::Avx512 => unsafe { self.occluded_avx2(prims, ray, tmax) },
-        }
-    }
-
-    /// A permutation of the primitive indices `0..n` (`order[new] = old`): every index
-    /// the leaves list, in order of its first listing in depth-first leaf order (below
-    /// before above), then the unlisted ones in index order. Storing the primitives in
-    /// this order puts a leaf's primitives next to each other in memory, and
-    /// neighbouring leaves' close by; [`KdTree::remap`] then renames the tree's indices
-    /// to match. Deterministic: a function of the tree alone.
-    pub fn leaf_order(&self, n: usize) -> Vec<u32> {
-        let mut seen = vec![false; n];
-        let mut order = Vec::with_capacity(n);
-        self.for_each_leaf(|ids| {
-            for &g in ids {
-                if !std::mem::replace(&mut seen[g as usize], true) {
-                    order.push(g);
-                }
-            }
-        });
-        order.extend((0..n as u32).filter(|&i| !seen[i as usize]));
-        order
-    }
-
-    /// Calls `f` with each non-empty leaf's primitives, in depth-first order.
-    fn for_each_leaf(&self, mut f: impl FnMut(&[u32])) {
-        let mut stack = vec![self.root];
-        while let Some(r) = stack.pop() {
-            let at = (r >> 2) as usize;
-            match r & 3 {
-                treelet::TREELET => stack.extend(self.treelets[at].child.iter().rev()),
-                treelet::LEAF => f(&self.leaves[at + 1..at + 1 + self.leaves[at] as usize]),
-                treelet::ONE => f(&[r >> 2]),
-                _ => {}
-            }
-        }
-    }
-
-    /// Renames primitive `i` to `new_index[i]` throughout the tree, for use after the
-    /// primitive set was permuted (see [`KdTree::leaf_order`]). Each leaf's list is
-    /// sorted, so a leaf reads its primitives in ascending address order. The answers
-    /// stay bit-identical to brute force over the permuted set: the traversal's result
-    /// does not depend on the order within a leaf.
-    pub fn remap(&mut self, new_index: &[u32]) {
-        let rename = |r: &mut u32| {
-            if *r & 3 == treelet::ONE {
-                *r = (new_index[(*r >> 2) as usize] << 2) | treelet::ONE;
-            }
-        };
-        rename(&mut self.root);
-        for t in &mut self.treelets {
-            t.child.iter_mut().for_each(rename);
-        }
-        let mut i = 0;
-        while i < self.leaves.len() {
-            let n = self.leaves[i] as usize;
-            let ids = &mut self.leaves[i + 1..i + 1 + n];
-            for id in ids.iter_mut() {
-                *id = new_index[*id as usize];
-            }
-            ids.sort_unstable();
-            i += 1 + n;
         }
     }
 }

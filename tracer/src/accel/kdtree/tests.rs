@@ -16,6 +16,7 @@ pub(in crate::accel) fn pinned(cases: u32) -> ProptestConfig {
 
 use super::treelet::Treelet;
 use super::*;
+use crate::accel::LeafOrdered;
 use crate::accel::{RayPrecomp, brute_force_intersect, brute_force_occluded};
 use crate::scene::generate::displaced_sphere;
 use crate::shapes::{Geometry, NONE, Sphere, Tri, TriangleMesh};
@@ -194,23 +195,56 @@ pub(in crate::accel) fn key(h: Option<Hit>) -> Option<(u32, u32, u32, u32)> {
     h.map(|h| (h.t.to_bits(), h.prim, h.u.to_bits(), h.v.to_bits()))
 }
 
-fn check<P: Primitives>(prims: &P, tree: &KdTree, ray: &Ray, tmax: f32) -> Result<(), TestCaseError> {
+/// A structure whose queries must be brute force's, with the path of CPUs without AVX2
+/// (leaf triangles one by one) reachable for tests.
+pub(in crate::accel) trait Exact {
+    fn hit<P: Primitives>(&self, prims: &P, ray: &Ray, tmax: f32) -> Option<Hit>;
+    fn occ<P: Primitives>(&self, prims: &P, ray: &Ray, tmax: f32) -> bool;
+    fn hit_baseline<P: Primitives>(&self, prims: &P, ray: &Ray, tmax: f32) -> Option<Hit>;
+    fn occ_baseline<P: Primitives>(&self, prims: &P, ray: &Ray, tmax: f32) -> bool;
+}
+
+impl Exact for KdTree {
+    fn hit<P: Primitives>(&self, prims: &P, ray: &Ray, tmax: f32) -> Option<Hit> {
+        self.intersect(prims, ray, tmax)
+    }
+    fn occ<P: Primitives>(&self, prims: &P, ray: &Ray, tmax: f32) -> bool {
+        self.occluded(prims, ray, tmax)
+    }
+    fn hit_baseline<P: Primitives>(&self, prims: &P, ray: &Ray, tmax: f32) -> Option<Hit> {
+        self.intersect_impl::<P, false>(prims, ray, tmax)
+    }
+    fn occ_baseline<P: Primitives>(&self, prims: &P, ray: &Ray, tmax: f32) -> bool {
+        self.occluded_impl::<P, false>(prims, ray, tmax)
+    }
+}
+
+pub(in crate::accel) fn check<P: Primitives>(
+    prims: &P,
+    tree: &impl Exact,
+    ray: &Ray,
+    tmax: f32,
+) -> Result<(), TestCaseError> {
     let expect = brute_force_intersect(prims, ray, tmax);
-    let got = tree.intersect(prims, ray, tmax);
+    let got = tree.hit(prims, ray, tmax);
     prop_assert_eq!(key(got), key(expect), "intersect, ray {:?} tmax {}", ray, tmax);
     let expect_occ = brute_force_occluded(prims, ray, tmax);
-    prop_assert_eq!(tree.occluded(prims, ray, tmax), expect_occ, "occluded, ray {:?} tmax {}", ray, tmax);
-    // The path of CPUs without AVX2 (leaf triangles one by one) too.
-    let base = tree.intersect_impl::<P, false>(prims, ray, tmax);
+    prop_assert_eq!(tree.occ(prims, ray, tmax), expect_occ, "occluded, ray {:?} tmax {}", ray, tmax);
+    let base = tree.hit_baseline(prims, ray, tmax);
     prop_assert_eq!(key(base), key(expect), "intersect (baseline), ray {:?} tmax {}", ray, tmax);
-    let base_occ = tree.occluded_impl::<P, false>(prims, ray, tmax);
+    let base_occ = tree.occ_baseline(prims, ray, tmax);
     prop_assert_eq!(base_occ, expect_occ, "occluded (baseline), ray {:?} tmax {}", ray, tmax);
     Ok(())
 }
 
 /// Checks a batch of rays, each with infinite, random finite, and hit-distance tmax
 /// (the brute-force hit's own t, and just above it: ties with the limit).
-fn check_rays<P: Primitives>(prims: &P, tree: &KdTree, r: &mut Rng, rays: usize) -> Result<(), TestCaseError> {
+pub(in crate::accel) fn check_rays<P: Primitives>(
+    prims: &P,
+    tree: &impl Exact,
+    r: &mut Rng,
+    rays: usize,
+) -> Result<(), TestCaseError> {
     for _ in 0..rays {
         let ray = random_ray(r);
         check(prims, tree, &ray, f32::INFINITY)?;
@@ -368,7 +402,7 @@ fn nodes_are_compact_and_tree_is_shareable() {
     assert!(seen.iter().all(|&x| x) && runs.values().all(|&x| x));
     assert_eq!(refs, s.prim_refs);
     let mut listed = 0;
-    tree.for_each_leaf(|ids| listed += ids.len());
+    tree.for_each_leaf(&mut |ids: &[u32]| listed += ids.len());
     assert_eq!(listed, s.prim_refs);
     // A depth limit of 0 gives one leaf with everything.
     let one = KdTree::build(&geo, &BuildParams { max_depth: Some(0), ..Default::default() });
