@@ -24,7 +24,7 @@ by pass (`--passes` pairs per query kind, the order flipping every pair) and the
 printed is the median of the pairs' ratios, with its quartiles.
 
 tilefarm's side is the eight-wide BVH that traces a scene's own primitives
-(`tracer/src/accel/bvh8`), or with `--accel kdtree` the kd-tree (instanced meshes).
+(`tracer/src/accel/bvh8`), or with `--accel kdtree` the kd-tree it replaced.
 
 Usage: python3 bench/embree_compare.py [--triangles 1000000] [--rays 100000] [--repeat 3] [--passes 20] [--accel kdtree]
 """
@@ -87,8 +87,8 @@ def main():
     ap.add_argument("--passes", type=int, default=20,
                     help="alternated passes per query kind; the ratio is the median over pass pairs")
     ap.add_argument("--accel", choices=("bvh8", "kdtree"), default="bvh8",
-                    help="tilefarm's structure: the eight-wide BVH of a scene's own primitives, or the kd-tree "
-                         "of instanced meshes")
+                    help="tilefarm's structure: the eight-wide BVH the renderer uses, or the kd-tree it "
+                         "replaced")
     a = ap.parse_args()
 
     with tempfile.TemporaryDirectory() as tmp:

@@ -1,5 +1,5 @@
-//! Instancing: a mesh stored once, in its own space, with its own kd-tree, and placed
-//! any number of times by affine transforms; a top-level kd-tree over the placed copies
+//! Instancing: a mesh stored once, in its own space, with its own BVH, and placed
+//! any number of times by affine transforms; a top-level BVH over the placed copies
 //! (two levels, as Embree's and pbrt-v4's instances). A ray meets a copy by being moved
 //! into the mesh's space: an affine map keeps the ray's parameter, so the mesh's `t` is
 //! the scene's.
@@ -10,7 +10,8 @@
 use glam::{Affine3A, Mat3, Vec3};
 use rayon::prelude::*;
 
-use super::{BuildParams, Hit, KdTree, PrimHit, Primitives, RayPrecomp};
+use super::bvh8::{Bvh8, Bvh8Params};
+use super::{Hit, PrimHit, Primitives, RayPrecomp};
 use crate::geometry::{Aabb, Ray};
 use crate::shapes::Geometry;
 
@@ -18,14 +19,13 @@ use crate::shapes::Geometry;
 #[derive(serde::Serialize, serde::Deserialize)]
 pub struct InstancedMesh {
     pub geometry: Geometry,
-    pub accel: KdTree,
+    pub accel: Bvh8,
 }
 
 impl InstancedMesh {
     /// Builds the mesh's tree and stores its triangles in the tree's leaf order.
     pub fn new(mut geometry: Geometry) -> Self {
-        let params = BuildParams::for_scene(geometry.triangle_count(), geometry.spheres.len());
-        let mut accel = KdTree::build(&geometry, &params);
+        let mut accel = Bvh8::build(&geometry, &Bvh8Params::default());
         geometry.store_in_leaf_order(&mut accel);
         Self { geometry, accel }
     }
@@ -75,7 +75,7 @@ pub struct InstanceList {
 #[derive(serde::Serialize, serde::Deserialize)]
 pub struct Instances {
     pub set: InstanceList,
-    top: KdTree,
+    top: Bvh8,
     /// One past the last scene-wide triangle index of the copies.
     end: u32,
     /// The union of the copies' triangles' world bounds.
@@ -117,9 +117,9 @@ impl Instances {
         let tight: Vec<Aabb> = list.par_iter().map(|inst| world_bounds(&meshes[inst.mesh as usize], inst)).collect();
         let world = tight.iter().fold(Aabb::EMPTY, |a, &b| a.union(b));
         let set = InstanceList { meshes, list, bounds: tight.into_iter().map(padded).collect() };
-        // A copy's test is a whole tree walk: small leaves pay.
-        let params = BuildParams { intersection_cost: 4.0, ..BuildParams::default() };
-        let top = KdTree::build(&set, &params);
+        // A copy's test is a whole walk of its mesh's hierarchy: small leaves pay.
+        let params = Bvh8Params { intersection_cost: 4.0, ..Bvh8Params::default() };
+        let top = Bvh8::build(&set, &params);
         Ok(Self { set, top, end, world })
     }
 

@@ -11,8 +11,8 @@
 //!
 //! It traces each scene's own primitives (`Scene::accel`): against the kd-tree it is
 //! 1.25-1.5x as fast on single rays (`BVH8=TRIANGLES cargo bench -p tracer --bench
-//! bvh8`, `bench/RESULTS.md`). Instanced meshes and the eight-ray packet queries still
-//! use the kd-tree.
+//! bvh8`, `bench/RESULTS.md`), and instanced meshes too (each mesh's own and the top
+//! level over the copies). The kd-tree stays for comparison.
 //!
 //! [`brute_force_intersect`]: crate::accel::brute_force_intersect
 //! [`brute_force_occluded`]: crate::accel::brute_force_occluded

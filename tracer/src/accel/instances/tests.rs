@@ -68,7 +68,7 @@ fn the_top_tree_answers_as_brute_force_over_the_copies() {
 fn an_identity_copy_is_the_mesh_itself() {
     let m = mesh(3000, 1);
     let own = m.geometry.clone();
-    let own_tree = KdTree::build(&own, &BuildParams::for_scene(own.triangle_count(), 0));
+    let own_tree = Bvh8::build(&own, &Bvh8Params::default());
     let inst = Instances::new(vec![m], vec![place(0, Affine3A::IDENTITY).unwrap()], 100).unwrap();
     assert!(inst.set.list[0].identity);
     for (ray, _) in incoherent_rays(inst.bounds(), 2000, 3) {
@@ -105,7 +105,7 @@ fn copies_agree_with_the_flattened_triangles() {
     }
     let flat = Geometry::new(flat, Vec::new());
     assert_eq!(flat.triangle_count() as u64, inst.triangles_seen());
-    let tree = KdTree::build(&flat, &BuildParams::default());
+    let tree = Bvh8::build(&flat, &Bvh8Params::default());
     let rays = incoherent_rays(inst.bounds(), 4000, 11);
     let mut differ = 0;
     for (ray, _) in &rays {
