@@ -3,6 +3,7 @@
 
 use glam::Vec3;
 
+use super::kdtree::prefetch;
 use super::{LeafOrdered, PrimHit, Primitives, RayPrecomp};
 use crate::geometry::clip::clipped_triangle_bounds;
 use crate::geometry::sphere::intersect_sphere;
@@ -84,17 +85,4 @@ impl Primitives for Geometry {
             prefetch(p.wrapping_add(size_of::<[Vec3; 3]>() - 1));
         }
     }
-}
-
-/// Hints the cache to load `p`'s line (nothing is dereferenced).
-#[inline(always)]
-fn prefetch(p: *const u8) {
-    // SAFETY: a prefetch is a hint; it never faults, whatever the address (SSE is part
-    // of the x86_64 baseline).
-    #[cfg(target_arch = "x86_64")]
-    unsafe {
-        core::arch::x86_64::_mm_prefetch::<{ core::arch::x86_64::_MM_HINT_T0 }>(p.cast())
-    };
-    #[cfg(not(target_arch = "x86_64"))]
-    let _ = p;
 }

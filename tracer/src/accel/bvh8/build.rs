@@ -46,10 +46,6 @@ struct Ref {
     id: u32,
 }
 
-struct Ctx<'a> {
-    params: &'a Bvh8Params,
-}
-
 pub(super) fn build<P: Primitives>(prims: &P, params: &Bvh8Params) -> Bvh8 {
     let n = prims.len();
     assert!(n < 1 << 30, "bvh: at most 2^30 primitives");
@@ -67,8 +63,7 @@ pub(super) fn build<P: Primitives>(prims: &P, params: &Bvh8Params) -> Bvh8 {
         })
         .collect();
     drop(raw);
-    let ctx = Ctx { params };
-    let root = (!refs.is_empty()).then(|| split(&ctx, &mut refs, 0, 0));
+    let root = (!refs.is_empty()).then(|| split(params, &mut refs, 0, 0));
     let ids: Vec<u32> = refs.iter().map(|r| r.id).collect();
     drop(refs);
     let mut out = Collapse { ids: &ids, nodes: Vec::new(), leaves: Vec::new(), leaf_count: 0, filled: 0, depth: 0 };
@@ -92,14 +87,14 @@ pub(super) fn build<P: Primitives>(prims: &P, params: &Bvh8Params) -> Bvh8 {
 
 /// Splits `refs` (at `start` in the whole array) by the best binned SAH plane, or makes
 /// a leaf when that is cheaper (and the leaf fits one eight-lane pass).
-fn split(ctx: &Ctx, refs: &mut [Ref], start: usize, depth: usize) -> Binary {
+fn split(params: &Bvh8Params, refs: &mut [Ref], start: usize, depth: usize) -> Binary {
     let n = refs.len();
     let (b, cb) = refs.iter().fold((Aabb::EMPTY, Aabb::EMPTY), |(b, cb), r| (b.union(r.b), cb.grow(r.c)));
     let leaf = Binary::Leaf { b, start, len: n };
     if n == 1 || depth >= MAX_BINARY_DEPTH {
         return leaf;
     }
-    let (ct, ci) = (ctx.params.traversal_cost, ctx.params.intersection_cost);
+    let (ct, ci) = (params.traversal_cost, params.intersection_cost);
     let area = b.surface_area();
     let binner = Binner::new(&cb);
     let best = best_split(refs, &cb, &binner);
@@ -117,9 +112,9 @@ fn split(ctx: &Ctx, refs: &mut [Ref], start: usize, depth: usize) -> Binary {
     };
     let (l, r) = refs.split_at_mut(left);
     let (l, r) = if n >= PARALLEL_MIN {
-        rayon::join(|| split(ctx, l, start, depth + 1), || split(ctx, r, start + left, depth + 1))
+        rayon::join(|| split(params, l, start, depth + 1), || split(params, r, start + left, depth + 1))
     } else {
-        (split(ctx, l, start, depth + 1), split(ctx, r, start + left, depth + 1))
+        (split(params, l, start, depth + 1), split(params, r, start + left, depth + 1))
     };
     Binary::Inner { b, kids: Box::new([l, r]) }
 }
