@@ -7,13 +7,17 @@
 //! Each structure reads its own copy of the mesh stored in its leaf order, as the
 //! renderer stores a scene's. Rays: incoherent (origins on the bounding sphere towards
 //! uniform points in the box; any hit up to that point) and a pinhole camera's in
-//! scanline order.
+//! scanline order. Then the packet queries (`Bvh8::intersect8` / `occluded8`) against
+//! the same rays one at a time: a camera's rays in packets of 4×2 pixels, the shadow
+//! rays from their hits towards a point light, and the incoherent rays eight by eight
+//! (what the packet query must not make much worse).
 
 use std::hint::black_box;
 use std::time::Instant;
 
 use glam::Vec3;
 use tracer::accel::bvh8::{Bvh8, Bvh8Params};
+use tracer::accel::ray_packets::RayPacket;
 use tracer::accel::{BuildParams, KdTree};
 use tracer::geometry::{Aabb, Ray};
 use tracer::scene::Geometry;
@@ -144,6 +148,118 @@ fn main() {
             a.push(m / ka.0);
             b.push(m / kb.0);
             ratio.push(ka.0 / kb.0);
+        }
+        println!("{name:<26}{:>12.3}{:>12.3}{:>8.2}", median(a), median(b), median(ratio));
+    }
+    packet_table(&bvh, &bgeo, rounds);
+}
+
+/// A pinhole camera's rays in packets of 4×2 pixels, closest hit.
+fn camera_packets(b: Aabb, side: usize) -> Vec<RayPacket> {
+    let (c, size) = (b.center(), b.diagonal().length());
+    let eye = c + Vec3::new(0.3, 0.4, 3.0).normalize() * (1.5 * size);
+    let fwd = (c - eye).normalize();
+    let right = fwd.cross(Vec3::Y).normalize();
+    let up = right.cross(fwd);
+    let mut out = Vec::new();
+    for by in (0..side).step_by(2) {
+        for bx in (0..side).step_by(4) {
+            let mut p = RayPacket::default();
+            for l in 0..8 {
+                let (px, py) = (bx + l % 4, by + l / 4);
+                let (x, y) = (px as f32 / side as f32 - 0.5, py as f32 / side as f32 - 0.5);
+                p.set(l, &Ray::new(eye, (fwd + (right * x + up * y) * 0.7).normalize()), f32::INFINITY);
+            }
+            out.push(p);
+        }
+    }
+    out
+}
+
+/// The shadow rays of `camera`'s hits towards a point light above and beside the
+/// camera, packet by packet (lanes that missed stay inactive), nudged off the surface.
+fn shadow_packets(bvh: &Bvh8, geo: &Geometry, camera: &[RayPacket]) -> Vec<RayPacket> {
+    let b = bvh.bounds();
+    let light = b.center() + Vec3::new(-1.0, 2.0, 1.5).normalize() * b.diagonal().length();
+    let eps = 1e-4 * b.diagonal().length();
+    camera
+        .iter()
+        .map(|p| {
+            let hits = bvh.intersect8(geo, p);
+            let mut s = RayPacket::default();
+            for l in 0..8 {
+                if let Some(h) = hits.get(l) {
+                    let ray = p.ray(l);
+                    let x = ray.origin + ray.dir * h.t;
+                    let to = light - x;
+                    let d = to.normalize();
+                    s.set(l, &Ray::new(x + d * eps, d), to.length() - 2.0 * eps);
+                }
+            }
+            s
+        })
+        .collect()
+}
+
+/// Packets against one ray at a time on the same rays: Mrays/s of each and the median of
+/// the rounds' ratios.
+fn packet_table(bvh: &Bvh8, geo: &Geometry, rounds: usize) {
+    let camera = camera_packets(bvh.bounds(), 512);
+    let shadow = shadow_packets(bvh, geo, &camera);
+    let incoherent: Vec<RayPacket> = tracer::accel::incoherent_rays(bvh.bounds(), RAYS, 2)
+        .chunks(8)
+        .map(|c| {
+            let mut p = RayPacket::default();
+            for (l, (r, t)) in c.iter().enumerate() {
+                p.set(l, r, *t);
+            }
+            p
+        })
+        .collect();
+    println!("{:<26}{:>12}{:>12}{:>8}   (BVH8, Mrays/s, one thread)", "packets of 8", "one by one", "packets", "ratio");
+    for (name, packets, any) in [
+        ("camera, closest hit", &camera, false),
+        ("shadow, any hit", &shadow, true),
+        ("incoherent, closest hit", &incoherent, false),
+        ("incoherent, any hit", &incoherent, true),
+    ] {
+        let n: usize = packets.iter().map(|p| p.active.count_ones() as usize).sum();
+        let one = || {
+            let t = Instant::now();
+            let mut found = 0usize;
+            for p in packets.iter() {
+                for l in (0..8).filter(|l| p.active & (1 << l) != 0) {
+                    let (r, tmax) = (p.ray(l), p.tmax[l]);
+                    found += usize::from(if any {
+                        bvh.occluded(geo, &r, tmax)
+                    } else {
+                        bvh.intersect(geo, &r, tmax).is_some()
+                    });
+                }
+            }
+            (t.elapsed().as_secs_f64(), black_box(found))
+        };
+        let eight = || {
+            let t = Instant::now();
+            let found: usize = packets
+                .iter()
+                .map(|p| if any { bvh.occluded8(geo, p) } else { bvh.intersect8(geo, p).found }.count_ones() as usize)
+                .sum();
+            (t.elapsed().as_secs_f64(), black_box(found))
+        };
+        let (mut a, mut b, mut ratio) = (Vec::new(), Vec::new(), Vec::new());
+        for round in 0..rounds {
+            let (x, y) = if round % 2 == 0 {
+                let x = one();
+                (x, eight())
+            } else {
+                let y = eight();
+                (one(), y)
+            };
+            assert_eq!(x.1, y.1, "{name}: packets found other hits than single rays");
+            a.push(n as f64 / x.0 / 1e6);
+            b.push(n as f64 / y.0 / 1e6);
+            ratio.push(x.0 / y.0);
         }
         println!("{name:<26}{:>12.3}{:>12.3}{:>8.2}", median(a), median(b), median(ratio));
     }

@@ -90,6 +90,20 @@ pub struct PacketHits {
 }
 
 impl PacketHits {
+    /// No lane hit.
+    pub(crate) fn none() -> Self {
+        PacketHits { t: [0.0; PACKET], u: [0.0; PACKET], v: [0.0; PACKET], prim: [0; PACKET], found: 0 }
+    }
+
+    /// Records lane `l`'s answer to a one-ray query.
+    #[inline(always)]
+    pub(crate) fn put(&mut self, l: usize, hit: Option<Hit>) {
+        if let Some(h) = hit {
+            (self.t[l], self.u[l], self.v[l], self.prim[l]) = (h.t, h.u, h.v, h.prim);
+            self.found |= 1 << l;
+        }
+    }
+
     /// Lane `l`'s hit, as the one-ray query returns it.
     #[inline(always)]
     pub fn get(&self, l: usize) -> Option<Hit> {

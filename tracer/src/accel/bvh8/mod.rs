@@ -14,10 +14,14 @@
 //! bvh8`, `bench/RESULTS.md`), and instanced meshes too (each mesh's own and the top
 //! level over the copies). The kd-tree stays for comparison.
 //!
+//! Coherent rays can also go eight at a time (`packet.rs`): one frustum test per node
+//! for the whole packet, each ray on its own only at the leaves.
+//!
 //! [`brute_force_intersect`]: crate::accel::brute_force_intersect
 //! [`brute_force_occluded`]: crate::accel::brute_force_occluded
 
 mod build;
+mod packet;
 #[cfg(test)]
 mod tests;
 mod traverse;

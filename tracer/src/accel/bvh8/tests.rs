@@ -4,7 +4,11 @@ use glam::Vec3;
 use proptest::prelude::*;
 
 use super::*;
-use crate::accel::kdtree::tests::{Exact, Rng, check, check_rays, geometry, pinned, random_ray, random_scene};
+use crate::accel::kdtree::tests::{
+    Exact, ExactPackets, Rng, check, check_packets, check_rays, geometry, pinned, random_ray, random_scene,
+};
+use crate::accel::ray_packets::{PacketHits, RayPacket};
+use crate::geometry::Aabb;
 use crate::scene::generate::displaced_sphere;
 use crate::shapes::{Geometry, Sphere};
 
@@ -107,4 +111,71 @@ fn coincident_and_skewed_sets() {
         let ray = Ray::new(Vec3::new(1.2 * s, 0.1 * s, 0.0), Vec3::Z);
         check(&geo, &bvh, &ray, f32::INFINITY).unwrap();
     }
+}
+
+impl ExactPackets for Bvh8 {
+    fn hit8<P: Primitives>(&self, prims: &P, rays: &RayPacket) -> PacketHits {
+        self.intersect8(prims, rays)
+    }
+    fn occ8<P: Primitives>(&self, prims: &P, rays: &RayPacket) -> u32 {
+        self.occluded8(prims, rays)
+    }
+}
+
+proptest! {
+    #![proptest_config(pinned(120))]
+
+    #[test]
+    fn packets_agree_with_brute_force_on_random_scenes(seed in any::<u64>(), size in 0usize..4, rays_seed in any::<u64>()) {
+        let n = [0, 1 + (seed % 16) as usize, 50 + (seed % 200) as usize, 500 + (seed % 2500) as usize][size];
+        let geo = random_scene(seed, n);
+        let mut r = Rng(rays_seed);
+        let bvh = Bvh8::build(&geo, &random_params(&mut r));
+        check_packets(&geo, &bvh, &mut r, 40)?;
+    }
+}
+
+/// Packets on a closed mesh with spheres: coherent packets hit neighbouring triangles
+/// and share most nodes.
+#[test]
+fn packets_agree_with_brute_force_on_displaced_sphere() {
+    let mesh = displaced_sphere(20_000, 3);
+    let mut r = Rng(11);
+    let spheres =
+        (0..300).map(|_| Sphere { center: r.v(-1.5, 1.5), radius: r.range(0.01, 0.15), material: 0 }).collect();
+    let geo = Geometry::new(mesh, spheres);
+    let bvh = Bvh8::build(&geo, &Bvh8Params::default());
+    check_packets(&geo, &bvh, &mut r, 400).unwrap();
+}
+
+/// Packets walk together only when their rays are close: a camera's neighbouring rays
+/// form one group; a ray from a far-apart point, one 26° off, and one with a zero
+/// direction component go alone, and so do most scattered rays.
+#[cfg(target_arch = "x86_64")]
+#[test]
+fn only_coherent_lanes_walk_together() {
+    use super::packet::coherent_groups;
+    let bounds = Aabb::new(Vec3::splat(-1.0), Vec3::splat(1.0));
+    let eye = Vec3::new(0.1, 0.2, -5.0);
+    let mut camera = RayPacket::default();
+    for l in 0..8 {
+        let d = Vec3::new(0.003 + 0.01 * (l % 4) as f32, 0.002 + 0.01 * (l / 4) as f32, 1.0);
+        camera.set(l, &Ray::new(eye, d), f32::INFINITY);
+    }
+    assert_eq!(coherent_groups(&camera, &bounds).collect::<Vec<_>>(), vec![0xff]);
+
+    let mut mixed = camera;
+    mixed.set(3, &Ray::new(eye + Vec3::new(2.0, 0.0, 0.0), Vec3::Z), f32::INFINITY);
+    mixed.set(5, &Ray::new(eye, Vec3::new(0.5, 0.01, 1.0)), f32::INFINITY);
+    mixed.set(6, &Ray::new(eye, Vec3::new(0.0, 0.01, 1.0)), f32::INFINITY);
+    assert_eq!(coherent_groups(&mixed, &bounds).collect::<Vec<_>>(), vec![0xff & !(1 << 3 | 1 << 5 | 1 << 6)]);
+
+    let mut r = Rng(5);
+    let mut scattered = RayPacket::default();
+    for l in 0..8 {
+        scattered.set(l, &Ray::new(r.v(-1.0, 1.0), r.dir()), f32::INFINITY);
+    }
+    let groups: Vec<u32> = coherent_groups(&scattered, &bounds).collect();
+    assert!(groups.iter().all(|g| g.count_ones() >= 2), "{groups:?}");
+    assert!(groups.iter().map(|g| g.count_ones()).sum::<u32>() < 8, "{groups:?}");
 }

@@ -22,7 +22,7 @@ use crate::geometry::Ray;
 
 /// Stack entries: at most seven per wide level stay behind (the nearest child is taken
 /// at once), and a wide level spans at least one binary level.
-const STACK: usize = (WIDTH - 1) * (MAX_BINARY_DEPTH + 1) + WIDTH;
+pub(super) const STACK: usize = (WIDTH - 1) * (MAX_BINARY_DEPTH + 1) + WIDTH;
 
 /// Per-ray values of the box test: the origin, the reciprocal direction, and for each
 /// axis the offsets (in floats, within a [`Node8`]'s bounds) of the near and far planes.
@@ -63,7 +63,7 @@ fn fmin(a: f32, b: f32) -> f32 {
 
 /// The node's bounds as one array: `lo` then `hi`, axis by axis, eight lanes each.
 #[inline(always)]
-fn planes(n: &Node8) -> &[f32; 6 * WIDTH] {
+pub(super) fn planes(n: &Node8) -> &[f32; 6 * WIDTH] {
     // SAFETY: `Node8` is `repr(C)` with `lo` and `hi` first, 48 contiguous f32s.
     unsafe { &*(n as *const Node8).cast::<[f32; 6 * WIDTH]>() }
 }
@@ -248,7 +248,7 @@ impl Bvh8 {
     /// list. The nearest is needed at once, and waiting for its lines one node after
     /// another would be most of a walk's time.
     #[inline(always)]
-    fn prefetch_children<P: Primitives>(&self, prims: &P, n: &Node8, mask: u32) {
+    pub(super) fn prefetch_children<P: Primitives>(&self, prims: &P, n: &Node8, mask: u32) {
         let mut m = mask;
         while m != 0 {
             let j = m.trailing_zeros() as usize;

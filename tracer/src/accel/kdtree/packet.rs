@@ -23,10 +23,10 @@
 //! nearest, and its reach does not change meanwhile, as only its own leaves change it.
 
 use super::KdTree;
+use crate::accel::Primitives;
 #[cfg(target_arch = "x86_64")]
 use crate::accel::block_test::InstructionSet;
-use crate::accel::ray_packets::{PACKET, PacketHits, RayPacket};
-use crate::accel::{Hit, Primitives};
+use crate::accel::ray_packets::{PacketHits, RayPacket};
 use crate::simd::each;
 
 impl KdTree {
@@ -38,9 +38,9 @@ impl KdTree {
             // SAFETY: `Avx2` and `Avx512` are only chosen when the CPU reports AVX2.
             return unsafe { self.intersect8_avx2(prims, rays) };
         }
-        let mut out = no_hits();
+        let mut out = PacketHits::none();
         for l in each(rays.active) {
-            put(&mut out, l, self.intersect(prims, &rays.ray(l), rays.tmax[l]));
+            out.put(l, self.intersect(prims, &rays.ray(l), rays.tmax[l]));
         }
         out
     }
@@ -56,17 +56,6 @@ impl KdTree {
     }
 }
 
-fn no_hits() -> PacketHits {
-    PacketHits { t: [0.0; PACKET], u: [0.0; PACKET], v: [0.0; PACKET], prim: [0; PACKET], found: 0 }
-}
-
-fn put(out: &mut PacketHits, l: usize, hit: Option<Hit>) {
-    if let Some(h) = hit {
-        (out.t[l], out.u[l], out.v[l], out.prim[l]) = (h.t, h.u, h.v, h.prim);
-        out.found |= 1 << l;
-    }
-}
-
 #[cfg(target_arch = "x86_64")]
 mod avx2 {
     use core::arch::x86_64::*;
@@ -75,7 +64,6 @@ mod avx2 {
     use super::super::KdTree;
     use super::super::traverse::{Closest, any_leaf, gatherable};
     use super::super::treelet::{EMPTY, LEAF, ONE, PATH, STACK, TREELET, Treelet, child_of_rank, prefetch_children};
-    use super::{no_hits, put};
     use crate::accel::ray_packets::{PACKET, PacketHits, RayPacket};
     use crate::accel::{Primitives, RayPrecomp};
     use crate::geometry::Ray;
@@ -228,9 +216,9 @@ mod avx2 {
         #[target_feature(enable = "avx2")]
         pub(super) unsafe fn intersect8_avx2<P: Primitives>(&self, prims: &P, rays: &RayPacket) -> PacketHits {
             let together = together(rays);
-            let mut out = no_hits();
+            let mut out = PacketHits::none();
             for l in each(rays.active & !together) {
-                put(&mut out, l, self.intersect_impl::<P, true>(prims, &rays.ray(l), rays.tmax[l]));
+                out.put(l, self.intersect_impl::<P, true>(prims, &rays.ray(l), rays.tmax[l]));
             }
             if together == 0 {
                 return out;
@@ -239,10 +227,8 @@ mod avx2 {
             let corners = gatherable(prims);
             let mut q: [Closest; PACKET] = core::array::from_fn(|l| Closest::new(lanes.tmax[l], lanes.slack[l]));
             self.walk_groups(&lanes, |l, ids| q[l].leaf::<P, true>(prims, corners, ids, &lanes.ray[l], &lanes.pre[l]));
-            for (l, q) in q.into_iter().enumerate() {
-                if lanes.walking & (1 << l) != 0 {
-                    put(&mut out, l, q.finish(prims, &lanes.ray[l], &lanes.pre[l], lanes.tmax[l]));
-                }
+            for l in each(lanes.walking) {
+                out.put(l, q[l].finish(prims, &lanes.ray[l], &lanes.pre[l], lanes.tmax[l]));
             }
             out
         }

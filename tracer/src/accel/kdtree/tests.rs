@@ -17,6 +17,7 @@ pub(in crate::accel) fn pinned(cases: u32) -> ProptestConfig {
 use super::treelet::Treelet;
 use super::*;
 use crate::accel::LeafOrdered;
+use crate::accel::ray_packets::{PacketHits, RayPacket};
 use crate::accel::{RayPrecomp, brute_force_intersect, brute_force_occluded};
 use crate::scene::generate::displaced_sphere;
 use crate::shapes::{Geometry, NONE, Sphere, Tri, TriangleMesh};
@@ -532,23 +533,39 @@ fn scene_parameters_follow_size_and_composition() {
     assert!(BuildParams::default().intersection_cost < super::OTHER_PRIMS_INTERSECTION_COST);
 }
 
-/// Eight rays for a packet: scattered (mixed direction signs), or coherent (one origin,
-/// directions in a narrow cone, as a tile's camera rays), some lanes inactive; each
+/// Eight rays for a packet: scattered (mixed direction signs); coherent (one origin,
+/// directions in a narrow cone, as a tile's camera rays); or converging (origins spread
+/// around a point, directions towards a common target, as shadow rays towards a light).
+/// Some lanes inactive, some coherent lanes with a zero direction component; each
 /// lane's `tmax` infinite, random, or its brute-force hit's own `t`.
-fn random_packet<P: Primitives>(prims: &P, r: &mut Rng) -> crate::accel::ray_packets::RayPacket {
-    let mut p = crate::accel::ray_packets::RayPacket::default();
-    let coherent = r.below(2) == 0;
+pub(in crate::accel) fn random_packet<P: Primitives>(prims: &P, r: &mut Rng) -> RayPacket {
+    let mut p = RayPacket::default();
+    let kind = r.below(3);
     let base = random_ray(r);
+    let target = r.v(-1.0, 1.0);
+    let spread = r.range(0.0, 0.3);
     for l in 0..8 {
         if r.below(8) == 0 {
             continue;
         }
-        let ray = if coherent {
-            let d = base.dir + r.v(-0.05, 0.05) * base.dir.length();
-            Ray::new(base.origin, if d.length_squared() > 0.0 { d } else { base.dir })
-        } else {
-            random_ray(r)
+        let mut ray = match kind {
+            0 => random_ray(r),
+            1 => {
+                let d = base.dir + r.v(-0.05, 0.05) * base.dir.length();
+                Ray::new(base.origin, if d.length_squared() > 0.0 { d } else { base.dir })
+            }
+            _ => {
+                let o = base.origin + r.v(-spread, spread);
+                let d = target - o;
+                Ray::new(o, if d.length_squared() > 0.0 { d } else { base.dir })
+            }
         };
+        if kind != 0 && r.below(16) == 0 {
+            ray.dir[r.below(3) as usize] = 0.0;
+            if ray.dir.length_squared() == 0.0 {
+                ray.dir = base.dir;
+            }
+        }
         let tmax = match r.below(3) {
             0 => f32::INFINITY,
             1 => r.range(0.0, 4.0),
@@ -559,13 +576,33 @@ fn random_packet<P: Primitives>(prims: &P, r: &mut Rng) -> crate::accel::ray_pac
     p
 }
 
+/// A structure with packet queries that must be its one-ray queries' (brute force's).
+pub(in crate::accel) trait ExactPackets {
+    fn hit8<P: Primitives>(&self, prims: &P, rays: &RayPacket) -> PacketHits;
+    fn occ8<P: Primitives>(&self, prims: &P, rays: &RayPacket) -> u32;
+}
+
+impl ExactPackets for KdTree {
+    fn hit8<P: Primitives>(&self, prims: &P, rays: &RayPacket) -> PacketHits {
+        self.intersect8(prims, rays)
+    }
+    fn occ8<P: Primitives>(&self, prims: &P, rays: &RayPacket) -> u32 {
+        self.occluded8(prims, rays)
+    }
+}
+
 /// Every active lane of a packet query is its one-ray query's answer (and so brute
 /// force's), bit for bit, whatever the other lanes hold.
-fn check_packets<P: Primitives>(prims: &P, tree: &KdTree, r: &mut Rng, packets: usize) -> Result<(), TestCaseError> {
+pub(in crate::accel) fn check_packets<P: Primitives>(
+    prims: &P,
+    tree: &impl ExactPackets,
+    r: &mut Rng,
+    packets: usize,
+) -> Result<(), TestCaseError> {
     for _ in 0..packets {
         let p = random_packet(prims, r);
-        let hits = tree.intersect8(prims, &p);
-        let occluded = tree.occluded8(prims, &p);
+        let hits = tree.hit8(prims, &p);
+        let occluded = tree.occ8(prims, &p);
         prop_assert_eq!(hits.found & !p.active, 0);
         prop_assert_eq!(occluded & !p.active, 0);
         for l in (0..8).filter(|l| p.active & (1 << l) != 0) {

@@ -304,7 +304,7 @@ impl Closest {
     /// The answer once the walk is over.
     #[inline(always)]
     pub(in crate::accel) fn finish<P: Primitives>(
-        self,
+        &mut self,
         prims: &P,
         ray: &Ray,
         pre: &RayPrecomp,
@@ -518,7 +518,7 @@ impl Candidates {
     }
 
     /// The brute-force answer from the collected hits (see the module comment).
-    fn resolve<P: Primitives>(mut self, prims: &P, ray: &Ray, pre: &RayPrecomp, tmax: f32) -> Option<Hit> {
+    fn resolve<P: Primitives>(&mut self, prims: &P, ray: &Ray, pre: &RayPrecomp, tmax: f32) -> Option<Hit> {
         let n = self.n;
         if n == 0 {
             return None;
