@@ -4,6 +4,7 @@
 
 mod block_test;
 pub mod bvh8;
+mod exact;
 pub mod instances;
 pub mod kdtree;
 #[cfg(target_arch = "x86_64")]
@@ -199,4 +200,17 @@ pub fn incoherent_rays(bounds: Aabb, n: usize, seed: u64) -> Vec<(Ray, f32)> {
             (Ray::new(o, d / len), len)
         })
         .collect()
+}
+
+/// Hints the cache to load `p`'s line (no effect on results; nothing is dereferenced).
+#[inline(always)]
+pub(crate) fn prefetch<T>(p: *const T) {
+    // SAFETY: a prefetch is a hint; it never faults and reads no memory into the
+    // program, whatever the address (SSE is part of the x86_64 baseline).
+    #[cfg(target_arch = "x86_64")]
+    unsafe {
+        core::arch::x86_64::_mm_prefetch::<{ core::arch::x86_64::_MM_HINT_T0 }>(p.cast())
+    };
+    #[cfg(not(target_arch = "x86_64"))]
+    let _ = p;
 }

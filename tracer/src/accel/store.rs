@@ -3,8 +3,7 @@
 
 use glam::Vec3;
 
-use super::kdtree::prefetch;
-use super::{LeafOrdered, PrimHit, Primitives, RayPrecomp};
+use super::{LeafOrdered, PrimHit, Primitives, RayPrecomp, prefetch};
 use crate::geometry::clip::clipped_triangle_bounds;
 use crate::geometry::sphere::intersect_sphere;
 use crate::geometry::triangle::intersect_triangle_corners;

@@ -12,7 +12,7 @@ use rayon::prelude::*;
 use super::{Bvh8, Bvh8Params, Bvh8Stats, EMPTY, LEAF, MAX_LEAF, NODE, Node8, ONE, WIDTH, leaf_first};
 use crate::accel::Primitives;
 use crate::accel::block_test::InstructionSet;
-use crate::accel::kdtree::pad_extent;
+use crate::accel::exact::pad_extent;
 use crate::geometry::Aabb;
 
 /// Bins per axis of the SAH sweep.

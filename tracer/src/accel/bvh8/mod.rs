@@ -5,9 +5,9 @@
 //! most eight primitives, one pass of the eight-lane triangle test.
 //!
 //! Answers are bit-identical to [`brute_force_intersect`] / [`brute_force_occluded`],
-//! by the kd-tree's bookkeeping (`kdtree/traverse.rs`): hits within a margin of the
-//! nearest are collected and replayed in index order, boxes are padded as the kd-tree
-//! pads primitive extents, and ray intervals are widened by the same slack.
+//! by the bookkeeping the kd-tree uses too (`accel/exact.rs`): hits within a margin of
+//! the nearest are collected and replayed in index order, boxes are padded as the
+//! kd-tree pads primitive extents, and ray intervals are widened by the same slack.
 //!
 //! It traces each scene's own primitives (`Scene::accel`): against the kd-tree it is
 //! 1.25-1.5x as fast on single rays (`BVH8=TRIANGLES cargo bench -p tracer --bench

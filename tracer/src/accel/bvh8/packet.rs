@@ -25,7 +25,7 @@
 //!   start lies beyond the ray's current reach, as the one-ray walk drops it.
 //! - The order of a ray's leaves does not matter: its closest-hit bookkeeping collects
 //!   every hit within a margin of the nearest and replays them in index order
-//!   (`kdtree/traverse.rs`), and an any-hit query stops at any hit.
+//!   (`accel/exact.rs`), and an any-hit query stops at any hit.
 
 use super::Bvh8;
 use crate::accel::Primitives;
@@ -126,7 +126,7 @@ mod avx2 {
 
     use super::super::traverse::{STACK, planes};
     use super::super::{Bvh8, EMPTY, LEAF, NODE, Node8, ONE, WIDTH};
-    use crate::accel::kdtree::{Closest, any_leaf, clip_to_cell, gatherable};
+    use crate::accel::exact::{Closest, any_leaf, clip_to_cell, gatherable};
     use crate::accel::ray_packets::{PACKET, PacketHits, RayPacket};
     use crate::accel::{Primitives, RayPrecomp};
     use crate::geometry::Ray;

@@ -2,12 +2,12 @@
 //! once (eight lanes in AVX2, a loop otherwise), the children met are visited nearest
 //! first, and a child is skipped once its interval starts beyond the current bound.
 //!
-//! Exactness, as in the kd-tree (`kdtree/traverse.rs`): every interval is widened by
+//! Exactness, as in the kd-tree (`accel/exact.rs`): every interval is widened by
 //! the slack (which covers the rounding of the plane distances and of the hit
 //! distances) and a child is dropped only when its widened interval is empty or starts
 //! beyond `bound + slack`; boxes are padded like the kd-tree's primitive extents. A
 //! plane distance that is NaN (the ray lies in the slab's face plane, `0 · inf`) leaves
-//! the interval as it is, on both sides. The leaves then run the kd-tree's closest- and
+//! the interval as it is, on both sides. The leaves then run the shared closest- and
 //! any-hit bookkeeping, which makes the answer brute force's.
 
 use std::mem::MaybeUninit;
@@ -16,7 +16,8 @@ use glam::Vec3;
 
 use super::build::MAX_BINARY_DEPTH;
 use super::{Bvh8, EMPTY, LEAF, NODE, Node8, ONE, WIDTH};
-use crate::accel::kdtree::{Closest, Setup, any_leaf, clip_to_cell, gatherable, prefetch};
+use crate::accel::exact::{Closest, Setup, any_leaf, clip_to_cell, gatherable};
+use crate::accel::prefetch;
 use crate::accel::{Hit, Primitives, RayPrecomp};
 use crate::geometry::Ray;
 

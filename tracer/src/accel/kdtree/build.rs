@@ -44,6 +44,7 @@ use rayon::prelude::*;
 
 use super::{BuildParams, Node};
 use crate::accel::Primitives;
+use crate::accel::exact::{PAD_REL, pad_by};
 use crate::geometry::Aabb;
 
 /// Nodes with at least this many primitive references build their children in parallel
@@ -65,11 +66,6 @@ const MAX_BINS: usize = 256;
 fn bins_for(n: usize) -> usize {
     (2 * n).clamp(16, MAX_BINS)
 }
-
-/// Padding relative to the largest coordinate magnitude of the scene: 2^-16 is 128 ulps,
-/// far above the rounding of the triangle and sphere tests for ray origins up to ~30×
-/// the scene's extent away, and far below any primitive size that matters.
-const PAD_REL: f32 = 1.0 / 65536.0;
 
 /// The bin of a position scaled to `0..=last` (NaN, from a flat cell, gives bin 0).
 /// (What `count_bins` computes; its x86_64 version does it in vector registers.)
@@ -250,25 +246,6 @@ pub(super) struct Built {
 /// Default maximum depth (pbrt's `8 + 1.3 log2 N`), capped by the traversal stack.
 pub(super) fn default_max_depth(n: usize) -> u32 {
     (8.0 + 1.3 * (n.max(1) as f64).log2()).round() as u32
-}
-
-/// Pads the non-flat axes of extent `b` by `pad`.
-fn pad_by(b: Aabb, pad: f32) -> Aabb {
-    let mut r = b;
-    for a in 0..3 {
-        if b.min[a] < b.max[a] {
-            r.min[a] -= pad;
-            r.max[a] += pad;
-        }
-    }
-    r
-}
-
-/// A primitive's extent padded as the kd-tree pads it, in a scene whose largest
-/// coordinate magnitude is `magnitude` (see the module comment): what other hierarchies
-/// over the same tests need as well.
-pub(in crate::accel) fn pad_extent(b: Aabb, magnitude: f32) -> Aabb {
-    pad_by(b, magnitude * PAD_REL)
 }
 
 pub(super) fn build<P: Primitives>(prims: &P, params: &BuildParams) -> Built {

@@ -2,7 +2,7 @@
 //! exact sweeps for small ones, into compact 8-byte nodes, in `build.rs`; the nodes cut
 //! into cache-line treelets of three levels for traversal, in `treelet.rs`; a
 //! stack-based front-to-back traversal in `traverse.rs` whose answers are bit-identical
-//! to the brute-force loops. Leaves test their triangles eight at a time
+//! to the brute-force loops (by the bookkeeping of `accel/exact.rs`). Leaves test their triangles eight at a time
 //! (`accel/block_test.rs`).
 
 mod build;
@@ -10,8 +10,6 @@ mod packet;
 mod traverse;
 mod treelet;
 
-pub(in crate::accel) use self::build::pad_extent;
-pub(in crate::accel) use self::traverse::{Closest, Setup, any_leaf, clip_to_cell, gatherable, prefetch};
 use self::treelet::{Treelet, to_treelets};
 use super::block_test::InstructionSet;
 use super::{Hit, Primitives, Ray};

@@ -62,8 +62,8 @@ mod avx2 {
     use std::mem::MaybeUninit;
 
     use super::super::KdTree;
-    use super::super::traverse::{Closest, any_leaf, gatherable};
     use super::super::treelet::{EMPTY, LEAF, ONE, PATH, STACK, TREELET, Treelet, child_of_rank, prefetch_children};
+    use crate::accel::exact::{Closest, any_leaf, gatherable};
     use crate::accel::ray_packets::{PACKET, PacketHits, RayPacket};
     use crate::accel::{Primitives, RayPrecomp};
     use crate::geometry::Ray;
