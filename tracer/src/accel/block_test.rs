@@ -238,28 +238,34 @@ pub(crate) fn watertight_avx512(
     (keep as u32, zero as u32)
 }
 
-/// Most triangles [`gather_test_avx2`] can address: indices are compared as `i32`s.
+/// Most triangles [`gather_avx2`] can address: indices are compared as `i32`s.
 pub(crate) const GATHER_MAX_TRIANGLES: usize = i32::MAX as usize;
 
 // `load_corners` reads a triangle as nine contiguous floats.
 const _: () = assert!(size_of::<[Vec3; 3]>() == 9 * size_of::<f32>());
 
-/// The eight-lane pass over primitives `ids` (at most eight) of a set whose first
-/// `corners.len()` primitives are the triangles `corners` (at most
-/// [`GATHER_MAX_TRIANGLES`]): their corners are loaded by index ([`load_corners`]). Returns `(keep, zero,
-/// other)` by lane (lane `l` is `ids[l]`): `keep` and `zero` as [`watertight_avx2`]'s
-/// for the triangles, `other` the lanes the caller tests itself: those whose primitive
-/// is not a triangle, or all when fewer than two are.
+/// Up to eight primitives loaded for the eight-lane pass ([`gather_avx2`]): once for a
+/// leaf that several rays of a packet test.
+#[cfg(target_arch = "x86_64")]
+#[derive(Clone, Copy)]
+pub(crate) struct Gathered {
+    /// The triangles' corners, `[corner][axis]`, lane by lane (other lanes: the first
+    /// triangle's, or zeros when `tri` is empty).
+    c: [[core::arch::x86_64::__m256; 3]; 3],
+    /// The lanes holding triangles; empty when fewer than two do.
+    tri: u32,
+    /// The lanes the caller tests itself.
+    other: u32,
+}
+
+/// Loads primitives `ids` (at most eight) of a set whose first `corners.len()` are the
+/// triangles `corners` (at most [`GATHER_MAX_TRIANGLES`]): the triangles' corners by
+/// index ([`load_corners`]), unless fewer than two are triangles (a leaf of spheres),
+/// which are then all left to the caller.
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx2")]
 #[inline]
-pub(crate) fn gather_test_avx2(
-    corners: &[[Vec3; 3]],
-    ids: &[u32],
-    shear: &RayShear,
-    tmax: f32,
-    out: &mut Lanes,
-) -> (u32, u32, u32) {
+pub(crate) fn gather_avx2(corners: &[[Vec3; 3]], ids: &[u32]) -> Gathered {
     use core::arch::x86_64::*;
     assert!(ids.len() <= LANES && corners.len() <= GATHER_MAX_TRIANGLES);
     let lane = _mm256_setr_epi32(0, 1, 2, 3, 4, 5, 6, 7);
@@ -272,24 +278,37 @@ pub(crate) fn gather_test_avx2(
     let below = _mm256_andnot_si256(_mm256_cmpgt_epi32(_mm256_setzero_si256(), idx), _mm256_cmpgt_epi32(ntri, idx));
     let tri = _mm256_and_si256(valid, below);
     let other = _mm256_movemask_ps(_mm256_castsi256_ps(_mm256_andnot_si256(tri, valid))) as u32;
-    // With fewer than two triangles (a leaf of spheres) the pass is not worth its loads
-    // and transposes: the caller tests them all.
-    if (_mm256_movemask_ps(_mm256_castsi256_ps(tri)) as u32).count_ones() < 2 {
-        return (0, 0, (1 << ids.len()) - 1);
+    let tri_lanes = _mm256_movemask_ps(_mm256_castsi256_ps(tri)) as u32;
+    // With fewer than two triangles the pass is not worth its loads and transposes.
+    if tri_lanes.count_ones() < 2 {
+        return Gathered { c: [[_mm256_setzero_ps(); 3]; 3], tri: 0, other: (1 << ids.len()) - 1 };
     }
     // The triangles' indices (lanes not tested: 0, the first triangle).
     let mut tris = [0u32; LANES];
     // SAFETY: `tris` is 32 bytes.
     unsafe { _mm256_storeu_si256(tris.as_mut_ptr().cast(), _mm256_and_si256(tri, idx)) };
-    let ([kx, ky, kz], _, _) = shear.parts();
-    let mask = _mm256_castsi256_ps(tri);
     // SAFETY: every index is below `corners.len()` (`tri`, or 0 with `corners` not
     // empty: `tri` has lanes).
     let c = unsafe { load_corners(corners, &tris) };
+    Gathered { c, tri: tri_lanes, other }
+}
+
+/// The eight-lane pass over primitives loaded by [`gather_avx2`], for one ray. Returns
+/// `(keep, zero, other)` by lane (lane `l` is the `l`-th primitive loaded): `keep` and
+/// `zero` as [`watertight_avx2`]'s for the triangles, `other` the lanes the caller tests
+/// itself: those whose primitive is not a triangle, or all when fewer than two are.
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2")]
+#[inline]
+pub(crate) fn gathered_test_avx2(g: &Gathered, shear: &RayShear, tmax: f32, out: &mut Lanes) -> (u32, u32, u32) {
+    if g.tri == 0 {
+        return (0, 0, g.other);
+    }
+    let c = &g.c;
+    let ([kx, ky, kz], _, _) = shear.parts();
     let p = [c[0][kx], c[0][ky], c[0][kz], c[1][kx], c[1][ky], c[1][kz], c[2][kx], c[2][ky], c[2][kz]];
     let (keep, zero) = watertight_avx2(&p, shear, tmax, out);
-    let tri = _mm256_movemask_ps(mask) as u32;
-    (keep & tri, zero & tri, other)
+    (keep & g.tri, zero & g.tri, g.other)
 }
 
 /// The corners of triangles `tris` as `[corner][axis]` vectors of the eight lanes:
@@ -378,7 +397,8 @@ mod tests {
             let ids: Vec<u32> = (0..n).map(|_| (r.f() * 72.0) as u32).collect();
             let mut lanes = Lanes::default();
             // SAFETY: AVX2 was detected above.
-            let (keep, zero, other) = unsafe { gather_test_avx2(&corners, &ids, &shear, tmax, &mut lanes) };
+            let (keep, zero, other) =
+                unsafe { gathered_test_avx2(&gather_avx2(&corners, &ids), &shear, tmax, &mut lanes) };
             assert_eq!((keep | zero | other) >> n, 0, "lanes past the ids");
             assert_eq!(zero & !keep, 0);
             for (l, &id) in ids.iter().enumerate() {

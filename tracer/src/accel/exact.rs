@@ -29,7 +29,7 @@
 use glam::Vec3;
 
 #[cfg(target_arch = "x86_64")]
-use super::block_test::{LANES, Lanes, gather_test_avx2};
+use super::block_test::{Gathered, LANES, Lanes, gather_avx2, gathered_test_avx2};
 use super::{Hit, PrimHit, Primitives, RayPrecomp, brute_force_intersect};
 use crate::geometry::{Aabb, Ray};
 
@@ -131,7 +131,7 @@ impl Closest {
         pre: &RayPrecomp,
     ) -> f32 {
         let c = &mut self.c;
-        if AVX2 && ids.len() >= GATHER_MIN_PRIMS && !corners.is_empty() {
+        if AVX2 && gathers(corners, ids) {
             // Eight at a time; a hit already recorded comes back the same and is
             // dropped by `record`, so the mailbox is not needed here.
             leaf_lanes(prims, corners, ids, ray, pre, c.bound, |g, h| {
@@ -149,6 +149,35 @@ impl Closest {
                 }
             }
         }
+        if c.overflow { f32::NAN } else { c.bound }
+    }
+
+    /// [`Closest::leaf`] for a leaf of two to eight primitives already loaded in `g`
+    /// (from the same triangles `leaf` would gather): the rays of a packet that reach a
+    /// leaf test it from one load.
+    ///
+    /// # Safety
+    /// AVX2.
+    #[cfg(target_arch = "x86_64")]
+    #[target_feature(enable = "avx2")]
+    #[inline]
+    pub(in crate::accel) unsafe fn leaf_gathered<P: Primitives>(
+        &mut self,
+        prims: &P,
+        g: &Gathered,
+        ids: &[u32],
+        ray: &Ray,
+        pre: &RayPrecomp,
+    ) -> f32 {
+        let c = &mut self.c;
+        let mut lanes = Lanes::default();
+        // SAFETY: AVX2 (this function's feature).
+        unsafe {
+            gathered_lanes(prims, g, ids, ray, pre, c.bound, &mut lanes, &mut |id, h| {
+                c.record(id, h);
+                if c.overflow { f32::NAN } else { c.bound }
+            })
+        };
         if c.overflow { f32::NAN } else { c.bound }
     }
 
@@ -181,7 +210,7 @@ pub(in crate::accel) fn any_leaf<P: Primitives, const AVX2: bool>(
     tmax: f32,
     hit: &mut bool,
 ) -> f32 {
-    if AVX2 && ids.len() >= GATHER_MIN_PRIMS && !corners.is_empty() {
+    if AVX2 && gathers(corners, ids) {
         leaf_lanes(prims, corners, ids, ray, pre, tmax, |_, _| {
             *hit = true;
             f32::NAN
@@ -191,6 +220,41 @@ pub(in crate::accel) fn any_leaf<P: Primitives, const AVX2: bool>(
         *hit = ids.iter().any(|&g| prims.occludes(g, ray, pre, tmax));
     }
     if *hit { f32::NAN } else { tmax }
+}
+
+/// [`any_leaf`] for a leaf of two to eight primitives already loaded in `g`, as
+/// [`Closest::leaf_gathered`].
+///
+/// # Safety
+/// AVX2.
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2")]
+#[inline]
+pub(in crate::accel) unsafe fn any_leaf_gathered<P: Primitives>(
+    prims: &P,
+    g: &Gathered,
+    ids: &[u32],
+    ray: &Ray,
+    pre: &RayPrecomp,
+    tmax: f32,
+    hit: &mut bool,
+) -> f32 {
+    let mut lanes = Lanes::default();
+    // SAFETY: AVX2 (this function's feature).
+    unsafe {
+        gathered_lanes(prims, g, ids, ray, pre, tmax, &mut lanes, &mut |_, _| {
+            *hit = true;
+            f32::NAN
+        })
+    };
+    if *hit { f32::NAN } else { tmax }
+}
+
+/// Whether a leaf of `ids` is tested eight at a time ([`Closest::leaf`], [`any_leaf`]),
+/// its corners loaded by [`gather_avx2`].
+#[inline(always)]
+pub(in crate::accel) fn gathers(corners: &[[glam::Vec3; 3]], ids: &[u32]) -> bool {
+    ids.len() >= GATHER_MIN_PRIMS && !corners.is_empty()
 }
 
 /// Leaves with at least this many primitives test their triangles eight at a time.
@@ -229,24 +293,11 @@ fn leaf_lanes<P: Primitives>(
         }
         for group in ids.chunks(LANES) {
             // SAFETY: the callers run this only on the AVX2 paths `InstructionSet::Avx2` selects.
-            let (keep, zero, other) = unsafe { gather_test_avx2(corners, group, &pre.shear, tmax, &mut lanes) };
-            let scalar = zero | other;
-            let mut m = keep | other;
-            while m != 0 {
-                let lane = m.trailing_zeros() as usize;
-                m &= m - 1;
-                let g = group[lane];
-                let h = if scalar & (1 << lane) != 0 {
-                    prims.intersect(g, ray, pre, tmax)
-                } else {
-                    lanes.finish(lane, tmax)
-                };
-                if let Some(h) = h {
-                    tmax = hit(g, h);
-                    if tmax.is_nan() {
-                        return;
-                    }
-                }
+            let g = unsafe { gather_avx2(corners, group) };
+            // SAFETY: as above.
+            tmax = unsafe { gathered_lanes(prims, &g, group, ray, pre, tmax, &mut lanes, &mut hit) };
+            if tmax.is_nan() {
+                return;
             }
         }
     }
@@ -255,6 +306,43 @@ fn leaf_lanes<P: Primitives>(
         let _ = (prims, corners, ids, ray, pre, tmax, &mut hit);
         unreachable!("the eight-lane leaf test runs on x86_64 only");
     }
+}
+
+/// Tests one group of primitives `group` (at most eight) loaded in `g` ([`gather_avx2`]),
+/// as [`leaf_lanes`] does each group; returns the `tmax` to go on with, NaN to stop.
+///
+/// # Safety
+/// AVX2.
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2")]
+#[inline]
+#[allow(clippy::too_many_arguments)]
+unsafe fn gathered_lanes<P: Primitives>(
+    prims: &P,
+    g: &Gathered,
+    group: &[u32],
+    ray: &Ray,
+    pre: &RayPrecomp,
+    mut tmax: f32,
+    lanes: &mut Lanes,
+    hit: &mut impl FnMut(u32, PrimHit) -> f32,
+) -> f32 {
+    let (keep, zero, other) = gathered_test_avx2(g, &pre.shear, tmax, lanes);
+    let scalar = zero | other;
+    let mut m = keep | other;
+    while m != 0 {
+        let lane = m.trailing_zeros() as usize;
+        m &= m - 1;
+        let id = group[lane];
+        let h = if scalar & (1 << lane) != 0 { prims.intersect(id, ray, pre, tmax) } else { lanes.finish(lane, tmax) };
+        if let Some(h) = h {
+            tmax = hit(id, h);
+            if tmax.is_nan() {
+                return tmax;
+            }
+        }
+    }
+    tmax
 }
 
 /// Starts loading every primitive of a leaf before the first test, so that the misses

@@ -2,14 +2,15 @@
 //! tile's camera rays, shadow rays from neighbouring points towards one light.
 //!
 //! Rays walked together share their direction signs and start and point close to one
-//! another ([`coherent_groups`]; the others go one by one). Each node's eight boxes are tested
-//! once for the whole packet, against its frustum: bounds on all the rays' plane
+//! another ([`coherent_groups`]; the others go one by one). Each node's eight boxes are
+//! tested once for the whole packet, against its frustum: bounds on all the rays' plane
 //! distances, from the extremes of their origins and reciprocal directions, in one
 //! eight-lane test like one ray's. Only leaves are met ray by ray: a node's leaf children
 //! are clipped against the eight rays at once (one lane per ray, the one-ray test's
 //! operations), and a leaf is tested, with the one-ray leaf code and each ray's own
-//! bound, for the rays that reach it. Coherent rays share most nodes, so a node test
-//! serves up to eight rays instead of one.
+//! bound, for the rays that reach it, from one load of its triangles. Coherent rays
+//! share most nodes and many leaves, so a node test or a leaf's load serves up to eight
+//! rays instead of one.
 //!
 //! Exactness: each lane's answer is its one-ray query's (brute force's) bit for bit.
 //! - The frustum keeps every child a ray of the packet keeps. With a common sign, a
@@ -126,7 +127,8 @@ mod avx2 {
 
     use super::super::traverse::{STACK, planes};
     use super::super::{Bvh8, EMPTY, LEAF, NODE, Node8, ONE, WIDTH};
-    use crate::accel::exact::{Closest, any_leaf, clip_to_cell, gatherable};
+    use crate::accel::block_test::{Gathered, LANES, gather_avx2};
+    use crate::accel::exact::{Closest, any_leaf, any_leaf_gathered, clip_to_cell, gatherable, gathers};
     use crate::accel::ray_packets::{PACKET, PacketHits, RayPacket};
     use crate::accel::{Primitives, RayPrecomp};
     use crate::geometry::Ray;
@@ -418,9 +420,11 @@ mod avx2 {
                 c[l] = Some(Closest::new(rays.tmax[l], r.lanes.slack[l]));
             }
             let corners = gatherable(prims);
-            self.walk8(prims, &mut r, |l, ids| match &mut c[l] {
-                Some(c) => c.leaf::<P, true>(prims, corners, ids, &ray[l], &pre[l]),
-                None => f32::NAN,
+            self.walk8(prims, corners, &mut r, |l, ids, g| match (&mut c[l], g) {
+                // SAFETY: AVX2 (this function's feature).
+                (Some(c), Some(g)) => unsafe { c.leaf_gathered(prims, g, ids, &ray[l], &pre[l]) },
+                (Some(c), None) => c.leaf::<P, true>(prims, corners, ids, &ray[l], &pre[l]),
+                (None, _) => f32::NAN,
             });
             for (l, c) in c.iter_mut().enumerate() {
                 if let Some(c) = c {
@@ -446,17 +450,26 @@ mod avx2 {
             let mut r = Rays::new(self, rays, group, &q);
             let corners = gatherable(prims);
             let mut hit = [false; PACKET];
-            self.walk8(prims, &mut r, |l, ids| {
-                any_leaf::<P, true>(prims, corners, ids, &ray[l], &pre[l], rays.tmax[l], &mut hit[l])
+            self.walk8(prims, corners, &mut r, |l, ids, g| match g {
+                // SAFETY: AVX2 (this function's feature).
+                Some(g) => unsafe { any_leaf_gathered(prims, g, ids, &ray[l], &pre[l], rays.tmax[l], &mut hit[l]) },
+                None => any_leaf::<P, true>(prims, corners, ids, &ray[l], &pre[l], rays.tmax[l], &mut hit[l]),
             });
             ((0..PACKET).filter(|&l| hit[l]).fold(0, |m, l| m | (1 << l)), r.refused)
         }
 
-        /// The packet walk: `leaf(lane, ids)` tests a leaf for one ray and returns its
-        /// new bound, or NaN when the ray is done.
+        /// The packet walk: `leaf(lane, ids, loaded)` tests a leaf for one ray and returns
+        /// its new bound, or NaN when the ray is done. A leaf that several rays test is
+        /// loaded once (`loaded`) when the one-ray leaf code would load it eight at a time.
         #[target_feature(enable = "avx2")]
         #[inline]
-        fn walk8<P: Primitives>(&self, prims: &P, r: &mut Rays, mut leaf: impl FnMut(usize, &[u32]) -> f32) {
+        fn walk8<P: Primitives>(
+            &self,
+            prims: &P,
+            corners: &[[glam::Vec3; 3]],
+            r: &mut Rays,
+            mut leaf: impl FnMut(usize, &[u32], Option<&Gathered>) -> f32,
+        ) {
             if r.walking == 0 {
                 return;
             }
@@ -509,11 +522,14 @@ mod avx2 {
                             _ => &[],
                         };
                         let walking = r.walking;
-                        for l in each(lanes & walking) {
-                            if !(starts[l] <= r.lanes.reach[l]) {
-                                continue;
-                            }
-                            let bound = leaf(l, ids);
+                        let live = each(lanes & walking)
+                            .filter(|&l| starts[l] <= r.lanes.reach[l])
+                            .fold(0u32, |m, l| m | (1 << l));
+                        let shared = live.count_ones() >= 2 && ids.len() <= LANES && gathers(corners, ids);
+                        let loaded = if shared { Some(gather_avx2(corners, ids)) } else { None };
+                        for l in each(live) {
+                            // Rays earlier in this loop do not change this one's reach.
+                            let bound = leaf(l, ids, loaded.as_ref());
                             if bound.is_nan() {
                                 r.walking &= !(1 << l);
                             } else {
