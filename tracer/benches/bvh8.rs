@@ -12,16 +12,20 @@
 //! rays from their hits towards a point light, and the incoherent rays eight by eight
 //! (what the packet query must not make much worse).
 
+#[path = "shared/packets.rs"]
+mod packets;
+
 use std::hint::black_box;
 use std::time::Instant;
 
 use glam::Vec3;
 use tracer::accel::bvh8::{Bvh8, Bvh8Params};
-use tracer::accel::ray_packets::RayPacket;
 use tracer::accel::{BuildParams, KdTree};
 use tracer::geometry::{Aabb, Ray};
 use tracer::scene::Geometry;
 use tracer::scene::generate::displaced_sphere;
+
+use packets::{camera_packets, packets_of, shadow_packets};
 
 const RAYS: usize = 100_000;
 
@@ -154,68 +158,12 @@ fn main() {
     packet_table(&bvh, &bgeo, rounds);
 }
 
-/// A pinhole camera's rays in packets of 4×2 pixels, closest hit.
-fn camera_packets(b: Aabb, side: usize) -> Vec<RayPacket> {
-    let (c, size) = (b.center(), b.diagonal().length());
-    let eye = c + Vec3::new(0.3, 0.4, 3.0).normalize() * (1.5 * size);
-    let fwd = (c - eye).normalize();
-    let right = fwd.cross(Vec3::Y).normalize();
-    let up = right.cross(fwd);
-    let mut out = Vec::new();
-    for by in (0..side).step_by(2) {
-        for bx in (0..side).step_by(4) {
-            let mut p = RayPacket::default();
-            for l in 0..8 {
-                let (px, py) = (bx + l % 4, by + l / 4);
-                let (x, y) = (px as f32 / side as f32 - 0.5, py as f32 / side as f32 - 0.5);
-                p.set(l, &Ray::new(eye, (fwd + (right * x + up * y) * 0.7).normalize()), f32::INFINITY);
-            }
-            out.push(p);
-        }
-    }
-    out
-}
-
-/// The shadow rays of `camera`'s hits towards a point light above and beside the
-/// camera, packet by packet (lanes that missed stay inactive), nudged off the surface.
-fn shadow_packets(bvh: &Bvh8, geo: &Geometry, camera: &[RayPacket]) -> Vec<RayPacket> {
-    let b = bvh.bounds();
-    let light = b.center() + Vec3::new(-1.0, 2.0, 1.5).normalize() * b.diagonal().length();
-    let eps = 1e-4 * b.diagonal().length();
-    camera
-        .iter()
-        .map(|p| {
-            let hits = bvh.intersect8(geo, p);
-            let mut s = RayPacket::default();
-            for l in 0..8 {
-                if let Some(h) = hits.get(l) {
-                    let ray = p.ray(l);
-                    let x = ray.origin + ray.dir * h.t;
-                    let to = light - x;
-                    let d = to.normalize();
-                    s.set(l, &Ray::new(x + d * eps, d), to.length() - 2.0 * eps);
-                }
-            }
-            s
-        })
-        .collect()
-}
-
 /// Packets against one ray at a time on the same rays: Mrays/s of each and the median of
 /// the rounds' ratios.
 fn packet_table(bvh: &Bvh8, geo: &Geometry, rounds: usize) {
     let camera = camera_packets(bvh.bounds(), 512);
-    let shadow = shadow_packets(bvh, geo, &camera);
-    let incoherent: Vec<RayPacket> = tracer::accel::incoherent_rays(bvh.bounds(), RAYS, 2)
-        .chunks(8)
-        .map(|c| {
-            let mut p = RayPacket::default();
-            for (l, (r, t)) in c.iter().enumerate() {
-                p.set(l, r, *t);
-            }
-            p
-        })
-        .collect();
+    let shadow = shadow_packets(bvh.bounds(), &camera, |p| bvh.intersect8(geo, p));
+    let incoherent = packets_of(&tracer::accel::incoherent_rays(bvh.bounds(), RAYS, 2));
     println!("{:<26}{:>12}{:>12}{:>8}   (BVH8, Mrays/s, one thread)", "packets of 8", "one by one", "packets", "ratio");
     for (name, packets, any) in [
         ("camera, closest hit", &camera, false),

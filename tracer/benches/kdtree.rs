@@ -26,6 +26,9 @@
 //! pinhole camera's in scanline order (coherent). `KDTREE_SCENE=scene.toml` with
 //! `KDTREE_QUICK=x` times both kinds on that scene's own tree instead.
 
+#[path = "shared/packets.rs"]
+mod packets;
+
 use std::hint::black_box;
 use std::time::Instant;
 
@@ -36,6 +39,8 @@ use tracer::accel::ray_packets::RayPacket;
 use tracer::accel::{BuildParams, KdTree};
 use tracer::geometry::{Aabb, Ray};
 use tracer::scene::generate::displaced_sphere;
+
+use packets::{camera_packets, packets_of, shadow_packets};
 use tracer::scene::{Geometry, Sphere};
 
 const RAYS: usize = 100_000;
@@ -422,66 +427,6 @@ fn serve(spec: &str) {
     }
 }
 
-/// A pinhole camera's rays (as [`camera_rays`]) in packets of 4×2 pixels, closest hit.
-fn camera_packets(b: Aabb, side: usize) -> Vec<RayPacket> {
-    let (c, size) = (b.center(), b.diagonal().length());
-    let eye = c + Vec3::new(0.3, 0.4, 3.0).normalize() * (1.5 * size);
-    let fwd = (c - eye).normalize();
-    let right = fwd.cross(Vec3::Y).normalize();
-    let up = right.cross(fwd);
-    let mut out = Vec::new();
-    for by in (0..side).step_by(2) {
-        for bx in (0..side).step_by(4) {
-            let mut p = RayPacket::default();
-            for l in 0..8 {
-                let (px, py) = (bx + l % 4, by + l / 4);
-                let (x, y) = (px as f32 / side as f32 - 0.5, py as f32 / side as f32 - 0.5);
-                let d = (fwd + (right * x + up * y) * 0.7).normalize();
-                p.set(l, &Ray::new(eye, d), f32::INFINITY);
-            }
-            out.push(p);
-        }
-    }
-    out
-}
-
-/// The shadow rays of `camera`'s hits towards a point light above and beside the
-/// camera, packet by packet (lanes that missed stay inactive), nudged off the surface.
-fn shadow_packets(tree: &KdTree, geo: &Geometry, camera: &[RayPacket]) -> Vec<RayPacket> {
-    let b = tree.bounds();
-    let light = b.center() + Vec3::new(-1.0, 2.0, 1.5).normalize() * b.diagonal().length();
-    camera
-        .iter()
-        .map(|p| {
-            let hits = tree.intersect8(geo, p);
-            let mut s = RayPacket::default();
-            for l in 0..8 {
-                if let Some(h) = hits.get(l) {
-                    let ray = p.ray(l);
-                    let x = ray.origin + ray.dir * h.t;
-                    let to = light - x;
-                    let d = to.normalize();
-                    let eps = 1e-4 * b.diagonal().length();
-                    s.set(l, &Ray::new(x + d * eps, d), to.length() - 2.0 * eps);
-                }
-            }
-            s
-        })
-        .collect()
-}
-
-fn packets_of(rays: &[(Ray, f32)]) -> Vec<RayPacket> {
-    rays.chunks(8)
-        .map(|c| {
-            let mut p = RayPacket::default();
-            for (l, (r, len)) in c.iter().enumerate() {
-                p.set(l, r, *len);
-            }
-            p
-        })
-        .collect()
-}
-
 /// `KDTREE_PACKETS=TRIANGLES[,ROUNDS]`: see the module comment.
 fn packets(spec: &str) {
     let mut parts = spec.split(',').map(|x| x.parse::<usize>().ok());
@@ -491,7 +436,7 @@ fn packets(spec: &str) {
     let (mut tree, _) = timed_build(&geo, &BuildParams::default());
     geo.store_in_leaf_order(&mut tree);
     let camera = camera_packets(tree.bounds(), 512);
-    let shadow = shadow_packets(&tree, &geo, &camera);
+    let shadow = shadow_packets(tree.bounds(), &camera, |p| tree.intersect8(&geo, p));
     let random = packets_of(&random_rays(tree.bounds(), RAYS, 1));
     let lanes = |ps: &[RayPacket]| ps.iter().map(|p| p.active.count_ones() as usize).sum::<usize>();
     println!("{} triangles, one thread, Mrays/s, medians of {rounds} interleaved rounds:", geo.triangle_count());
