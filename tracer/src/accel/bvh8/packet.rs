@@ -125,7 +125,7 @@ mod avx2 {
     use core::arch::x86_64::*;
     use core::mem::MaybeUninit;
 
-    use super::super::traverse::{STACK, planes};
+    use super::super::traverse::{STACK, by_distance, planes};
     use super::super::{Bvh8, EMPTY, LEAF, NODE, Node8, ONE, WIDTH};
     use crate::accel::block_test::{Gathered, LANES, gather_avx2};
     use crate::accel::exact::{Closest, any_leaf, any_leaf_gathered, clip_to_cell, gatherable, gathers};
@@ -378,23 +378,6 @@ mod avx2 {
                 }
             })
         }
-    }
-
-    /// The slots in `mask` by frustum start, nearest last (ties by slot), and how many.
-    #[inline(always)]
-    fn by_distance(mask: u32, near: &[f32; WIDTH]) -> ([usize; WIDTH], usize) {
-        let mut k = [0usize; WIDTH];
-        let mut len = 0;
-        for j in each(mask) {
-            let mut p = len;
-            while p > 0 && near[k[p - 1]] < near[j] {
-                k[p] = k[p - 1];
-                p -= 1;
-            }
-            k[p] = j;
-            len += 1;
-        }
-        (k, len)
     }
 
     impl Bvh8 {

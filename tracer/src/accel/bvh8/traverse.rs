@@ -149,6 +149,27 @@ mod avx2 {
     }
 }
 
+/// The slots in `mask` by interval start, nearest last (ties by slot), and how many:
+/// an insertion sort, as there are at most eight.
+#[inline(always)]
+pub(super) fn by_distance(mask: u32, near: &[f32; WIDTH]) -> ([usize; WIDTH], usize) {
+    let mut k = [0usize; WIDTH];
+    let mut len = 0;
+    let mut m = mask;
+    while m != 0 {
+        let j = m.trailing_zeros() as usize;
+        m &= m - 1;
+        let mut p = len;
+        while p > 0 && near[k[p - 1]] < near[j] {
+            k[p] = k[p - 1];
+            p -= 1;
+        }
+        k[p] = j;
+        len += 1;
+    }
+    (k, len)
+}
+
 /// The walk's stack of (reference, interval start), uninitialised above `sp`.
 struct Stack {
     node: [MaybeUninit<u32>; STACK],
@@ -291,21 +312,8 @@ impl Bvh8 {
             st.push(n.child[b], near[b]);
             return n.child[a];
         }
-        // Three or more: insertion sort by distance, nearest last.
-        let mut k = [0usize; WIDTH];
-        let mut len = 0;
-        let mut m = mask;
-        while m != 0 {
-            let j = m.trailing_zeros() as usize;
-            m &= m - 1;
-            let mut p = len;
-            while p > 0 && near[k[p - 1]] < near[j] {
-                k[p] = k[p - 1];
-                p -= 1;
-            }
-            k[p] = j;
-            len += 1;
-        }
+        // Three or more.
+        let (k, len) = by_distance(mask, near);
         for &j in &k[..len - 1] {
             st.push(n.child[j], near[j]);
         }
