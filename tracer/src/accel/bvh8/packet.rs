@@ -204,10 +204,9 @@ mod avx2 {
                 reach: [f32::NEG_INFINITY; PACKET],
             };
             let (mut walking, mut refused) = (0, 0);
+            // An empty hierarchy: no lane walks, none has a hit.
+            let group = if b.root & 3 == EMPTY { 0 } else { group };
             for l in each(group) {
-                if b.root & 3 == EMPTY {
-                    break;
-                }
                 let Some(s) = clip_to_cell(&b.cell, &ray[l], pre[l].inv_dir, rays.tmax[l]) else { continue };
                 if !s.slack.is_finite() {
                     refused |= 1 << l;
