@@ -5,7 +5,8 @@ use proptest::prelude::*;
 
 use super::*;
 use crate::accel::kdtree::tests::{
-    Exact, ExactPackets, Rng, check, check_packets, check_rays, geometry, pinned, random_ray, random_scene,
+    Exact, ExactPackets, Rng, check, check_rays, geometry, packets_on_displaced_sphere, packets_on_random_scene,
+    pinned, random_ray, random_scene,
 };
 use crate::accel::ray_packets::{PacketHits, RayPacket};
 use crate::geometry::Aabb;
@@ -127,25 +128,13 @@ proptest! {
 
     #[test]
     fn packets_agree_with_brute_force_on_random_scenes(seed in any::<u64>(), size in 0usize..4, rays_seed in any::<u64>()) {
-        let n = [0, 1 + (seed % 16) as usize, 50 + (seed % 200) as usize, 500 + (seed % 2500) as usize][size];
-        let geo = random_scene(seed, n);
-        let mut r = Rng(rays_seed);
-        let bvh = Bvh8::build(&geo, &random_params(&mut r));
-        check_packets(&geo, &bvh, &mut r, 40)?;
+        packets_on_random_scene(seed, size, rays_seed, |geo, r| Bvh8::build(geo, &random_params(r)))?;
     }
 }
 
-/// Packets on a closed mesh with spheres: coherent packets hit neighbouring triangles
-/// and share most nodes.
 #[test]
 fn packets_agree_with_brute_force_on_displaced_sphere() {
-    let mesh = displaced_sphere(20_000, 3);
-    let mut r = Rng(11);
-    let spheres =
-        (0..300).map(|_| Sphere { center: r.v(-1.5, 1.5), radius: r.range(0.01, 0.15), material: 0 }).collect();
-    let geo = Geometry::new(mesh, spheres);
-    let bvh = Bvh8::build(&geo, &Bvh8Params::default());
-    check_packets(&geo, &bvh, &mut r, 400).unwrap();
+    packets_on_displaced_sphere(|geo| Bvh8::build(geo, &Bvh8Params::default()));
 }
 
 /// Packets walk together only when their rays are close: a camera's neighbouring rays

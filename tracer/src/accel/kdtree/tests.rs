@@ -593,7 +593,7 @@ impl ExactPackets for KdTree {
 
 /// Every active lane of a packet query is its one-ray query's answer (and so brute
 /// force's), bit for bit, whatever the other lanes hold.
-pub(in crate::accel) fn check_packets<P: Primitives>(
+fn check_packets<P: Primitives>(
     prims: &P,
     tree: &impl ExactPackets,
     r: &mut Rng,
@@ -628,28 +628,43 @@ pub(in crate::accel) fn check_packets<P: Primitives>(
     Ok(())
 }
 
-proptest! {
-    #![proptest_config(pinned(120))]
-
-    #[test]
-    fn packets_agree_with_brute_force_on_random_scenes(seed in any::<u64>(), size in 0usize..4, rays_seed in any::<u64>()) {
-        let n = [0, 1 + (seed % 16) as usize, 50 + (seed % 200) as usize, 500 + (seed % 2500) as usize][size];
-        let geo = random_scene(seed, n);
-        let mut r = Rng(rays_seed);
-        let tree = KdTree::build(&geo, &random_params(&mut r));
-        check_packets(&geo, &tree, &mut r, 40)?;
-    }
+/// A random scene (as the one-ray proptests') and 40 random packets through the
+/// structure `build` makes over it.
+pub(in crate::accel) fn packets_on_random_scene<T: ExactPackets>(
+    seed: u64,
+    size: usize,
+    rays_seed: u64,
+    build: impl Fn(&Geometry, &mut Rng) -> T,
+) -> Result<(), TestCaseError> {
+    let n = [0, 1 + (seed % 16) as usize, 50 + (seed % 200) as usize, 500 + (seed % 2500) as usize][size];
+    let geo = random_scene(seed, n);
+    let mut r = Rng(rays_seed);
+    let tree = build(&geo, &mut r);
+    check_packets(&geo, &tree, &mut r, 40)
 }
 
 /// Packets on a closed mesh with spheres: coherent packets hit neighbouring triangles
-/// and share most node steps.
-#[test]
-fn packets_agree_with_brute_force_on_displaced_sphere() {
+/// and share most of their walk.
+pub(in crate::accel) fn packets_on_displaced_sphere<T: ExactPackets>(build: impl Fn(&Geometry) -> T) {
     let mesh = displaced_sphere(20_000, 3);
     let mut r = Rng(11);
     let spheres =
         (0..300).map(|_| Sphere { center: r.v(-1.5, 1.5), radius: r.range(0.01, 0.15), material: 0 }).collect();
     let geo = Geometry::new(mesh, spheres);
-    let tree = KdTree::build(&geo, &BuildParams::default());
+    let tree = build(&geo);
     check_packets(&geo, &tree, &mut r, 400).unwrap();
+}
+
+proptest! {
+    #![proptest_config(pinned(120))]
+
+    #[test]
+    fn packets_agree_with_brute_force_on_random_scenes(seed in any::<u64>(), size in 0usize..4, rays_seed in any::<u64>()) {
+        packets_on_random_scene(seed, size, rays_seed, |geo, r| KdTree::build(geo, &random_params(r)))?;
+    }
+}
+
+#[test]
+fn packets_agree_with_brute_force_on_displaced_sphere() {
+    packets_on_displaced_sphere(|geo| KdTree::build(geo, &BuildParams::default()));
 }
