@@ -7,8 +7,8 @@ use anyhow::Context;
 use clap::Args;
 
 use crate::commands::follow::{Followed, JobFeed, follow};
+use crate::commands::job_args::JobArgs;
 use crate::commands::progress::{JobBar, summary};
-use crate::commands::render::JobArgs;
 use crate::edge::client::{FarmClient, StatusStream, Watch};
 use crate::farm::assets::LocalScene;
 use crate::farm::status::{JobState, JobStatus};

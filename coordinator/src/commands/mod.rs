@@ -8,6 +8,7 @@ pub mod client;
 pub(crate) mod follow;
 pub(crate) mod frames;
 pub(crate) mod in_process;
+pub mod job_args;
 pub mod loadtest;
 pub(crate) mod local;
 pub(crate) mod progress;
