@@ -134,3 +134,30 @@ fn a_job_group_renders_in_order_is_cancelled_by_name_and_survives_a_restart() {
     let totals: Vec<u64> = group(&coord.url, "orbit").iter().map(|f| f.samples_total).collect();
     assert_eq!(totals, [64 * 64 * 1024; 5], "every frame at the spp it was submitted with");
 }
+
+/// A submitted frame is checkpointed at once, not when the pacer is next due (it can wait
+/// many seconds after a slow write): until its first checkpoint, a crash would lose it.
+#[test]
+fn frames_are_checkpointed_as_soon_as_they_are_submitted() {
+    let dir = TempDir::new("groups-first-checkpoint");
+    let listen = format!("127.0.0.1:{}", free_port());
+    let ckpt = dir.path("ckpt");
+    // A pacing interval far longer than the test: only the first writes can happen.
+    let coord = Coordinator::serve(&[
+        "--listen",
+        &listen,
+        "--checkpoint-interval-ms",
+        "600000",
+        "--checkpoint",
+        ckpt.to_str().unwrap(),
+    ]);
+    let pattern = frames(&dir.0, "still", 5);
+    let small = ["--width", "32", "--height", "32", "--spp", "4", "-q"];
+    let out =
+        coordinator(&coord.url, &[&["submit", pattern.to_str().unwrap(), "--frames", "1-5"], &small[..]].concat());
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    let ids: Vec<String> = group(&coord.url, "still").into_iter().map(|f| f.job_id).collect();
+    assert_eq!(ids.len(), 5);
+    let saved = |id: &String| ckpt.join("job-checkpoints").join(id).join("checkpoint.tfck").is_file();
+    eventually("every frame is checkpointed, the queued ones too", Duration::from_secs(30), || ids.iter().all(saved));
+}

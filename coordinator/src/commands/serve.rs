@@ -1,6 +1,6 @@
 //! `coordinator serve`: a long-running farm.
 
-use std::collections::HashMap;
+use std::collections::{HashMap, HashSet};
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
 use std::time::Duration;
@@ -246,15 +246,21 @@ pub fn run(args: ServeArgs) -> anyhow::Result<()> {
         tokio::pin!(stop);
         let mut pacer = checkpoint::Pacer::new(Duration::from_millis(args.checkpoint_interval_ms));
         let mut saved: HashMap<String, Saved> = HashMap::new();
+        // The jobs a write has been attempted for.
+        let mut tried: HashSet<String> = HashSet::new();
         let mut store_retry: HashMap<String, std::time::Instant> = HashMap::new();
         loop {
             tokio::select! {
                 _ = &mut stop => break,
                 _ = tokio::time::sleep(Duration::from_millis(250)) => {}
             }
+            // A job never written is written at once: it is lost to a crash until then, and
+            // the pacer can wait many seconds after a slow write. (A first write that fails
+            // is retried at the pacer's pace, as any other.)
             if let Some(root) = &ckpt_root
-                && pacer.due()
+                && (pacer.due() || never_tried(&shared, &tried))
             {
+                tried = shared.farm().jobs.iter().filter(|e| checkpointed(e)).map(|e| e.job.id.clone()).collect();
                 let t = std::time::Instant::now();
                 save_jobs(&shared, root, &mut saved).await;
                 pacer.wrote(t.elapsed());
@@ -308,9 +314,7 @@ async fn save_jobs(shared: &Arc<Shared>, root: &Path, saved: &mut HashMap<String
         let farm = shared.farm();
         farm.jobs
             .iter()
-            // Frames of a group are kept from their submission: a queued frame has no
-            // image yet, but must come back after a restart.
-            .filter(|e| (e.job.width > 0 || e.job.group.is_some()) && !e.job.is_evicted())
+            .filter(|e| checkpointed(e))
             .map(|e| (e, (e.job.units_done, e.job.phase == crate::farm::job::JobPhase::Cancelled)))
             .filter(|(e, now)| saved.get(&e.job.id) != Some(now))
             .map(|(e, now)| (e.job.id.clone(), now, checkpoint::Snapshot::of(&e.spec, &e.job)))
@@ -336,6 +340,17 @@ async fn save_jobs(shared: &Arc<Shared>, root: &Path, saved: &mut HashMap<String
             Err(e) => tracing::warn!(job = %id, "checkpoint not written, retrying at the next interval: {e:#}"),
         }
     }
+}
+
+/// Whether a job is kept in checkpoints. Frames of a group are kept from their
+/// submission: a queued frame has no image yet, but must come back after a restart.
+fn checkpointed(e: &crate::farm::state::JobEntry) -> bool {
+    (e.job.width > 0 || e.job.group.is_some()) && !e.job.is_evicted()
+}
+
+/// Whether a job kept in checkpoints has had no write attempted yet.
+fn never_tried(shared: &Shared, tried: &HashSet<String>) -> bool {
+    shared.farm().jobs.iter().any(|e| checkpointed(e) && !tried.contains(&e.job.id))
 }
 
 fn stored_job_numbers(images: &Path) -> impl Iterator<Item = u64> {
