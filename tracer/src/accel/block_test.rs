@@ -112,22 +112,31 @@ macro_rules! lane_arithmetic {
     }};
     (@lanes $p:expr, $s:expr, $o:expr, $tmax:expr, $sub:ident, $mul:ident, $add:ident) => {{
         let p = $p;
+        let s = $s;
+        let o = $o;
+        let a = lane_arithmetic!(@corner [p[0], p[1], p[2]], s, o, $sub, $mul);
+        let b = lane_arithmetic!(@corner [p[3], p[4], p[5]], s, o, $sub, $mul);
+        let c = lane_arithmetic!(@corner [p[6], p[7], p[8]], s, o, $sub, $mul);
+        lane_arithmetic!(@sheared a, b, c, $tmax, $sub, $mul, $add)
+    }};
+    // One corner relative to the origin and sheared: `[x, y, sz · z]`.
+    (@corner $p:expr, $s:expr, $o:expr, $sub:ident, $mul:ident) => {{
+        let [px, py, pz] = $p;
         let [sx, sy, sz] = $s;
         let [ox, oy, oz] = $o;
-        let (a_x, a_y, a_z) = ($sub(p[0], ox), $sub(p[1], oy), $sub(p[2], oz));
-        let (b_x, b_y, b_z) = ($sub(p[3], ox), $sub(p[4], oy), $sub(p[5], oz));
-        let (c_x, c_y, c_z) = ($sub(p[6], ox), $sub(p[7], oy), $sub(p[8], oz));
-        let ax = $sub(a_x, $mul(sx, a_z));
-        let ay = $sub(a_y, $mul(sy, a_z));
-        let bx = $sub(b_x, $mul(sx, b_z));
-        let by = $sub(b_y, $mul(sy, b_z));
-        let cx = $sub(c_x, $mul(sx, c_z));
-        let cy = $sub(c_y, $mul(sy, c_z));
+        let (x, y, z) = ($sub(px, ox), $sub(py, oy), $sub(pz, oz));
+        [$sub(x, $mul(sx, z)), $sub(y, $mul(sy, z)), $mul(sz, z)]
+    }};
+    // The rest from the three sheared corners.
+    (@sheared $a:expr, $b:expr, $c:expr, $tmax:expr, $sub:ident, $mul:ident, $add:ident) => {{
+        let [ax, ay, az] = $a;
+        let [bx, by, bz] = $b;
+        let [cx, cy, cz] = $c;
         let u = $sub($mul(cx, by), $mul(cy, bx));
         let v = $sub($mul(ax, cy), $mul(ay, cx));
         let w = $sub($mul(bx, ay), $mul(by, ax));
         let det = $add($add(u, v), w);
-        let t_scaled = $add($add($mul(u, $mul(sz, a_z)), $mul(v, $mul(sz, b_z))), $mul(w, $mul(sz, c_z)));
+        let t_scaled = $add($add($mul(u, az), $mul(v, bz)), $mul(w, cz));
         let limit = $mul($tmax, det);
         (u, v, w, det, t_scaled, limit)
     }};

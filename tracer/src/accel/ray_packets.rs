@@ -231,25 +231,19 @@ impl PackedTriangles {
             ))
         };
         let mut open_v = open_mask(open);
+        // The sheared corners 0 and 2 of the triangle before, for one that follows it
+        // as a fan: the same values from the same operations, so the same bits.
+        let mut before = [[_mm256_setzero_ps(); 3]; 2];
         for (i, tri) in self.corners4().iter().enumerate() {
             // SAFETY: each row of `Corners4` is four floats, 16-byte aligned.
             let ld = |v: usize| unsafe { _mm256_broadcast_ps(&*tri.0[v].as_ptr().cast::<__m128>()) };
-            let (p0, p1, p2) = (ld(0), ld(1), ld(2));
-            let perm = |p, k| _mm256_permutevar8x32_ps(p, k);
-            let [kx, ky, kz] = r.k;
-            let p = [
-                perm(p0, kx),
-                perm(p0, ky),
-                perm(p0, kz),
-                perm(p1, kx),
-                perm(p1, ky),
-                perm(p1, kz),
-                perm(p2, kx),
-                perm(p2, ky),
-                perm(p2, kz),
-            ];
+            let perm = |p| [r.k[0], r.k[1], r.k[2]].map(|k| _mm256_permutevar8x32_ps(p, k));
+            let corner = |v: usize| lane_arithmetic!(@corner perm(ld(v)), r.s, r.ko, _mm256_sub_ps, _mm256_mul_ps);
+            let [a, b] = if tri.follows_fan() { before } else { [corner(0), corner(1)] };
+            let c = corner(2);
+            before = [a, c];
             let (u, v, w, det, t_scaled, limit) =
-                lane_arithmetic!(@lanes p, r.s, r.ko, best.tmax, _mm256_sub_ps, _mm256_mul_ps, _mm256_add_ps);
+                lane_arithmetic!(@sheared a, b, c, best.tmax, _mm256_sub_ps, _mm256_mul_ps, _mm256_add_ps);
             let z = _mm256_setzero_ps();
             let zero = _mm256_or_ps(
                 _mm256_or_ps(_mm256_cmp_ps::<_CMP_EQ_OQ>(u, z), _mm256_cmp_ps::<_CMP_EQ_OQ>(v, z)),
@@ -492,8 +486,14 @@ mod tests {
             let geo = scaled_scene(&mut r, n, spheres, scale);
             let packed = PackedTriangles::for_small_scene(&geo).expect("small");
             if !packed.packets() {
+                eprintln!("SKIPPED: packet queries need AVX2, which this CPU lacks");
                 return;
             }
+            // The grid's quads are fans: their second triangles reuse two corners.
+            assert_eq!(packed.corners4().iter().filter(|c| c.follows_fan()).count(), 16);
+            // The AVX2 build of the kernel too, where the CPU would take AVX-512VL's.
+            let mut avx2 = packed.clone();
+            avx2.simd = InstructionSet::Avx2;
             for k in 0..1500 {
                 let mut rays = RayPacket::default();
                 let mut expected = [None; PACKET];
@@ -525,6 +525,8 @@ mod tests {
                     *expected = Some((brute_force_intersect(&geo, &ray, tmax), brute_force_occluded(&geo, &ray, tmax)));
                 }
                 let (got, occluded) = (packed.intersect8(&geo, &rays), packed.occluded8(&geo, &rays));
+                let (got2, occluded2) = (avx2.intersect8(&geo, &rays), avx2.occluded8(&geo, &rays));
+                assert_eq!((got.found, occluded), (got2.found, occluded2), "n {n} scale {scale} packet {k}");
                 for (l, e) in expected.iter().enumerate() {
                     let Some((hit, occ)) = *e else {
                         assert_eq!(got.found & (1 << l), 0, "inactive lane {l} reported");
@@ -532,6 +534,7 @@ mod tests {
                         continue;
                     };
                     assert_eq!(got.get(l), hit, "n {n} scale {scale} packet {k} lane {l}");
+                    assert_eq!(got2.get(l), hit, "AVX2: n {n} scale {scale} packet {k} lane {l}");
                     assert_eq!(occluded & (1 << l) != 0, occ, "n {n} scale {scale} packet {k} lane {l}");
                     if scale != 1.0 {
                         continue;

@@ -51,10 +51,29 @@ struct Block {
 }
 
 /// One triangle's corners, each padded to four floats: what a 16-byte load broadcasts
-/// to the lanes of a packet query (`accel/ray_packets.rs`).
+/// to the lanes of a packet query (`accel/ray_packets.rs`). The first corner's padding
+/// says whether [`Corners4::follows_fan`].
 #[derive(Clone, Copy, Debug, serde::Serialize, serde::Deserialize)]
 #[repr(C, align(16))]
 pub(super) struct Corners4(pub(super) [[f32; 4]; 3]);
+
+impl Corners4 {
+    /// Corners 0 and 1 are, bit for bit, corners 0 and 2 of the triangle before: the
+    /// second half of a quad split as a fan, as OBJ faces are. (A packet query then
+    /// reuses those corners' sheared coordinates.)
+    #[inline(always)]
+    pub(super) fn follows_fan(&self) -> bool {
+        self.0[0][3] != 0.0
+    }
+
+    fn new(tri: &[Vec3; 3], before: Option<&[Vec3; 3]>) -> Self {
+        let same = |a: Vec3, b: Vec3| a.to_array().map(f32::to_bits) == b.to_array().map(f32::to_bits);
+        let fan = before.is_some_and(|b| same(tri[0], b[0]) && same(tri[1], b[2]));
+        let mut c = Corners4(tri.map(|p| [p.x, p.y, p.z, 0.0]));
+        c.0[0][3] = if fan { 1.0 } else { 0.0 };
+        c
+    }
+}
 
 /// Eight spheres: `c[axis][lane]` and `r[lane]`.
 #[derive(Clone, Copy, Debug, serde::Serialize, serde::Deserialize)]
@@ -98,8 +117,10 @@ impl PackedTriangles {
         let mut corners4 = Vec::with_capacity(len);
         let mut blocks = vec![Block { p: [[[0.0; LANES]; 3]; 3] }; len.div_ceil(LANES)];
         let mut boxes = vec![Aabb::EMPTY; blocks.len()];
+        let mut before = None;
         for (i, tri) in corners.enumerate() {
-            corners4.push(Corners4(tri.map(|p| [p.x, p.y, p.z, 0.0])));
+            corners4.push(Corners4::new(&tri, before.as_ref()));
+            before = Some(tri);
             boxes[i / LANES] = tri.iter().fold(boxes[i / LANES], |b, &p| b.union(Aabb::new(p, p)));
             let b = &mut blocks[i / LANES];
             for (v, corner) in tri.iter().enumerate() {
