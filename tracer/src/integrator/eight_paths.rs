@@ -255,6 +255,8 @@ pub(crate) fn render_unit(
     loop {
         // Idle lanes take the next samples, pixel by pixel.
         let mut idle = !live & ((1 << PACKET) - 1);
+        // Pinhole lanes' film positions; their directions are made eight at once below.
+        let (mut film_x, mut film_y, mut born) = ([0.0; PACKET], [0.0; PACKET], 0u32);
         while idle != 0 && next < total {
             let l = idle.trailing_zeros() as usize;
             idle &= idle - 1;
@@ -264,12 +266,22 @@ pub(crate) fn render_unit(
             let mut sampler = Sampler::new(seed, x, y, samples.start + s);
             // Box filter: uniform positions within the pixel (as `render.rs`'s loop).
             let film = Vec2::new(x as f32, y as f32) + sampler.next_2d();
-            let lens = if cam.has_lens() { sampler.next_2d() } else { Vec2::ZERO };
-            paths.set(l, &PathState::new(cam.generate_ray(film, lens)));
+            if cam.has_lens() {
+                let lens = sampler.next_2d();
+                paths.set(l, &PathState::new(cam.generate_ray(film, lens)));
+            } else {
+                (film_x[l], film_y[l]) = (film.x, film.y);
+                born |= 1 << l;
+                paths.set(l, &PathState::new(Ray::new(cam.position, Vec3::Z)));
+            }
             samplers.set(l, &sampler);
             pixels[l] = pixel as usize;
             live |= 1 << l;
             fresh |= 1 << l;
+        }
+        if born != 0 {
+            let dirs = cam.pinhole_dirs(V2w { x: simd.f8(film_x), y: simd.f8(film_y) });
+            paths.dir = simd.mask(born).select3(dirs, paths.dir);
         }
         if live == 0 {
             return (acc, count);
