@@ -103,7 +103,7 @@ pub const MAX_GROUP_CHARS: usize = 200;
 
 /// A job group's name from the wire: empty for none; else at most [`MAX_GROUP_CHARS`]
 /// printable characters.
-fn group_from_proto(group: String) -> Result<Option<String>, String> {
+pub fn group_from_proto(group: String) -> Result<Option<String>, String> {
     if group.is_empty() {
         return Ok(None);
     }

@@ -1,7 +1,8 @@
 //! Job groups (animations) on a real farm: `submit PATTERN --frames A-B` makes one group
 //! of frames. Frames start in order, a few at a time, the rest queued; `status`,
 //! `fetch`, `cancel` and `update` take the group's name; a killed and restarted coordinator
-//! brings every frame back from its checkpoints, the queued ones too, and finishes them.
+//! brings every frame back from its checkpoints, the queued ones too, and finishes them;
+//! a group finished before the restart is still fetched by its name from the stored images.
 
 use std::path::{Path, PathBuf};
 use std::process::Command;
@@ -133,6 +134,17 @@ fn a_job_group_renders_in_order_is_cancelled_by_name_and_survives_a_restart() {
     eventually("the restored group renders", LIMIT, || all_done(&coord.url, "orbit", 5));
     let totals: Vec<u64> = group(&coord.url, "orbit").iter().map(|f| f.samples_total).collect();
     assert_eq!(totals, [64 * 64 * 1024; 5], "every frame at the spp it was submitted with");
+
+    // 4. The group finished before the restart is no longer listed, but its images are
+    // stored: `fetch NAME` still writes every frame, the same bits as before.
+    assert!(group(&coord.url, "walk").is_empty(), "finished jobs are not restored");
+    let out = coordinator(&coord.url, &["fetch", "walk", "-q", "-o", dir.path("again.####.exr").to_str().unwrap()]);
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    for n in 1..=6 {
+        let (before, after) = (dir.path(&format!("walk.{n:04}.exr")), dir.path(&format!("again.{n:04}.exr")));
+        assert_same_bits(&read_exr(&before), &read_exr(&after), &format!("frame {n} after the restart"));
+    }
+    assert!(!dir.path("again.0007.exr").exists());
 }
 
 /// A submitted frame is checkpointed at once, not when the pacer is next due (it can wait

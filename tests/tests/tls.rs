@@ -123,6 +123,39 @@ fn a_tls_farm_renders_for_its_users_and_refuses_everyone_else() {
     let o = client(&coord, &tls, "admin", &["fetch", job, "-q", "-o", dir.path("admin.exr").to_str().unwrap()]);
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
 
+    // A group's stored frames are named only to their owner (and admins): Bob's
+    // `fetch clip` learns no frame of it.
+    let src = cornell().parent().unwrap().to_path_buf();
+    for f in ["cbox.obj", "cbox.mtl"] {
+        std::fs::copy(src.join(f), dir.path(f)).unwrap();
+    }
+    for i in 1..=2 {
+        std::fs::copy(cornell(), dir.path(&format!("clip.{i:04}.toml"))).unwrap();
+    }
+    let pattern = dir.path("clip.####.toml");
+    let sub = client(
+        &coord,
+        &tls,
+        "alice",
+        &[&["submit", pattern.to_str().unwrap(), "--frames", "1-2", "-q"], &JOB[..]].concat(),
+    );
+    assert!(sub.status.success(), "{}", String::from_utf8_lossy(&sub.stderr));
+    let stored = |who: &str| {
+        let token = token(&tls, who);
+        runtime().block_on(async {
+            let ch = channel(&coord.url, &tls, None).await.unwrap();
+            let req = bearer(tonic::Request::new(proto::GroupRequest { name: "clip".into() }), &token);
+            proto::jobs_client::JobsClient::new(ch).stored_frames(req).await.unwrap().into_inner().jobs
+        })
+    };
+    eventually("alice's frames are stored", LIMIT, || stored("alice").len() == 2);
+    assert_eq!(stored("admin").len(), 2);
+    assert!(stored("bob").is_empty(), "bob was told of alice's frames");
+    let o = client(&coord, &tls, "bob", &["fetch", "clip", "-o", dir.path("bob.####.exr").to_str().unwrap()]);
+    assert!(!o.status.success() && !dir.path("bob.0001.exr").exists());
+    let said = String::from_utf8_lossy(&o.stderr);
+    assert!(said.contains("clip is not one of your jobs") && !said.contains("job-"), "{said}");
+
     runtime().block_on(async {
         use proto::farm_client::FarmClient;
         use proto::jobs_client::JobsClient;

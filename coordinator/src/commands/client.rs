@@ -523,14 +523,33 @@ pub fn update(args: UpdateArgs) -> anyhow::Result<()> {
     })
 }
 
-/// The frames of the job group `name` as listed, in submission order; None when `name`
-/// is a job's id, or no job group has that name.
+/// The frames of the job group `name`, listed or with their images stored, in frame
+/// order; None when `name` is a listed job's id, or no job group has that name.
 async fn group_members(client: &mut FarmClient, name: &str) -> anyhow::Result<Option<Vec<JobStatus>>> {
     let jobs = client.jobs().await?;
-    if jobs.iter().any(|j| j.job_id == name) || !jobs.iter().any(|j| j.group == name) {
+    if jobs.iter().any(|j| j.job_id == name) {
         return Ok(None);
     }
-    Ok(Some(jobs.into_iter().filter(|j| j.group == name).collect()))
+    let mut members: Vec<JobStatus> = jobs.into_iter().filter(|j| j.group == name).collect();
+    // Frames that finished before a restart, or were forgotten after `retain`, are no
+    // longer listed; their images are still stored.
+    if is_group_name(name) {
+        for stored in client.stored_frames(name).await? {
+            if !members.iter().any(|m| m.job_id == stored.job_id) {
+                members.push(stored);
+            }
+        }
+    }
+    if members.is_empty() {
+        return Ok(None);
+    }
+    members.sort_by_key(frame_number);
+    Ok(Some(members))
+}
+
+/// Whether `name` could be a job group's (the farm refuses to look up others).
+fn is_group_name(name: &str) -> bool {
+    proto::wire::group_from_proto(name.to_string()).is_ok_and(|g| g.is_some())
 }
 
 /// The unfinished frames of the job group `name`, last first (so that cancelling them

@@ -132,6 +132,18 @@ impl FarmClient {
         jobs.into_iter().map(|s| status_from_proto(s).map_err(anyhow::Error::msg)).collect()
     }
 
+    /// A job group's frames whose images are stored and which are no longer listed (or
+    /// still are: the caller merges); none from a coordinator without the call.
+    pub async fn stored_frames(&mut self, group: &str) -> anyhow::Result<Vec<JobStatus>> {
+        let request = proto::GroupRequest { name: group.to_string() };
+        let jobs = match self.jobs.stored_frames(request).await {
+            Ok(r) => r.into_inner().jobs,
+            Err(s) if s.code() == tonic::Code::Unimplemented => return Ok(Vec::new()),
+            Err(s) => return Err(message(s)),
+        };
+        jobs.into_iter().map(|s| status_from_proto(s).map_err(anyhow::Error::msg)).collect()
+    }
+
     pub async fn workers(&mut self) -> anyhow::Result<Vec<WorkerRow>> {
         let workers = self.jobs.list_workers(proto::ListRequest {}).await.map_err(message)?.into_inner().workers;
         Ok(workers

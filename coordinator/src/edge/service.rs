@@ -214,7 +214,7 @@ impl JobsService {
         let listed = self.0.farm().entry(job).ok().map(|e| e.job.owner.clone());
         let owner = match listed {
             Some(owner) => owner,
-            None => self.0.store().stored_image(job).and_then(|p| crate::farm::lifecycle::stored_owner(&p)),
+            None => self.0.store().stored_image(job).and_then(|p| crate::farm::stored::stored_owner(&p)),
         };
         if caller.may_touch(owner.as_deref()) {
             Ok(())
@@ -359,6 +359,32 @@ impl proto::jobs_server::Jobs for JobsService {
         let caller = proto::auth::caller(&req);
         let statuses = self.0.farm().statuses_of(Instant::now(), |owner| caller.may_touch(owner));
         let jobs = statuses.into_iter().map(status_to_proto).collect();
+        Ok(Response::new(proto::ListJobsReply { jobs }))
+    }
+
+    async fn stored_frames(&self, req: Request<proto::GroupRequest>) -> Result<Response<proto::ListJobsReply>, Status> {
+        let caller = proto::auth::caller(&req);
+        let Some(group) = proto::wire::group_from_proto(req.into_inner().name).map_err(Status::invalid_argument)?
+        else {
+            return Err(Status::invalid_argument("group: a name is needed"));
+        };
+        let images = self.0.store().images();
+        let group_name = group.clone();
+        let frames = tokio::task::spawn_blocking(move || crate::farm::stored::stored_frames(&images, &group))
+            .await
+            .map_err(|e| Status::internal(e.to_string()))?;
+        let jobs = frames
+            .into_iter()
+            .filter(|f| caller.may_touch(f.owner.as_deref()))
+            .map(|f| proto::JobStatus {
+                job_id: f.job,
+                state: proto::JobState::Done as i32,
+                scene: f.name,
+                group: group_name.clone(),
+                owner: f.owner.unwrap_or_default(),
+                ..Default::default()
+            })
+            .collect();
         Ok(Response::new(proto::ListJobsReply { jobs }))
     }
 

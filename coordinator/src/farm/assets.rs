@@ -128,6 +128,11 @@ impl AssetStore {
         valid.then(|| self.dir.join(IMAGES).join(format!("{job}.exr")))
     }
 
+    /// The folder of finished jobs' images and their sidecars (`farm::stored`).
+    pub fn images(&self) -> PathBuf {
+        self.dir.join(IMAGES)
+    }
+
     pub fn blob_path(&self, sha256: &str) -> PathBuf {
         self.dir.join("blobs").join(sha256)
     }

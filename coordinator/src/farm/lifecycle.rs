@@ -17,6 +17,7 @@ use super::assets::AssetStore;
 use super::job::{Applied, JobPhase, Restored, UnitResult, WorkerId};
 use super::state::{Farm, FarmError};
 use super::status::JobStatus;
+use super::stored::{write_frame, write_owner};
 
 /// A finished job stays listed at least this long, so that those following it see it
 /// end (the status stream polls every 200 ms).
@@ -213,14 +214,25 @@ impl Shared {
                 .iter()
                 .filter(|e| e.job.phase == JobPhase::Done && !e.job.is_evicted())
                 .filter(|e| retry.get(&e.job.id).is_none_or(|&at| now >= at))
-                .map(|e| (e.job.id.clone(), e.job.image_tiles(), e.render_info(), e.job.owner.clone()))
+                .map(|e| {
+                    (
+                        e.job.id.clone(),
+                        e.job.image_tiles(),
+                        e.render_info(),
+                        e.job.owner.clone(),
+                        e.job.group.clone(),
+                        e.job.name.clone(),
+                    )
+                })
                 .collect()
         };
         let mut stored = Vec::new();
-        for (id, image, info, owner) in done {
+        for (id, image, info, owner, group, name) in done {
             let path = images.join(format!("{id}.exr"));
-            let written =
-                write_owner(images, &id, owner.as_deref()).and_then(|()| write_durably(&image, info.as_ref(), &path));
+            // The sidecars first: an image is never stored without them.
+            let written = write_owner(images, &id, owner.as_deref())
+                .and_then(|()| write_frame(images, &id, group.as_deref(), &name))
+                .and_then(|()| write_durably(&image, info.as_ref(), &path));
             if let Err(e) = written {
                 tracing::warn!(job = %id, "the finished image was not stored; trying again in 5 s: {e:#}");
                 retry.insert(id, now + Duration::from_secs(5));
@@ -279,21 +291,6 @@ fn finish(e: &mut super::state::JobEntry) {
 }
 
 /// Writes an EXR so that a crash leaves the old file or the whole new one.
-/// Beside a stored image, `<job>.owner` names the user who may fetch it (none: admins).
-pub const OWNER_SUFFIX: &str = "owner";
-
-fn write_owner(images: &Path, job: &str, owner: Option<&str>) -> anyhow::Result<()> {
-    let Some(owner) = owner else { return Ok(()) };
-    let path = images.join(format!("{job}.{OWNER_SUFFIX}"));
-    std::fs::write(&path, owner).with_context(|| format!("writing {}", path.display()))
-}
-
-/// Who owns the stored image of a job no longer listed (None: an admin's).
-pub fn stored_owner(image: &Path) -> Option<String> {
-    let text = std::fs::read_to_string(image.with_extension(OWNER_SUFFIX)).ok()?;
-    Some(text.chars().take(64).collect())
-}
-
 fn write_durably(
     image: &super::job::ImageTiles,
     info: Option<&tracer::output::RenderInfo>,

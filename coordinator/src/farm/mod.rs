@@ -1,7 +1,7 @@
 //! The farm's state: jobs ([`job`]) and their units ([`unit`]), lease deadlines ([`leases`]),
 //! the unit order ([`schedule`]), job groups' frame order ([`groups`]), registered workers and the jobs in submission order
 //! ([`state`]), checkpoints ([`checkpoint`]), the content-addressed asset store
-//! ([`assets`]), what a job's status says ([`status`]), and the job lifecycle
+//! ([`assets`]), what a job's status says ([`status`]), what lies beside a stored image ([`stored`]), and the job lifecycle
 //! ([`lifecycle`]) that ties them together, and what it counts for metrics ([`meters`]). No wire types: the edge maps them.
 
 pub mod assets;
@@ -15,6 +15,7 @@ pub mod meters;
 pub mod schedule;
 pub mod state;
 pub mod status;
+pub mod stored;
 pub mod unit;
 pub mod verify;
 
