@@ -4,7 +4,6 @@
 //! frame name of a group's frame, so that `fetch NAME` finds a group's finished frames.
 //! Both are read back bounded, since the folder may hold anything.
 
-use std::io::Read;
 use std::path::Path;
 
 use anyhow::Context;
@@ -68,13 +67,10 @@ pub fn stored_frames(images: &Path, group: &str) -> Vec<StoredFrame> {
     frames
 }
 
-/// A small file's text, or None if it is missing, not UTF-8 or longer than
-/// [`MAX_SIDECAR`].
+/// A sidecar's text, or None if it is missing, not a regular file, not UTF-8 or longer
+/// than [`MAX_SIDECAR`].
 fn read_bounded(path: &Path) -> Option<String> {
-    let mut text = String::new();
-    let file = std::fs::File::open(path).ok()?;
-    file.take(MAX_SIDECAR + 1).read_to_string(&mut text).ok()?;
-    (text.len() as u64 <= MAX_SIDECAR).then_some(text)
+    String::from_utf8(tracer::scene::files::read_bounded(path, MAX_SIDECAR).ok()?).ok()
 }
 
 #[cfg(test)]
