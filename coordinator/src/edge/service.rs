@@ -13,7 +13,7 @@ use tonic::{Request, Response, Status, Streaming};
 
 use proto::auth::{Caller, Role};
 
-use super::wire::{error_to_status, status_to_proto};
+use super::wire::{error_to_status, status_to_proto, stored_frame_to_proto};
 use crate::farm::Shared;
 use crate::farm::job::UnitResult;
 use crate::farm::lifecycle::ImageError;
@@ -376,14 +376,7 @@ impl proto::jobs_server::Jobs for JobsService {
         let jobs = frames
             .into_iter()
             .filter(|f| caller.may_touch(f.owner.as_deref()))
-            .map(|f| proto::JobStatus {
-                job_id: f.job,
-                state: proto::JobState::Done as i32,
-                scene: f.name,
-                group: group_name.clone(),
-                owner: f.owner.unwrap_or_default(),
-                ..Default::default()
-            })
+            .map(|f| stored_frame_to_proto(f, &group_name))
             .collect();
         Ok(Response::new(proto::ListJobsReply { jobs }))
     }

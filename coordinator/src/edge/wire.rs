@@ -7,6 +7,7 @@ use tonic::Status;
 use crate::farm::FarmError;
 use crate::farm::job::Rejection;
 use crate::farm::status::{JobState, JobStatus};
+use crate::farm::stored::StoredFrame;
 
 /// Largest number of warnings a status from the wire may carry, and their length.
 const MAX_WARNINGS: usize = 100;
@@ -51,6 +52,18 @@ pub fn status_to_proto(s: JobStatus) -> proto::JobStatus {
         owner: s.owner,
         submitted_unix_s: s.submitted_unix_s,
         group: s.group,
+    }
+}
+
+/// A group's stored frame as the status of a done job: its id, name, group and owner.
+pub fn stored_frame_to_proto(f: StoredFrame, group: &str) -> proto::JobStatus {
+    proto::JobStatus {
+        job_id: f.job,
+        state: proto::JobState::Done as i32,
+        scene: f.name,
+        group: group.to_string(),
+        owner: f.owner.unwrap_or_default(),
+        ..Default::default()
     }
 }
 
