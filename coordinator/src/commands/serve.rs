@@ -342,10 +342,12 @@ async fn save_jobs(shared: &Arc<Shared>, root: &Path, saved: &mut HashMap<String
     }
 }
 
-/// Whether a job is kept in checkpoints. Frames of a group are kept from their
-/// submission: a queued frame has no image yet, but must come back after a restart.
+/// Whether a job is kept in checkpoints: from its submission until its image is stored.
+/// A job whose scene is still being checked, or a queued frame, has no image yet, but
+/// the client was given its id: it must come back after a restart (and does, under that
+/// id, to load afresh).
 fn checkpointed(e: &crate::farm::state::JobEntry) -> bool {
-    (e.job.width > 0 || e.job.group.is_some()) && !e.job.is_evicted()
+    !e.job.is_evicted()
 }
 
 /// Whether a job kept in checkpoints has had no write attempted yet.
@@ -464,6 +466,55 @@ mod tests {
             std::fs::remove_file(tls.join(token)).unwrap();
         }
         assert!(access(&["--listen", "0.0.0.0:0", "--tls", t]).is_err());
+        std::fs::remove_dir_all(&dir).ok();
+    }
+
+    /// A job is checkpointed while its scene is still being checked (a large scene takes
+    /// seconds): a coordinator killed then brings it back under the id its client holds.
+    /// Before, only jobs whose scene had loaded (and frames of groups) were written.
+    #[test]
+    fn a_job_whose_scene_is_still_loading_survives_a_restart() {
+        use proto::domain::{AssetRef, JobSpec};
+        let dir = std::env::temp_dir().join(format!("tilefarm-serve-loading-{}", std::process::id()));
+        let _ = std::fs::remove_dir_all(&dir);
+        let (store, root) = (dir.join("store"), dir.join("job-checkpoints"));
+        let shared = Arc::new(Shared::new(Farm::new(Default::default()), AssetStore::open(&store).unwrap()));
+        let toml = "[camera]\nposition = [0, 0, -5]\nlook_at = [0, 0, 0]\nwidth = 8\nheight = 8\n";
+        let (sha256, size) = shared.store().put(toml.as_bytes()).unwrap();
+        let spec = JobSpec {
+            job_id: String::new(),
+            scene: AssetRef { path: "scene.toml".into(), sha256, size },
+            assets: vec![],
+            overrides: Default::default(),
+            integrator: tracer::integrator::Integrator::Path,
+            tile_size: None,
+            batch_spp: None,
+            spp_map: None,
+            group: None,
+        };
+        // Added but not loaded: where a job stands while its scene is being checked.
+        let id = shared.farm().add_job("hero".into(), Some("alice".into()), spec);
+        let runtime = tokio::runtime::Builder::new_current_thread().enable_all().build().unwrap();
+        runtime.block_on(save_jobs(&shared, &root, &mut HashMap::new()));
+        assert!(root.join(&id).join("checkpoint.tfck").is_file(), "the loading job was not checkpointed");
+
+        let again = Arc::new(Shared::new(Farm::new(Default::default()), AssetStore::open(&store).unwrap()));
+        restore_jobs(&again, &root).unwrap();
+        let (name, owner) = {
+            let farm = again.farm();
+            let e = farm.entry(&id).expect("the job is back under its id");
+            (e.job.name.clone(), e.job.owner.clone())
+        };
+        assert_eq!((name.as_str(), owner.as_deref()), ("hero", Some("alice")));
+        // It loads afresh and starts; wait for that before the folder goes.
+        let started = std::time::Instant::now();
+        while again.farm().entry(&id).unwrap().job.width == 0 {
+            let phase = again.farm().entry(&id).unwrap().job.phase.clone();
+            assert!(!matches!(phase, crate::farm::job::JobPhase::Failed(_)), "{phase:?}");
+            assert!(started.elapsed() < Duration::from_secs(30), "the restored job never started");
+            std::thread::sleep(Duration::from_millis(10));
+        }
+        assert_eq!(again.farm().entry(&id).unwrap().job.width, 8);
         std::fs::remove_dir_all(&dir).ok();
     }
 }
