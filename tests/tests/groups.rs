@@ -113,6 +113,11 @@ fn a_job_group_renders_in_order_is_cancelled_by_name_and_survives_a_restart() {
     assert!(after.iter().all(|f| state(f) == proto::JobState::Cancelled), "{after:?}");
     std::thread::sleep(Duration::from_millis(300));
     assert!(group(&url, "pan").iter().all(|f| state(f) == proto::JobState::Cancelled), "a cancelled frame started");
+    // Cancelled again, the group has nothing left to cancel, and says so.
+    let out = coordinator(&url, &["cancel", "pan"]);
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    let text = String::from_utf8_lossy(&out.stdout);
+    assert!(text.contains("group pan: 6 frames (6 cancelled)") && text.contains("nothing to cancel"), "{text:?}");
 
     // 3. Killed while frames are queued; restarted, the farm brings them all back.
     let pattern = frames(&dir.0, "orbit", 5);

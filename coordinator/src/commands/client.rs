@@ -506,7 +506,7 @@ pub fn update(args: UpdateArgs) -> anyhow::Result<()> {
     }
     runtime()?.block_on(async move {
         let mut client = args.coordinator.connect().await?;
-        let Some(frames) = group_frames(&mut client, &args.job).await? else {
+        let Some(frames) = group_frames(&mut client, &args.job, "update").await? else {
             let s = client.update(&args.job, &change).await?;
             println!("{}", crate::commands::progress::status_line(&s));
             return Ok(());
@@ -553,16 +553,23 @@ fn is_group_name(name: &str) -> bool {
 }
 
 /// The unfinished frames of the job group `name`, last first (so that cancelling them
-/// never lets a queued frame start on the way); None as for [`group_members`].
-async fn group_frames(client: &mut FarmClient, name: &str) -> anyhow::Result<Option<Vec<String>>> {
-    let members = group_members(client, name).await?;
-    Ok(members.map(|m| m.into_iter().rev().filter(|j| !j.state.is_final()).map(|j| j.job_id).collect()))
+/// never lets a queued frame start on the way); None as for [`group_members`]. When
+/// every frame has ended there are none, and the user is told so with the group's line,
+/// rather than `what` (the command) printing nothing at all.
+async fn group_frames(client: &mut FarmClient, name: &str, what: &str) -> anyhow::Result<Option<Vec<String>>> {
+    let Some(members) = group_members(client, name).await? else { return Ok(None) };
+    let open: Vec<String> = members.iter().rev().filter(|j| !j.state.is_final()).map(|j| j.job_id.clone()).collect();
+    if open.is_empty() {
+        let all: Vec<&JobStatus> = members.iter().collect();
+        println!("{}: every frame has ended, nothing to {what}", crate::commands::progress::group_line(name, &all));
+    }
+    Ok(Some(open))
 }
 
 pub fn cancel(args: CancelArgs) -> anyhow::Result<()> {
     runtime()?.block_on(async move {
         let mut client = args.coordinator.connect().await?;
-        let jobs = match group_frames(&mut client, &args.job).await? {
+        let jobs = match group_frames(&mut client, &args.job, "cancel").await? {
             Some(frames) => frames,
             None => vec![args.job.clone()],
         };
