@@ -143,6 +143,10 @@ fn a_job_group_renders_in_order_is_cancelled_by_name_and_survives_a_restart() {
     // 4. The group finished before the restart is no longer listed, but its images are
     // stored: `fetch NAME` still writes every frame, the same bits as before.
     assert!(group(&coord.url, "walk").is_empty(), "finished jobs are not restored");
+    let status = coordinator(&coord.url, &["status", "walk"]);
+    let text = String::from_utf8_lossy(&status.stdout);
+    assert!(status.status.success(), "{}", String::from_utf8_lossy(&status.stderr));
+    assert!(text.contains("group walk: 6 frames (6 done)") && text.contains("image stored"), "{text}");
     let out = coordinator(&coord.url, &["fetch", "walk", "-q", "-o", dir.path("again.####.exr").to_str().unwrap()]);
     assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
     for n in 1..=6 {

@@ -432,7 +432,12 @@ pub fn status(args: StatusArgs) -> anyhow::Result<()> {
         let mut jobs = client.jobs().await?;
         let workers = client.workers().await?;
         if let Some(only) = &args.only {
-            jobs.retain(|j| &j.job_id == only || &j.group == only);
+            // A group's frames as `fetch NAME` finds them: listed, or stored (finished
+            // before a restart, or no longer listed).
+            match group_members(&mut client, only).await? {
+                Some(members) => jobs = members,
+                None => jobs.retain(|j| &j.job_id == only),
+            }
             anyhow::ensure!(!jobs.is_empty(), "no job or job group {only} on the farm");
         }
         // Written at once, and a reader that stops early (`status | head`) is no error.

@@ -168,6 +168,10 @@ fn format_duration(d: Duration) -> String {
 /// A job as `status` lists it: id, state, name, size, samples, rate and ETA.
 pub fn status_line(j: &JobStatus) -> String {
     let state = j.state.name();
+    if j.state == JobState::Done && j.width == 0 {
+        // A frame known only by its stored image (no longer listed): no size or samples.
+        return format!("{:<8} {:<9} {:<20} image stored (`fetch {}` writes it)", j.job_id, state, j.scene, j.job_id);
+    }
     let percent = 100.0 * j.samples_done as f64 / j.samples_total.max(1) as f64;
     let mut line = format!(
         "{:<8} {:<9} {:<20} {}×{}  {} / {} samples ({percent:.0}%)",
