@@ -24,7 +24,7 @@ pub use self::check::{ObjCheck, check_obj_as};
 pub use self::deps::{obj_dependencies, obj_dependencies_where};
 pub use self::mtl::{MtlLibrary, load_mtl};
 use self::mtl::{RawMaterial, TextureCache};
-use self::scan::{Corner, ObjScan};
+use self::scan::{Corner, FaceInfo, ObjScan};
 use self::smoothing::SmoothNormals;
 use super::{NONE, Tri, TriangleMesh};
 use crate::material::MaterialDesc;
@@ -80,12 +80,13 @@ pub(crate) fn shown_beside(from: &str, name: &str) -> String {
 pub fn load_obj_from_str(text: &str, base_dir: &Path, display_name: &str) -> Result<ObjModel, ObjError> {
     let text = text.strip_prefix('\u{feff}').unwrap_or(text);
     let t = std::time::Instant::now();
-    let scan = parallel::scan(text, display_name)?;
+    let mut scan = parallel::scan(text, display_name)?;
     tracing::debug!("{display_name}: scanned in {:.2?}", t.elapsed());
     let mut warnings = scan.warnings.clone();
     let library = load_libraries(&scan, base_dir, display_name, &mut warnings)?;
     let t = std::time::Instant::now();
-    let model = Builder::new(&scan, display_name, library, warnings).build();
+    let (corners, faces) = (std::mem::take(&mut scan.corners), std::mem::take(&mut scan.faces));
+    let model = Builder::new(&scan, display_name, library, warnings).build(corners, &faces);
     tracing::debug!("{display_name}: {} triangles made in {:.2?}", model.mesh.tris.len(), t.elapsed());
     Ok(model)
 }
@@ -150,25 +151,11 @@ fn load_libraries(
     Ok(lib)
 }
 
-/// A polygon before triangulation: its corners' output indices are at `first..first +
-/// len` of [`Corners`] (no allocation per polygon: files have millions).
-struct Polygon {
-    first: usize,
-    len: usize,
-    /// Every corner has a texture coordinate.
-    has_uv: bool,
-    /// Every corner has a usable (non-zero) `vn` normal.
-    has_n: bool,
-    smoothing: u32,
-    material: u32,
-}
-
-/// The output position, uv and normal index of each corner of the file's faces.
-struct Corners {
-    v: Vec<u32>,
-    uv: Vec<u32>,
-    n: Vec<u32>,
-}
+/// What the corner pass learns of a face: every corner has a texture coordinate, and
+/// every corner a usable (non-zero) `vn` normal. One byte a face, beside the scan's
+/// faces, rather than a second copy of them (files have millions).
+const HAS_UV: u8 = 1;
+const HAS_N: u8 = 2;
 
 struct Builder<'a> {
     scan: &'a ObjScan,
@@ -251,40 +238,33 @@ impl<'a> Builder<'a> {
     }
 
     // Long on purpose: One pass over the parsed file in its order (groups, materials, faces); its steps share the per-pass index maps, so it stays one function.
-    fn build(mut self) -> ObjModel {
+    ///
+    /// The output indices are written over the scan's `corners` (their file indices are
+    /// read once, just before): no second array of them, which on ten million faces is
+    /// hundreds of megabytes of fresh memory the kernel must clear.
+    fn build(mut self, mut corners: Vec<Corner>, faces: &[FaceInfo]) -> ObjModel {
         let scan = self.scan;
         let mut pos_map = vec![NONE; scan.positions.len()];
         let mut uv_map = vec![NONE; scan.texcoords.len()];
         let mut normal_map: Vec<Option<u32>> = vec![None; scan.normals.len()];
-        let mut polygons: Vec<Polygon> = Vec::with_capacity(scan.faces.len());
-        let n = scan.corners.len();
-        let if_any = |any: bool| if any { vec![NONE; n] } else { Vec::new() };
-        let mut out =
-            Corners { v: vec![NONE; n], uv: if_any(!scan.texcoords.is_empty()), n: if_any(!scan.normals.is_empty()) };
+        let mut flags: Vec<u8> = Vec::with_capacity(faces.len());
+        self.mesh.positions.reserve_exact(scan.positions.len());
         let mut zero_vn_faces = 0usize;
 
         // The scan resolved every index (in range), so the lookups below cannot fail.
-        for face in &scan.faces {
-            let corners: &[Corner] = &scan.corners[face.first..face.first + face.len];
+        for face in faces {
+            let corners = &mut corners[face.first..face.first + face.len];
             let all_vt = corners.iter().all(|c| c.vt != NONE);
             let all_vn = corners.iter().all(|c| c.vn != NONE);
-            let mut poly = Polygon {
-                first: face.first,
-                len: face.len,
-                has_uv: all_vt,
-                has_n: all_vn,
-                smoothing: face.smoothing,
-                material: face.material,
-            };
-            let mut vn_ok = all_vn;
-            for (at, c) in (face.first..).zip(corners) {
+            let mut has_n = all_vn;
+            for c in corners.iter_mut() {
                 // Position.
                 let o = &mut pos_map[c.v as usize];
                 if *o == NONE {
                     *o = self.mesh.positions.len() as u32;
                     self.mesh.positions.push(scan.positions[c.v as usize]);
                 }
-                out.v[at] = *o;
+                c.v = *o;
                 // Texture coordinate.
                 if all_vt {
                     let o = &mut uv_map[c.vt as usize];
@@ -292,10 +272,10 @@ impl<'a> Builder<'a> {
                         *o = self.mesh.uvs.len() as u32;
                         self.mesh.uvs.push(scan.texcoords[c.vt as usize]);
                     }
-                    out.uv[at] = *o;
+                    c.vt = *o;
                 }
                 // Given normal (a zero-length one makes the face fall back to computed normals).
-                if vn_ok {
+                if has_n {
                     let slot = &mut normal_map[c.vn as usize];
                     if slot.is_none() {
                         let n = scan.normals[c.vn as usize];
@@ -307,48 +287,50 @@ impl<'a> Builder<'a> {
                         });
                     }
                     match *slot {
-                        Some(i) if i != NONE => out.n[at] = i,
+                        Some(i) if i != NONE => c.vn = i,
                         _ => {
-                            vn_ok = false;
-                            poly.has_n = false;
+                            has_n = false;
                             zero_vn_faces += 1;
                         }
                     }
                 }
             }
-            polygons.push(poly);
+            flags.push(if all_vt { HAS_UV } else { 0 } | if has_n { HAS_N } else { 0 });
         }
         self.note_zero_vn(zero_vn_faces);
+        let corners = &corners;
 
         // Smoothing groups: accumulate per (group, position).
         let mut smooth = SmoothNormals::default();
-        let mut pts: Vec<Vec3> = Vec::new();
+        let (mut idx, mut pts): (Vec<u32>, Vec<Vec3>) = (Vec::new(), Vec::new());
         // Faces with their own vn still shape their neighbours' normals.
-        for poly in polygons.iter().filter(|p| p.smoothing != 0) {
-            let v = &out.v[poly.first..poly.first + poly.len];
+        for face in faces.iter().filter(|f| f.smoothing != 0) {
+            idx.clear();
+            idx.extend(corners[face.first..face.first + face.len].iter().map(|c| c.v));
             pts.clear();
-            pts.extend(v.iter().map(|&v| self.mesh.positions[v as usize]));
-            smooth.add_polygon(poly.smoothing, v, &pts);
+            pts.extend(idx.iter().map(|&v| self.mesh.positions[v as usize]));
+            smooth.add_polygon(face.smoothing, &idx, &pts);
         }
 
         // Triangulate (fans) and emit.
         let mut smooth_index: HashMap<(u32, u32), u32> = HashMap::new();
         let mut degenerate = 0usize;
-        for poly in &polygons {
-            for i in 1..poly.len.saturating_sub(1) {
-                let c = [poly.first, poly.first + i, poly.first + i + 1];
-                let v = c.map(|k| out.v[k]);
+        self.mesh.tris.reserve_exact(faces.iter().map(|f| f.len.saturating_sub(2)).sum());
+        for (face, &flags) in faces.iter().zip(&flags) {
+            for i in 1..face.len.saturating_sub(1) {
+                let c = [face.first, face.first + i, face.first + i + 1].map(|k| corners[k]);
+                let v = c.map(|c| c.v);
                 let Some((cross, len)) = area_normal(v.map(|k| self.mesh.positions[k as usize])) else {
                     degenerate += 1;
                     continue;
                 };
-                let uv = if poly.has_uv { c.map(|k| out.uv[k]) } else { [NONE; 3] };
-                let n = if poly.has_n {
-                    c.map(|k| out.n[k])
-                } else if poly.smoothing != 0 {
+                let uv = if flags & HAS_UV != 0 { c.map(|c| c.vt) } else { [NONE; 3] };
+                let n = if flags & HAS_N != 0 {
+                    c.map(|c| c.vn)
+                } else if face.smoothing != 0 {
                     let mut n = [NONE; 3];
                     for (slot, &vi) in n.iter_mut().zip(&v) {
-                        let key = (poly.smoothing, vi);
+                        let key = (face.smoothing, vi);
                         *slot = match smooth_index.get(&key) {
                             Some(&i) => i,
                             None => {
@@ -370,7 +352,7 @@ impl<'a> Builder<'a> {
                 } else {
                     [NONE; 3]
                 };
-                let material = self.material(poly.material);
+                let material = self.material(face.material);
                 self.mesh.tris.push(Tri { v, n, uv, material });
             }
         }
