@@ -192,7 +192,7 @@ impl Checker {
         self.unusable.extend(c.normals.iter().map(|&n| unusable_normal(n)));
         self.slot_seen.resize(self.joined.out.material_names.len(), false);
         for face in &faces {
-            let corners = &c.corners[face.first..face.first + face.len];
+            let corners = &c.corners[face.corners()];
             if corners.iter().all(|k| k.vn != NONE) && corners.iter().any(|k| self.unusable[k.vn as usize]) {
                 self.zero_vn_faces += 1;
             }
@@ -201,7 +201,7 @@ impl Checker {
                     self.used_positions.push(self.positions[k.v as usize]);
                 }
             }
-            for i in 1..face.len.saturating_sub(1) {
+            for i in 1..corners.len().saturating_sub(1) {
                 let p = [corners[0], corners[i], corners[i + 1]].map(|k| self.positions[k.v as usize]);
                 if area_normal(p).is_none() {
                     self.degenerate += 1;

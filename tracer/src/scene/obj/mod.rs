@@ -253,7 +253,7 @@ impl<'a> Builder<'a> {
 
         // The scan resolved every index (in range), so the lookups below cannot fail.
         for face in faces {
-            let corners = &mut corners[face.first..face.first + face.len];
+            let corners = &mut corners[face.corners()];
             let all_vt = corners.iter().all(|c| c.vt != NONE);
             let all_vn = corners.iter().all(|c| c.vn != NONE);
             let mut has_n = all_vn;
@@ -306,7 +306,7 @@ impl<'a> Builder<'a> {
         // Faces with their own vn still shape their neighbours' normals.
         for face in faces.iter().filter(|f| f.smoothing != 0) {
             idx.clear();
-            idx.extend(corners[face.first..face.first + face.len].iter().map(|c| c.v));
+            idx.extend(corners[face.corners()].iter().map(|c| c.v));
             pts.clear();
             pts.extend(idx.iter().map(|&v| self.mesh.positions[v as usize]));
             smooth.add_polygon(face.smoothing, &idx, &pts);
@@ -315,10 +315,11 @@ impl<'a> Builder<'a> {
         // Triangulate (fans) and emit.
         let mut smooth_index: HashMap<(u32, u32), u32> = HashMap::new();
         let mut degenerate = 0usize;
-        self.mesh.tris.reserve_exact(faces.iter().map(|f| f.len.saturating_sub(2)).sum());
+        self.mesh.tris.reserve_exact(faces.iter().map(|f| f.corners().len().saturating_sub(2)).sum());
         for (face, &flags) in faces.iter().zip(&flags) {
-            for i in 1..face.len.saturating_sub(1) {
-                let c = [face.first, face.first + i, face.first + i + 1].map(|k| corners[k]);
+            let at = face.corners();
+            for i in 1..at.len().saturating_sub(1) {
+                let c = [at.start, at.start + i, at.start + i + 1].map(|k| corners[k]);
                 let v = c.map(|c| c.v);
                 let Some((cross, len)) = area_normal(v.map(|k| self.mesh.positions[k as usize])) else {
                     degenerate += 1;

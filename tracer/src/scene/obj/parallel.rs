@@ -108,7 +108,15 @@ fn join(chunks: Vec<Chunk>, display: &str) -> Result<ObjScan, ObjError> {
     j.out.positions.reserve_exact(total(|c| c.positions.len()));
     j.out.texcoords.reserve_exact(total(|c| c.texcoords.len()));
     j.out.normals.reserve_exact(total(|c| c.normals.len()));
-    j.out.corners.reserve_exact(total(|c| c.corners.len()));
+    let corners = total(|c| c.corners.len());
+    if super::scan::corner_index(corners).is_none() {
+        return Err(ObjError::Parse {
+            path: display.to_string(),
+            line: 1,
+            message: format!("{corners} face corners: more than one file may hold (4 billion)"),
+        });
+    }
+    j.out.corners.reserve_exact(corners);
     j.out.faces.reserve_exact(total(|c| c.faces.len()));
     for chunk in chunks {
         if let Some(e) = j.add(chunk) {
@@ -129,7 +137,7 @@ impl Joined {
     /// Appends a chunk; its error, if it has one (the file's first, as the chunks before
     /// it had none).
     fn add(&mut self, mut c: Chunk) -> Option<ObjError> {
-        let corner_base = self.out.corners.len();
+        let corner_base = self.out.corners.len() as u32;
         let faces = self.settle(&mut c, corner_base);
         self.out.faces.extend(faces);
         self.out.positions.extend_from_slice(&c.positions);
@@ -143,7 +151,7 @@ impl Joined {
     /// smoothing group and material numbers (and their first corner counted from
     /// `corner_base`); its libraries, warnings and summaries join the file's. The chunk
     /// keeps its vertex data, corners and error.
-    pub fn settle(&mut self, c: &mut Chunk, corner_base: usize) -> Vec<super::scan::FaceInfo> {
+    pub fn settle(&mut self, c: &mut Chunk, corner_base: u32) -> Vec<super::scan::FaceInfo> {
         // Smoothing groups are numbered, and materials listed, in order of first use.
         let smoothing: Vec<u32> = c
             .smoothing
@@ -172,6 +180,7 @@ impl Joined {
             .faces
             .iter()
             .map(|f| super::scan::FaceInfo {
+                // The file's corners fit 32 bits (checked before joining).
                 first: corner_base + f.first,
                 smoothing: at(&smoothing, f.smoothing, smoothing_before),
                 material: at(&materials, f.material, material_before),

@@ -26,11 +26,11 @@ pub(super) struct Corner {
 
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub(super) struct FaceInfo {
-    /// 1-based line number of the `f` statement.
-    pub line: usize,
-    /// Index of the first corner in [`ObjScan::corners`].
-    pub first: usize,
-    pub len: usize,
+    /// Index of the first corner in [`ObjScan::corners`]. 32 bits, as the corner count:
+    /// a file has millions of faces, and this is 16 bytes a face instead of 32 (a
+    /// larger file is refused, see [`corner_index`]).
+    pub first: u32,
+    pub len: u32,
     /// Smoothing group id (0 = no smoothing). In a [`Chunk`]: 0 for the group in force
     /// at the chunk's start, else 1 + the index of the chunk's `s` statement.
     pub smoothing: u32,
@@ -38,6 +38,20 @@ pub(super) struct FaceInfo {
     /// [`Chunk`]: 0 for the material at the chunk's start, else 1 + the index of the
     /// chunk's `usemtl` statement.
     pub material: u32,
+}
+
+impl FaceInfo {
+    /// The face's corners' indices in [`ObjScan::corners`].
+    #[inline]
+    pub fn corners(&self) -> std::ops::Range<usize> {
+        self.first as usize..self.first as usize + self.len as usize
+    }
+}
+
+/// A count of corners as a [`FaceInfo`] holds it; `None` past 32 bits (some 4 billion
+/// corners, more than a 4 GiB file can hold).
+pub(super) fn corner_index(n: usize) -> Option<u32> {
+    u32::try_from(n).ok()
 }
 
 /// A whole OBJ file, scanned.
@@ -243,9 +257,11 @@ fn scan_line(out: &mut Chunk, line: &str, line_no: usize, start: Start, display:
             for tok in args() {
                 out.corners.push(parse_corner(tok, counts)?);
             }
-            let len = out.corners.len() - first;
+            let (first, len) = corner_index(first)
+                .zip(corner_index(out.corners.len() - first))
+                .ok_or("too many face corners for one file (more than 4 billion)")?;
             let (smoothing, material) = (out.smoothing.len() as u32, out.materials.len() as u32);
-            out.faces.push(FaceInfo { line: line_no, first, len, smoothing, material });
+            out.faces.push(FaceInfo { first, len, smoothing, material });
         }
         "s" => {
             let arg = args().next().ok_or("smoothing group needs a number or 'off'")?;
