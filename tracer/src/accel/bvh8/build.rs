@@ -6,7 +6,7 @@
 //! decide on rounded coordinates and can report a hit a rounding error outside a
 //! primitive), so the traversal's intervals contain every hit the brute-force loop finds.
 
-use glam::Vec3;
+use glam::Vec4;
 use rayon::prelude::*;
 
 use super::{Bvh8, Bvh8Params, Bvh8Stats, EMPTY, LEAF, MAX_LEAF, NODE, Node8, ONE, WIDTH, leaf_first};
@@ -37,13 +37,65 @@ impl Binary {
     }
 }
 
-/// A primitive as the build moves it: padded box, centroid, index. Partitioning these
-/// (rather than indices into a table of boxes) keeps every pass sequential in memory.
+/// A box in SIMD lanes (x, y, z; the fourth lane is not a coordinate): the build's
+/// passes over millions of primitives take two vector operations per union, not six.
+#[derive(Clone, Copy)]
+struct Box4 {
+    lo: Vec4,
+    hi: Vec4,
+}
+
+impl Box4 {
+    const EMPTY: Box4 = Box4 { lo: Vec4::splat(f32::INFINITY), hi: Vec4::splat(f32::NEG_INFINITY) };
+
+    #[inline(always)]
+    fn union(self, o: Box4) -> Box4 {
+        Box4 { lo: self.lo.min(o.lo), hi: self.hi.max(o.hi) }
+    }
+
+    #[inline(always)]
+    fn grow(self, p: Vec4) -> Box4 {
+        Box4 { lo: self.lo.min(p), hi: self.hi.max(p) }
+    }
+
+    fn aabb(self) -> Aabb {
+        Aabb::new(self.lo.truncate(), self.hi.truncate())
+    }
+}
+
+/// A primitive as the build moves it: its padded box, with its index in the low box's
+/// fourth lane (see [`Ref::new`]). Partitioning these (rather than indices into a table
+/// of boxes) keeps every pass sequential in memory; 32 bytes, two to a cache line.
 #[derive(Clone, Copy)]
 struct Ref {
-    b: Aabb,
-    c: Vec3,
-    id: u32,
+    b: Box4,
+}
+
+/// Added to an index to make its lane's bits a normal float (from 2^-125 to below 8), so
+/// that no sum, half, min or max in that lane meets a subnormal (which costs this host's
+/// vector units a slow path, slowing the build by half) or a NaN.
+const ID_BIAS: u32 = 1 << 24;
+
+impl Ref {
+    fn new(b: Aabb, id: u32) -> Self {
+        debug_assert!(id < 1 << 30);
+        Ref { b: Box4 { lo: b.min.extend(f32::from_bits(id + ID_BIAS)), hi: b.max.extend(0.0) } }
+    }
+
+    fn id(&self) -> u32 {
+        self.b.lo.w.to_bits() - ID_BIAS
+    }
+
+    /// The centroid (its fourth lane is not a coordinate).
+    #[inline(always)]
+    fn c(&self) -> Vec4 {
+        (self.b.lo + self.b.hi) * 0.5
+    }
+}
+
+/// Boxes and centroid bounds of a set of refs.
+fn bounds_of(refs: &[Ref]) -> (Box4, Box4) {
+    refs.iter().fold((Box4::EMPTY, Box4::EMPTY), |(b, cb), r| (b.union(r.b), cb.grow(r.c())))
 }
 
 pub(super) fn build<P: Primitives>(prims: &P, params: &Bvh8Params) -> Bvh8 {
@@ -57,14 +109,16 @@ pub(super) fn build<P: Primitives>(prims: &P, params: &Bvh8Params) -> Bvh8 {
         .par_iter()
         .enumerate()
         .filter(|(_, b)| valid(b))
-        .map(|(i, b)| {
-            let p = pad_extent(*b, magnitude);
-            Ref { b: p, c: (p.min + p.max) * 0.5, id: i as u32 }
-        })
+        .map(|(i, b)| Ref::new(pad_extent(*b, magnitude), i as u32))
         .collect();
     drop(raw);
-    let root = (!refs.is_empty()).then(|| split(params, &mut refs, 0, 0));
-    let ids: Vec<u32> = refs.iter().map(|r| r.id).collect();
+    // Min and max are exact, so the reduction's grouping does not change the result.
+    let (b, cb) = refs
+        .par_chunks(1 << 16)
+        .map(bounds_of)
+        .reduce(|| (Box4::EMPTY, Box4::EMPTY), |(b0, c0), (b1, c1)| (b0.union(b1), c0.union(c1)));
+    let root = (!refs.is_empty()).then(|| split(params, &mut refs, Span { start: 0, depth: 0, b, cb }));
+    let ids: Vec<u32> = refs.iter().map(Ref::id).collect();
     drop(refs);
     let mut out = Collapse { ids: &ids, nodes: Vec::new(), leaves: Vec::new(), leaf_count: 0, filled: 0, depth: 0 };
     let root_ref = match &root {
@@ -85,36 +139,48 @@ pub(super) fn build<P: Primitives>(prims: &P, params: &Bvh8Params) -> Bvh8 {
     Bvh8 { nodes, leaves, root: root_ref, bounds: scene, cell, stats, simd: InstructionSet::detect() }
 }
 
-/// Splits `refs` (at `start` in the whole array) by the best binned SAH plane, or makes
-/// a leaf when that is cheaper (and the leaf fits one eight-lane pass).
-fn split(params: &Bvh8Params, refs: &mut [Ref], start: usize, depth: usize) -> Binary {
+/// Where a set of refs sits: its offset in the whole array, its binary depth, and its
+/// boxes' and centroids' bounds (found by the parent's partition).
+struct Span {
+    start: usize,
+    depth: usize,
+    b: Box4,
+    cb: Box4,
+}
+
+/// Splits `refs` by the best binned SAH plane, or makes a leaf when that is cheaper
+/// (and the leaf fits one eight-lane pass).
+fn split(params: &Bvh8Params, refs: &mut [Ref], at: Span) -> Binary {
     let n = refs.len();
-    let (b, cb) = refs.iter().fold((Aabb::EMPTY, Aabb::EMPTY), |(b, cb), r| (b.union(r.b), cb.grow(r.c)));
-    let leaf = Binary::Leaf { b, start, len: n };
-    if n == 1 || depth >= MAX_BINARY_DEPTH {
+    let (b, cb) = (at.b.aabb(), at.cb.aabb());
+    let leaf = Binary::Leaf { b, start: at.start, len: n };
+    if n == 1 || at.depth >= MAX_BINARY_DEPTH {
         return leaf;
     }
     let (ct, ci) = (params.traversal_cost, params.intersection_cost);
     let area = b.surface_area();
     let binner = Binner::new(&cb);
     let best = best_split(refs, &cb, &binner);
-    let left = match best {
+    let (left, sides) = match best {
         Some((axis, bin, cost)) => {
             let split_cost = ct + ci * cost / area;
             if n <= MAX_LEAF && ci * n as f32 <= split_cost {
                 return leaf;
             }
-            partition(refs, |r| binner.bin(axis, r.c) <= bin)
+            partition(refs, |c| binner.bin_on(axis, c) <= bin)
         }
         // All centroids in one point: halve by index until leaves fit.
         None if n <= MAX_LEAF => return leaf,
-        None => n / 2,
+        None => (n / 2, [bounds_of(&refs[..n / 2]), bounds_of(&refs[n / 2..])]),
     };
     let (l, r) = refs.split_at_mut(left);
+    let [(lb, lcb), (rb, rcb)] = sides;
+    let ls = Span { start: at.start, depth: at.depth + 1, b: lb, cb: lcb };
+    let rs = Span { start: at.start + left, depth: at.depth + 1, b: rb, cb: rcb };
     let (l, r) = if n >= PARALLEL_MIN {
-        rayon::join(|| split(params, l, start, depth + 1), || split(params, r, start + left, depth + 1))
+        rayon::join(|| split(params, l, ls), || split(params, r, rs))
     } else {
-        (split(params, l, start, depth + 1), split(params, r, start + left, depth + 1))
+        (split(params, l, ls), split(params, r, rs))
     };
     Binary::Inner { b, kids: Box::new([l, r]) }
 }
@@ -122,23 +188,35 @@ fn split(params: &Bvh8Params, refs: &mut [Ref], start: usize, depth: usize) -> B
 /// The bins of a node's centroid bounds: the same function in the sweep and the
 /// partition, so the sides have the sweep's counts.
 struct Binner {
-    min: [f32; 3],
-    scale: [f32; 3],
+    min: Vec4,
+    scale: Vec4,
 }
 
 impl Binner {
     fn new(cb: &Aabb) -> Self {
-        Self {
-            min: cb.min.to_array(),
-            scale: [0, 1, 2].map(|a| BINS as f32 * (1.0 - 1.0 / 65536.0) / (cb.max[a] - cb.min[a])),
-        }
+        // A flat axis gets scale 0 (every centroid in bin 0; the sweep skips it), and a
+        // scale past the largest float the largest float, so no bin is computed from a
+        // NaN or an infinity.
+        let scale = [0, 1, 2].map(|a| {
+            let extent = cb.max[a] - cb.min[a];
+            let s = BINS as f32 * (1.0 - 1.0 / 65536.0) / extent;
+            if extent > 0.0 { s.min(f32::MAX) } else { 0.0 }
+        });
+        Self { min: cb.min.extend(0.0), scale: Vec4::new(scale[0], scale[1], scale[2], 0.0) }
     }
 
-    /// Bin of centroid `c` along `axis`.
+    /// Bins of centroid `c` along the three axes.
     #[inline(always)]
-    fn bin(&self, axis: usize, c: Vec3) -> usize {
-        // `as` saturates (and maps NaN to 0); the `min` keeps the last bin.
-        (((c[axis] - self.min[axis]) * self.scale[axis]) as usize).min(BINS - 1)
+    fn bin(&self, c: Vec4) -> [usize; 3] {
+        // Clamped in floats, so the conversions are exact truncations.
+        let f = ((c - self.min) * self.scale).clamp(Vec4::ZERO, Vec4::splat((BINS - 1) as f32));
+        [f.x as usize, f.y as usize, f.z as usize]
+    }
+
+    /// Bin of centroid `c` along `axis`: `bin(c)[axis]`, by the same operations.
+    #[inline(always)]
+    fn bin_on(&self, axis: usize, c: Vec4) -> usize {
+        ((c[axis] - self.min[axis]) * self.scale[axis]).clamp(0.0, (BINS - 1) as f32) as usize
     }
 }
 
@@ -147,12 +225,12 @@ impl Binner {
 /// axis. One pass over the refs bins all three axes.
 fn best_split(refs: &[Ref], cb: &Aabb, binner: &Binner) -> Option<(usize, usize, f32)> {
     let mut count = [[0u32; BINS]; 3];
-    let mut bounds = [[Aabb::EMPTY; BINS]; 3];
+    let mut bounds = [[Box4::EMPTY; BINS]; 3];
     for r in refs {
+        let k = binner.bin(r.c());
         for axis in 0..3 {
-            let k = binner.bin(axis, r.c);
-            count[axis][k] += 1;
-            bounds[axis][k] = bounds[axis][k].union(r.b);
+            count[axis][k[axis]] += 1;
+            bounds[axis][k[axis]] = bounds[axis][k[axis]].union(r.b);
         }
     }
     let mut best: Option<(usize, usize, f32)> = None;
@@ -163,20 +241,20 @@ fn best_split(refs: &[Ref], cb: &Aabb, binner: &Binner) -> Option<(usize, usize,
         let (count, bounds) = (&count[axis], &bounds[axis]);
         // Right sides' costs, from the last bin down.
         let mut right = [0.0f32; BINS];
-        let (mut rb, mut rn) = (Aabb::EMPTY, 0u32);
+        let (mut rb, mut rn) = (Box4::EMPTY, 0u32);
         for k in (1..BINS).rev() {
             rb = rb.union(bounds[k]);
             rn += count[k];
-            right[k] = if rn == 0 { f32::INFINITY } else { rb.surface_area() * rn as f32 };
+            right[k] = if rn == 0 { f32::INFINITY } else { rb.aabb().surface_area() * rn as f32 };
         }
-        let (mut lb, mut ln) = (Aabb::EMPTY, 0u32);
+        let (mut lb, mut ln) = (Box4::EMPTY, 0u32);
         for k in 0..BINS - 1 {
             lb = lb.union(bounds[k]);
             ln += count[k];
             if ln == 0 || right[k + 1].is_infinite() {
                 continue;
             }
-            let cost = lb.surface_area() * ln as f32 + right[k + 1];
+            let cost = lb.aabb().surface_area() * ln as f32 + right[k + 1];
             if best.is_none_or(|b| cost < b.2) {
                 best = Some((axis, k, cost));
             }
@@ -185,19 +263,26 @@ fn best_split(refs: &[Ref], cb: &Aabb, binner: &Binner) -> Option<(usize, usize,
     best
 }
 
-/// Moves the refs for which `left` holds to the front (stable for neither side); how
-/// many.
-fn partition(refs: &mut [Ref], left: impl Fn(&Ref) -> bool) -> usize {
+/// Moves the refs whose centroids `left` takes to the front (stable for neither side);
+/// how many, and each side's boxes' and centroids' bounds (each ref is looked at once).
+fn partition(refs: &mut [Ref], left: impl Fn(Vec4) -> bool) -> (usize, [(Box4, Box4); 2]) {
     let (mut i, mut j) = (0, refs.len());
+    let (mut lb, mut lc, mut rb, mut rc) = (Box4::EMPTY, Box4::EMPTY, Box4::EMPTY, Box4::EMPTY);
     while i < j {
-        if left(&refs[i]) {
+        let r = refs[i];
+        let c = r.c();
+        if left(c) {
+            lb = lb.union(r.b);
+            lc = lc.grow(c);
             i += 1;
         } else {
+            rb = rb.union(r.b);
+            rc = rc.grow(c);
             j -= 1;
             refs.swap(i, j);
         }
     }
-    i
+    (i, [(lb, lc), (rb, rc)])
 }
 
 /// The binary tree's collapse into wide nodes, depth first.
@@ -269,5 +354,40 @@ impl Collapse<'_> {
         }
         self.nodes[at] = node;
         ((at as u32) << 2) | NODE
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use glam::Vec3;
+
+    #[test]
+    fn a_refs_index_lane_round_trips_and_stays_a_normal_float() {
+        let b = Aabb::new(Vec3::new(-1.0, 0.0, 2.0), Vec3::new(1.0, 0.5, 3.0));
+        for id in [0, 1, 12_345, (1 << 23) - 1, 1 << 23, (1 << 30) - 1] {
+            let r = Ref::new(b, id);
+            assert_eq!(r.id(), id);
+            // The sums and halves of the build's passes: none subnormal.
+            assert!(r.b.lo.w.is_normal() && r.c().w.is_normal(), "id {id}");
+            assert_eq!(r.c().truncate(), b.center());
+        }
+    }
+
+    #[test]
+    fn one_axis_bins_are_the_three_axis_bins() {
+        let cb = Aabb::new(Vec3::new(-2.0, 5.0, 1.0), Vec3::new(3.0, 5.0, 1.0 + 1e-6));
+        let binner = Binner::new(&cb);
+        for i in 0..=100 {
+            let t = i as f32 / 100.0;
+            let c = (cb.min + (cb.max - cb.min) * t).extend(7.0);
+            let k = binner.bin(c);
+            assert_eq!(k, [0, 1, 2].map(|a| binner.bin_on(a, c)));
+            // y is flat: one bin; the ends of x are the first and last bins.
+            assert_eq!(k[1], 0);
+            assert!(k.iter().all(|&k| k < BINS));
+        }
+        assert_eq!(binner.bin(cb.min.extend(0.0))[0], 0);
+        assert_eq!(binner.bin(cb.max.extend(0.0))[0], BINS - 1);
     }
 }
