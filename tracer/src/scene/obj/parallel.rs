@@ -9,7 +9,7 @@ use std::collections::HashMap;
 use rayon::prelude::*;
 
 use super::ObjError;
-use super::scan::{Chunk, ObjScan, Start, keyword, scan_chunk};
+use super::scan::{Chunk, ObjScan, Start, is_ascii_space, keyword, scan_chunk};
 use crate::scene::NONE;
 
 /// Files below this are scanned in one piece; larger ones in chunks of at least this.
@@ -74,7 +74,7 @@ fn count(text: &str) -> Start {
     let mut n = Start::default();
     for line in text.split('\n') {
         n.line += 1;
-        match keyword(line) {
+        match quick_keyword(line).unwrap_or_else(|| keyword(line)) {
             "v" => n.v += 1,
             "vt" => n.vt += 1,
             "vn" => n.vn += 1,
@@ -84,6 +84,25 @@ fn count(text: &str) -> Start {
     // `split` yields one more piece than there are newlines.
     n.line -= 1;
     n
+}
+
+/// A line's keyword as far as [`count`] needs it, from its first bytes: `v`, `vt`,
+/// `vn`, or "" for any other keyword; `None` (ask [`keyword`]) when the line starts
+/// with whitespace or with, or after its first one or two letters has, a byte outside
+/// ASCII (which may be whitespace ending the word).
+fn quick_keyword(line: &str) -> Option<&'static str> {
+    let b = line.as_bytes();
+    let ends = |i: usize| b.get(i).map_or(Some(true), |&c| c.is_ascii().then(|| is_ascii_space(c)));
+    match b.first() {
+        None => Some(""),
+        Some(&c) if !c.is_ascii() || is_ascii_space(c) => None,
+        Some(b'v') => match b.get(1) {
+            Some(&k @ (b't' | b'n')) => Some(if ends(2)? { if k == b't' { "vt" } else { "vn" } } else { "" }),
+            _ => Some(if ends(1)? { "v" } else { "" }),
+        },
+        // Any other first letter starts a keyword that is none of these.
+        Some(_) => Some(""),
+    }
 }
 
 /// What carries from chunk to chunk while they are joined: the settled state of the
@@ -287,5 +306,32 @@ mod tests {
         assert_eq!(cut("ab\ncd\n", 4), ["ab\ncd\n"]);
         assert_eq!(cut("", 4), [""]);
         assert_eq!(count("v 1\n vt 2\nvn\nf\n"), Start { line: 4, v: 1, vt: 1, vn: 1 });
+    }
+}
+
+#[cfg(test)]
+mod keyword_tests {
+    use super::*;
+    use proptest::prelude::*;
+
+    proptest! {
+        #![proptest_config(ProptestConfig::with_cases(4000))]
+
+        /// Where the quick look answers, it counts as the keyword does.
+        #[test]
+        fn the_quick_keyword_counts_as_the_keyword(
+            parts in prop::collection::vec(prop::sample::select(&[
+                "v", "t", "n", "f", "x", "#", " ", "\t", "\u{b}", "\u{c}", "\r", "\u{a0}", "\u{3000}", "é",
+            ][..]), 0..5),
+        ) {
+            let line: String = parts.concat();
+            let slow = match keyword(&line) {
+                k @ ("v" | "vt" | "vn") => k,
+                _ => "",
+            };
+            if let Some(quick) = quick_keyword(&line) {
+                prop_assert_eq!(quick, slow, "{:?}", line);
+            }
+        }
     }
 }

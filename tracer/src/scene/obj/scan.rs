@@ -8,6 +8,10 @@
 //! `vt` and `vn` came before it, so indices (also relative ones) resolve here; what
 //! carries over from earlier lines — the smoothing group and the material — is recorded
 //! as "as at the chunk's start" and settled when the chunks are merged in file order.
+//!
+//! The lines that make up nearly all of a large file (`v x y z`, `f` with whole
+//! corners) take a quick path first (`scan_common`): ASCII words, the same number
+//! parsers, and any line it is unsure of goes to the general path (`scan_line`).
 
 use glam::{Vec2, Vec3};
 
@@ -196,12 +200,105 @@ pub(super) fn scan_chunk(text: &str, start: Start, display: &str) -> Chunk {
     for (i, raw) in text.split('\n').enumerate() {
         let line_no = start.line + i;
         let line = raw.strip_suffix('\r').unwrap_or(raw);
+        if scan_common(&mut out, line, start) {
+            continue;
+        }
         if let Err(message) = scan_line(&mut out, line, line_no, start, display) {
             out.error = Some(ObjError::Parse { path: display.to_string(), line: line_no, message });
             break;
         }
     }
     out
+}
+
+/// Whitespace as `char::is_whitespace` has it, among ASCII bytes (vertical tab
+/// included, unlike `u8::is_ascii_whitespace`).
+#[inline]
+pub(super) fn is_ascii_space(b: u8) -> bool {
+    matches!(b, b'\t' | b'\n' | 0x0B | 0x0C | b'\r' | b' ')
+}
+
+/// The words of `s` between ASCII whitespace bytes. Where `s` holds only ASCII
+/// whitespace these are `split_whitespace`'s words; a word that holds other whitespace
+/// is no number or index, so the callers below fall back on the general path.
+fn ascii_words(s: &str) -> impl Iterator<Item = &str> {
+    // Cuts at ASCII bytes fall on character boundaries, so the slices are valid.
+    s.split(|c: char| c.is_ascii() && is_ascii_space(c as u8)).filter(|w| !w.is_empty())
+}
+
+/// An index as [`resolve_index`] resolves it, or `None` where that gives an error.
+#[inline]
+fn resolve_quick(tok: &str, count: usize) -> Option<u32> {
+    let x: i64 = tok.parse().ok()?;
+    let idx = if x > 0 { x - 1 } else { count as i64 + x };
+    (x != 0 && idx >= 0 && idx < count as i64).then_some(idx).and_then(|i| u32::try_from(i).ok())
+}
+
+/// A face corner as [`parse_corner`] reads it, or `None` where that gives an error.
+#[inline]
+fn corner_quick(tok: &str, counts: (usize, usize, usize)) -> Option<Corner> {
+    let mut parts = tok.split('/');
+    let (v, vt, vn) = (parts.next()?, parts.next(), parts.next());
+    if parts.next().is_some() {
+        return None;
+    }
+    let optional = |part: Option<&str>, count| match part {
+        Some(s) if !s.is_empty() => resolve_quick(s, count),
+        _ => Some(NONE),
+    };
+    Some(Corner { v: resolve_quick(v, counts.0)?, vt: optional(vt, counts.1)?, vn: optional(vn, counts.2)? })
+}
+
+/// Reads the lines that make up nearly all of a large file — `v x y z` and `f` with
+/// three or more corners, keyword first, no comment — without the general path's
+/// Unicode-aware trimming and splitting, by the same number parsers, into the same
+/// values. `false`, with nothing kept, for any other line or any it would reject: the
+/// general path ([`scan_line`]) reads those, with its messages.
+fn scan_common(out: &mut Chunk, line: &str, start: Start) -> bool {
+    let bytes = line.as_bytes();
+    if bytes.len() < 2 || !is_ascii_space(bytes[1]) {
+        return false;
+    }
+    match bytes[0] {
+        b'v' => {
+            let mut words = ascii_words(&line[2..]);
+            let xyz = [words.next(), words.next(), words.next()];
+            let finite = |w: Option<&str>| w?.parse::<f32>().ok().filter(|x| x.is_finite());
+            match (xyz.map(finite), words.next()) {
+                ([Some(x), Some(y), Some(z)], None) => {
+                    out.positions.push(Vec3::new(x, y, z));
+                    true
+                }
+                _ => false,
+            }
+        }
+        b'f' => {
+            let first = out.corners.len();
+            let counts = (start.v + out.positions.len(), start.vt + out.texcoords.len(), start.vn + out.normals.len());
+            for tok in ascii_words(&line[2..]) {
+                match corner_quick(tok, counts) {
+                    Some(c) => out.corners.push(c),
+                    None => {
+                        out.corners.truncate(first);
+                        return false;
+                    }
+                }
+            }
+            let len = out.corners.len() - first;
+            match (corner_index(first), corner_index(len)) {
+                (Some(first), Some(len)) if len >= 3 => {
+                    let (smoothing, material) = (out.smoothing.len() as u32, out.materials.len() as u32);
+                    out.faces.push(FaceInfo { first, len, smoothing, material });
+                    true
+                }
+                _ => {
+                    out.corners.truncate(first);
+                    false
+                }
+            }
+        }
+        _ => false,
+    }
 }
 
 // Long on purpose: One arm per OBJ keyword: a lexer reads best as one match.
@@ -297,4 +394,100 @@ fn scan_line(out: &mut Chunk, line: &str, line_no: usize, start: Start, display:
         }
     }
     Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use proptest::prelude::*;
+
+    /// Numbers and indices the quick path takes, and words it must not.
+    const COMMON: &[&str] = &["1", "2", "-1", "+2", "7", "-6", "1.5", "-0.0", "3/1", "1//2", "2/2/2", "-1/-1/-1"];
+    const ODD: &[&str] = &[
+        "v",
+        "vt",
+        "f",
+        "0",
+        "1/3/",
+        "1/1/1/1",
+        "/1",
+        "1/",
+        "x",
+        "inf",
+        "NaN",
+        "1e39",
+        "#",
+        "#c",
+        "3#",
+        "1,2",
+        "\u{a0}",
+        "99999999999999999999",
+        "4294967297",
+    ];
+    const SPACES: &[&str] = &["\t", "\u{b}", "\u{c}", "\r", "\u{a0}", "\u{3000}", "  "];
+
+    /// A word, mostly a common one, and the space before it, mostly one blank.
+    fn word() -> impl Strategy<Value = (&'static str, &'static str)> {
+        let w = prop_oneof![4 => prop::sample::select(COMMON), 1 => prop::sample::select(ODD)];
+        let s = prop_oneof![6 => Just(" "), 1 => prop::sample::select(SPACES)];
+        (w, s)
+    }
+
+    /// A chunk that has read 5 positions, 2 texture coordinates and 2 normals after
+    /// `start`'s 1, 1 and 1, and one face.
+    fn chunk() -> (Chunk, Start) {
+        let mut c = Chunk { positions: vec![Vec3::ONE; 5], ..Chunk::default() };
+        c.texcoords = vec![Vec2::ZERO; 2];
+        c.normals = vec![Vec3::Z; 2];
+        c.corners = vec![Corner { v: 0, vt: NONE, vn: NONE }; 3];
+        c.faces.push(FaceInfo { first: 0, len: 3, smoothing: 0, material: 0 });
+        (c, Start { line: 1, v: 1, vt: 1, vn: 1 })
+    }
+
+    type Read = (Vec<Vec3>, Vec<Corner>, Vec<FaceInfo>);
+
+    fn read(c: &Chunk) -> Read {
+        (c.positions.clone(), c.corners.clone(), c.faces.clone())
+    }
+
+    proptest! {
+        #![proptest_config(ProptestConfig::with_cases(4000))]
+
+        /// The quick path takes a line only when the general path reads it without an
+        /// error and into the same values; a line it refuses leaves the chunk as it was.
+        #[test]
+        fn the_quick_path_reads_as_the_general_path(
+            lead in 0usize..3,
+            words in prop::collection::vec(word(), 0..6),
+        ) {
+            let mut line = ["", "v", "f"][lead].to_string();
+            for (w, s) in words {
+                line.push_str(s);
+                line.push_str(w);
+            }
+            let (mut quick, start) = chunk();
+            let before = read(&quick);
+            let taken = scan_common(&mut quick, &line, start);
+            let (mut general, _) = chunk();
+            let result = scan_line(&mut general, &line, 7, start, "t.obj");
+            if taken {
+                prop_assert!(result.is_ok(), "{line:?}: {result:?}");
+                prop_assert_eq!(read(&quick), read(&general), "{:?}", line);
+            } else {
+                prop_assert_eq!(read(&quick), before, "{:?}", line);
+            }
+        }
+    }
+
+    #[test]
+    fn the_quick_path_takes_the_common_lines() {
+        for line in ["v 1 2.5 -3", "v\t1 2 3 ", "f 1 2 3", "f 1/1 2/2 3/1", "f 1//1 2//2 3//2 4//1", "f -1 -2 -3"] {
+            let (mut c, start) = chunk();
+            assert!(scan_common(&mut c, line, start), "{line:?}");
+        }
+        for line in ["v 1 2 3 1", "v 1 2 3 # c", "f 1 2", "f 1 2 9", " v 1 2 3", "v 1\u{a0}2 3", "f 1 2 3\u{b}#"] {
+            let (mut c, start) = chunk();
+            assert!(!scan_common(&mut c, line, start), "{line:?}");
+        }
+    }
 }
