@@ -147,6 +147,15 @@ fn a_job_group_renders_in_order_is_cancelled_by_name_and_survives_a_restart() {
     let text = String::from_utf8_lossy(&status.stdout);
     assert!(status.status.success(), "{}", String::from_utf8_lossy(&status.stderr));
     assert!(text.contains("group walk: 6 frames (6 done)") && text.contains("image stored"), "{text}");
+    // So is one frame, asked for by its job id.
+    let status = coordinator(&coord.url, &["status", third]);
+    let text = String::from_utf8_lossy(&status.stdout);
+    assert!(status.status.success(), "{}", String::from_utf8_lossy(&status.stderr));
+    assert!(text.contains(third.as_str()) && text.contains("walk.0003") && text.contains("image stored"), "{text}");
+    let status = coordinator(&coord.url, &["status", "job-999"]);
+    assert!(
+        !status.status.success() && String::from_utf8_lossy(&status.stderr).contains("no job or job group job-999")
+    );
     let out = coordinator(&coord.url, &["fetch", "walk", "-q", "-o", dir.path("again.####.exr").to_str().unwrap()]);
     assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
     for n in 1..=6 {

@@ -151,6 +151,19 @@ fn a_tls_farm_renders_for_its_users_and_refuses_everyone_else() {
     eventually("alice's frames are stored", LIMIT, || stored("alice").len() == 2);
     assert_eq!(stored("admin").len(), 2);
     assert!(stored("bob").is_empty(), "bob was told of alice's frames");
+    // Asked by its id, a stored frame is described to its owner and refused to Bob.
+    let frame = stored("alice")[0].job_id.clone();
+    let stored_job = |who: &str| {
+        let token = token(&tls, who);
+        runtime().block_on(async {
+            let ch = channel(&coord.url, &tls, None).await.unwrap();
+            let req = bearer(tonic::Request::new(proto::JobRequest { job_id: frame.clone() }), &token);
+            proto::jobs_client::JobsClient::new(ch).stored_job(req).await.map(|r| r.into_inner())
+        })
+    };
+    let mine = stored_job("alice").expect("alice's own frame");
+    assert_eq!((mine.state, mine.owner.as_str()), (proto::JobState::Done as i32, "alice"), "{mine:?}");
+    assert_eq!(stored_job("bob").unwrap_err().code(), Code::PermissionDenied);
     let o = client(&coord, &tls, "bob", &["fetch", "clip", "-o", dir.path("bob.####.exr").to_str().unwrap()]);
     assert!(!o.status.success() && !dir.path("bob.0001.exr").exists());
     let said = String::from_utf8_lossy(&o.stderr);

@@ -438,6 +438,11 @@ pub fn status(args: StatusArgs) -> anyhow::Result<()> {
                 Some(members) => jobs = members,
                 None => jobs.retain(|j| &j.job_id == only),
             }
+            // A job no longer listed (finished before a restart, or forgotten after
+            // `retain`) whose image `fetch` would still write.
+            if jobs.is_empty() {
+                jobs.extend(client.stored_job(only).await?);
+            }
             anyhow::ensure!(!jobs.is_empty(), "no job or job group {only} on the farm");
         }
         // Written at once, and a reader that stops early (`status | head`) is no error.

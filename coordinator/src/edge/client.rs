@@ -144,6 +144,17 @@ impl FarmClient {
         jobs.into_iter().map(|s| status_from_proto(s).map_err(anyhow::Error::msg)).collect()
     }
 
+    /// A job no longer listed whose image is stored (done); None when none is (or the
+    /// coordinator has no such call).
+    pub async fn stored_job(&mut self, job: &str) -> anyhow::Result<Option<JobStatus>> {
+        let request = proto::JobRequest { job_id: job.to_string() };
+        match self.jobs.stored_job(request).await {
+            Ok(r) => status_from_proto(r.into_inner()).map(Some).map_err(anyhow::Error::msg),
+            Err(s) if matches!(s.code(), tonic::Code::NotFound | tonic::Code::Unimplemented) => Ok(None),
+            Err(s) => Err(message(s)),
+        }
+    }
+
     pub async fn workers(&mut self) -> anyhow::Result<Vec<WorkerRow>> {
         let workers = self.jobs.list_workers(proto::ListRequest {}).await.map_err(message)?.into_inner().workers;
         Ok(workers

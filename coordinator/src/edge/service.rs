@@ -13,7 +13,7 @@ use tonic::{Request, Response, Status, Streaming};
 
 use proto::auth::{Caller, Role};
 
-use super::wire::{error_to_status, status_to_proto, stored_frame_to_proto};
+use super::wire::{error_to_status, status_to_proto, stored_frame_to_proto, stored_job_to_proto};
 use crate::farm::Shared;
 use crate::farm::job::UnitResult;
 use crate::farm::lifecycle::ImageError;
@@ -379,6 +379,24 @@ impl proto::jobs_server::Jobs for JobsService {
             .map(|f| stored_frame_to_proto(f, &group_name))
             .collect();
         Ok(Response::new(proto::ListJobsReply { jobs }))
+    }
+
+    async fn stored_job(&self, req: Request<proto::JobRequest>) -> Result<Response<proto::JobStatus>, Status> {
+        let caller = proto::auth::caller(&req);
+        let job = req.into_inner().job_id;
+        // Whether an image is stored first: a name that is no job's is not found, rather
+        // than refused for having no owner.
+        let image = self.0.store().stored_image(&job).filter(|p| p.is_file());
+        let Some(image) = image else {
+            return Err(Status::not_found(format!("no job {job} on the farm, and no image of it stored")));
+        };
+        self.may_touch(&caller, &job)?;
+        let (owner, name) = tokio::task::spawn_blocking(move || {
+            (crate::farm::stored::stored_owner(&image), crate::farm::stored::stored_frame_name(&image))
+        })
+        .await
+        .map_err(|e| Status::internal(e.to_string()))?;
+        Ok(Response::new(stored_job_to_proto(job, owner, name)))
     }
 
     async fn list_workers(&self, _: Request<proto::ListRequest>) -> Result<Response<proto::ListWorkersReply>, Status> {

@@ -67,6 +67,18 @@ pub fn stored_frame_to_proto(f: StoredFrame, group: &str) -> proto::JobStatus {
     }
 }
 
+/// A job no longer listed whose image is stored: done; `name` is its frame name if it
+/// was a group's frame (listed alone, not as its group's).
+pub fn stored_job_to_proto(job: String, owner: Option<String>, name: Option<String>) -> proto::JobStatus {
+    proto::JobStatus {
+        job_id: job,
+        state: proto::JobState::Done as i32,
+        scene: name.unwrap_or_default(),
+        owner: owner.unwrap_or_default(),
+        ..Default::default()
+    }
+}
+
 /// A status from a farm, checked: a known state, and warnings bounded in number and
 /// length (they are printed).
 pub fn status_from_proto(s: proto::JobStatus) -> Result<JobStatus, String> {

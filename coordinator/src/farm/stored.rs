@@ -34,6 +34,12 @@ pub fn write_frame(images: &Path, job: &str, group: Option<&str>, name: &str) ->
     std::fs::write(&path, format!("{group}\n{name}")).with_context(|| format!("writing {}", path.display()))
 }
 
+/// The frame name recorded beside a stored image, if it was a group's frame.
+pub fn stored_frame_name(image: &Path) -> Option<String> {
+    let text = read_bounded(&image.with_extension(FRAME_SUFFIX))?;
+    text.split_once('\n').map(|(_, name)| name.to_string())
+}
+
 /// A group's frame whose image is stored.
 #[derive(Debug, PartialEq, Eq)]
 pub struct StoredFrame {
