@@ -195,8 +195,8 @@ struct Binner {
 impl Binner {
     fn new(cb: &Aabb) -> Self {
         // A flat axis gets scale 0 (every centroid in bin 0; the sweep skips it), and a
-        // scale past the largest float the largest float, so no bin is computed from a
-        // NaN or an infinity.
+        // scale that would overflow (a subnormal extent) is capped at the largest float,
+        // so no bin is computed from a NaN or an infinity.
         let scale = [0, 1, 2].map(|a| {
             let extent = cb.max[a] - cb.min[a];
             let s = BINS as f32 * (1.0 - 1.0 / 65536.0) / extent;

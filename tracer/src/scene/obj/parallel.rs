@@ -9,7 +9,7 @@ use std::collections::HashMap;
 use rayon::prelude::*;
 
 use super::ObjError;
-use super::scan::{Chunk, ObjScan, Start, is_ascii_space, keyword, scan_chunk};
+use super::scan::{Chunk, FaceInfo, ObjScan, Start, is_ascii_space, keyword, scan_chunk};
 use crate::scene::NONE;
 
 /// Files below this are scanned in one piece; larger ones in chunks of at least this.
@@ -105,6 +105,30 @@ fn quick_keyword(line: &str) -> Option<&'static str> {
     }
 }
 
+/// How a chunk's faces are numbered in the file: their first corner from the chunk's
+/// base, and their smoothing group and material (in a chunk, 0 for the one in force at
+/// its start, else 1 + the index of the chunk's own statement) as the file's.
+struct FaceMap {
+    corner_base: u32,
+    smoothing: Vec<u32>,
+    materials: Vec<u32>,
+    /// The smoothing group and material in force at the chunk's start.
+    before: (u32, u32),
+}
+
+impl FaceMap {
+    fn apply(&self, f: &FaceInfo) -> FaceInfo {
+        let at = |own: &[u32], k: u32, before: u32| if k == 0 { before } else { own[k as usize - 1] };
+        FaceInfo {
+            // The file's corners fit 32 bits (checked before joining).
+            first: self.corner_base + f.first,
+            smoothing: at(&self.smoothing, f.smoothing, self.before.0),
+            material: at(&self.materials, f.material, self.before.1),
+            ..*f
+        }
+    }
+}
+
 /// What carries from chunk to chunk while they are joined: the settled state of the
 /// file so far (`out` holds its names, libraries and warnings, and — when joining — its
 /// vertex data and faces).
@@ -120,14 +144,12 @@ pub(super) struct Joined {
     arealess: (usize, usize, Option<usize>),
 }
 
-/// The chunks' parts in file order, as one pass would have made them.
-fn join(chunks: Vec<Chunk>, display: &str) -> Result<ObjScan, ObjError> {
-    let mut j = Joined::new();
-    let total = |f: fn(&Chunk) -> usize| chunks.iter().map(f).sum::<usize>();
-    j.out.positions.reserve_exact(total(|c| c.positions.len()));
-    j.out.texcoords.reserve_exact(total(|c| c.texcoords.len()));
-    j.out.normals.reserve_exact(total(|c| c.normals.len()));
-    let corners = total(|c| c.corners.len());
+/// The chunks' parts in file order, as one pass would have made them. What carries from
+/// chunk to chunk (smoothing groups, materials, warnings) is settled in order; the bulk
+/// — vertex data, corners and faces, hundreds of megabytes for ten million triangles —
+/// is then copied into place on all threads.
+fn join(mut chunks: Vec<Chunk>, display: &str) -> Result<ObjScan, ObjError> {
+    let corners: usize = chunks.iter().map(|c| c.corners.len()).sum();
     if super::scan::corner_index(corners).is_none() {
         return Err(ObjError::Parse {
             path: display.to_string(),
@@ -135,14 +157,53 @@ fn join(chunks: Vec<Chunk>, display: &str) -> Result<ObjScan, ObjError> {
             message: format!("{corners} face corners: more than one file may hold (4 billion)"),
         });
     }
-    j.out.corners.reserve_exact(corners);
-    j.out.faces.reserve_exact(total(|c| c.faces.len()));
-    for chunk in chunks {
-        if let Some(e) = j.add(chunk) {
+    let mut j = Joined::new();
+    let mut maps = Vec::with_capacity(chunks.len());
+    let mut corner_base = 0u32;
+    for c in &mut chunks {
+        maps.push(j.settle_state(c, corner_base));
+        // The file's corners fit 32 bits (checked above).
+        corner_base += c.corners.len() as u32;
+        if let Some(e) = c.error.take() {
             return Err(e);
         }
     }
+    let out = &mut j.out;
+    out.positions = concat(parts(&mut chunks, |c| &mut c.positions), |_, p| p);
+    out.texcoords = concat(parts(&mut chunks, |c| &mut c.texcoords), |_, t| t);
+    out.normals = concat(parts(&mut chunks, |c| &mut c.normals), |_, n| n);
+    out.corners = concat(parts(&mut chunks, |c| &mut c.corners), |_, c| c);
+    out.faces = concat(parts(&mut chunks, |c| &mut c.faces), |k, f| maps[k].apply(&f));
     Ok(j.finish(display))
+}
+
+/// Each chunk's `part`, taken out of it.
+fn parts<T>(chunks: &mut [Chunk], part: impl Fn(&mut Chunk) -> &mut Vec<T>) -> Vec<Vec<T>> {
+    chunks.iter_mut().map(|c| std::mem::take(part(c))).collect()
+}
+
+/// The parts one after the other in one vector, each element mapped by `f` (given its
+/// part's index), written on all threads. Each part is freed once copied, so that the
+/// file's data is not held twice.
+fn concat<S: Send, T: Send>(parts: Vec<Vec<S>>, f: impl Fn(usize, S) -> T + Sync) -> Vec<T> {
+    let total = parts.iter().map(Vec::len).sum();
+    let mut out: Vec<T> = Vec::with_capacity(total);
+    let mut rest = &mut out.spare_capacity_mut()[..total];
+    let mut places = Vec::with_capacity(parts.len());
+    for (k, part) in parts.into_iter().enumerate() {
+        let (here, after) = rest.split_at_mut(part.len());
+        places.push((k, here, part));
+        rest = after;
+    }
+    places.into_par_iter().for_each(|(k, here, part)| {
+        for (slot, x) in here.iter_mut().zip(part) {
+            slot.write(f(k, x));
+        }
+    });
+    // SAFETY: the places cut `out`'s first `total` slots into one run per part, of that
+    // part's length, and each slot of each run was written just above.
+    unsafe { out.set_len(total) };
+    out
 }
 
 /// Unsupported keywords listed in the warning; later ones are not named.
@@ -153,24 +214,17 @@ impl Joined {
         Self { material: NONE, ..Self::default() }
     }
 
-    /// Appends a chunk; its error, if it has one (the file's first, as the chunks before
-    /// it had none).
-    fn add(&mut self, mut c: Chunk) -> Option<ObjError> {
-        let corner_base = self.out.corners.len() as u32;
-        let faces = self.settle(&mut c, corner_base);
-        self.out.faces.extend(faces);
-        self.out.positions.extend_from_slice(&c.positions);
-        self.out.texcoords.extend_from_slice(&c.texcoords);
-        self.out.normals.extend_from_slice(&c.normals);
-        self.out.corners.extend_from_slice(&c.corners);
-        c.error
-    }
-
     /// Settles a chunk's state against the file's so far: its faces with the file's
     /// smoothing group and material numbers (and their first corner counted from
     /// `corner_base`); its libraries, warnings and summaries join the file's. The chunk
     /// keeps its vertex data, corners and error.
-    pub fn settle(&mut self, c: &mut Chunk, corner_base: u32) -> Vec<super::scan::FaceInfo> {
+    pub fn settle(&mut self, c: &mut Chunk, corner_base: u32) -> Vec<FaceInfo> {
+        let map = self.settle_state(c, corner_base);
+        c.faces.iter().map(|f| map.apply(f)).collect()
+    }
+
+    /// [`Self::settle`] but for the faces: how to number them.
+    fn settle_state(&mut self, c: &mut Chunk, corner_base: u32) -> FaceMap {
         // Smoothing groups are numbered, and materials listed, in order of first use.
         let smoothing: Vec<u32> = c
             .smoothing
@@ -193,21 +247,9 @@ impl Joined {
                 }
             })
             .collect();
-        let at = |own: &[u32], k: u32, before: u32| if k == 0 { before } else { own[k as usize - 1] };
-        let (smoothing_before, material_before) = (self.smoothing, self.material);
-        let faces = c
-            .faces
-            .iter()
-            .map(|f| super::scan::FaceInfo {
-                // The file's corners fit 32 bits (checked before joining).
-                first: corner_base + f.first,
-                smoothing: at(&smoothing, f.smoothing, smoothing_before),
-                material: at(&materials, f.material, material_before),
-                ..*f
-            })
-            .collect();
-        self.smoothing = smoothing.last().copied().unwrap_or(self.smoothing);
-        self.material = materials.last().copied().unwrap_or(self.material);
+        let map = FaceMap { corner_base, smoothing, materials, before: (self.smoothing, self.material) };
+        self.smoothing = map.smoothing.last().copied().unwrap_or(self.smoothing);
+        self.material = map.materials.last().copied().unwrap_or(self.material);
         self.out.mtllibs.append(&mut c.mtllibs);
         self.out.warnings.append(&mut c.warnings);
         for (key, n, line) in c.ignored.drain(..) {
@@ -220,7 +262,7 @@ impl Joined {
         self.arealess.0 += c.arealess.0;
         self.arealess.1 += c.arealess.1;
         self.arealess.2 = self.arealess.2.or(c.arealess.2);
-        faces
+        map
     }
 
     /// The whole file's scan, with its summary warnings.
