@@ -24,12 +24,12 @@ seed checkpoint "$ck/checkpoint.tfck"
 for t in "${targets[@]}"; do
     if [ -d "regressions/$t" ]; then cp regressions/"$t"/* "$corpus/$t/" 2>/dev/null || true; fi
 done
-cargo fuzz build -s none
+cargo fuzz build -s none --dev
 for t in "${targets[@]}"; do
     echo "fuzz: $t for ${secs}s ($(ls "$corpus/$t" | wc -l) seeds)"
     # -rss_limit_mb: a parser that allocates without bound is a crash, not a slow run.
     log="$corpus/$t.log"
-    if ! cargo fuzz run -s none "$t" "$corpus/$t" -- -max_total_time="$secs" -rss_limit_mb=2048 -timeout=10 \
+    if ! cargo fuzz run -s none --dev "$t" "$corpus/$t" -- -max_total_time="$secs" -rss_limit_mb=2048 -timeout=10 \
         -print_final_stats=1 > "$log" 2>&1; then
         grep -E "ERROR|SUMMARY|panicked|Test unit written|Base64" "$log" | head -20
         echo "fuzz: $t found a crash (its input is in fuzz/artifacts/$t/)"
