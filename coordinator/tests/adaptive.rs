@@ -211,12 +211,12 @@ fn an_adaptive_render_on_a_time_budget_renders_again_from_its_map() {
     let dir = TempDir::new("adaptive-budget");
     let scene = halves(&dir.0);
     // A target no tile reaches within the budget: each goes on until the budget ends.
-    let args = ["--adaptive", "--noise", "0.0001", "--spp", "1000000", "--time-budget", "1s", "--local-workers", "1"];
+    let args = ["--adaptive", "--noise", "0.0001", "--spp", "1000000", "--time-budget", "3s", "--local-workers", "1"];
     let budget = render(&dir.0, &scene, "budget.exr", &args);
     // The emitter's half (the image's right) converges at once; the lit half's tiles go on.
     let half = |lit: bool| budget.counts.iter().enumerate().filter(move |(i, _)| (i % 32 < 16) == lit).map(|(_, &c)| c);
     let (least, most) = (half(true).min().unwrap(), half(true).max().unwrap());
-    println!("1 s adaptive budget: the lit half at {least}..{most} spp");
+    println!("3 s adaptive budget: the lit half at {least}..{most} spp");
     assert!(half(false).all(|c| c == 64), "the emitter's tiles stop at 64 spp");
     assert!(least > 64 && most - least <= 8, "unconverged tiles within one batch: {least}..{most} spp");
     let map = dir.0.join("budget.exr");
