@@ -14,7 +14,9 @@
 //! spheres, [`intersect_sphere`]'s operations), so each lane's answer is exactly
 //! [`brute_force_intersect`] / [`brute_force_occluded`] of its ray, whichever rays share
 //! the packet. A lane with an edge function exactly zero runs the scalar test itself (it
-//! switches to double precision there).
+//! switches to double precision there). Triangles come in runs of consecutive indices
+//! (`triangle_blocks/runs.rs`); a run whose box none of the searching lanes can reach
+//! within its `tmax` holds no hit for any of them and is skipped, which keeps the order.
 //!
 //! [`intersect_sphere`]: crate::geometry::sphere::intersect_sphere
 //! [`brute_force_intersect`]: super::brute_force_intersect
@@ -27,7 +29,7 @@ use glam::Vec3;
 use super::block_test::{InstructionSet, lane_arithmetic};
 use super::triangle_blocks::PackedTriangles;
 use super::{Hit, Primitives, RayPrecomp};
-use crate::geometry::Ray;
+use crate::geometry::{Aabb, Ray};
 
 /// Rays in a packet.
 pub const PACKET: usize = 8;
@@ -232,48 +234,62 @@ impl PackedTriangles {
         };
         let mut open_v = open_mask(open);
         // The sheared corners 0 and 2 of the triangle before, for one that follows it
-        // as a fan: the same values from the same operations, so the same bits.
+        // as a fan: the same values from the same operations, so the same bits. (Not
+        // after a skipped run: then they are another triangle's.)
         let mut before = [[_mm256_setzero_ps(); 3]; 2];
-        for (i, tri) in self.corners4().iter().enumerate() {
-            // SAFETY: each row of `Corners4` is four floats, 16-byte aligned.
-            let ld = |v: usize| unsafe { _mm256_broadcast_ps(&*tri.0[v].as_ptr().cast::<__m128>()) };
-            let perm = |p| [r.k[0], r.k[1], r.k[2]].map(|k| _mm256_permutevar8x32_ps(p, k));
-            let corner = |v: usize| lane_arithmetic!(@corner perm(ld(v)), r.s, r.ko, _mm256_sub_ps, _mm256_mul_ps);
-            let [a, b] = if tri.follows_fan() { before } else { [corner(0), corner(1)] };
-            let c = corner(2);
-            before = [a, c];
-            let (u, v, w, det, t_scaled, limit) =
-                lane_arithmetic!(@sheared a, b, c, best.tmax, _mm256_sub_ps, _mm256_mul_ps, _mm256_add_ps);
-            let z = _mm256_setzero_ps();
-            let zero = _mm256_or_ps(
-                _mm256_or_ps(_mm256_cmp_ps::<_CMP_EQ_OQ>(u, z), _mm256_cmp_ps::<_CMP_EQ_OQ>(v, z)),
-                _mm256_cmp_ps::<_CMP_EQ_OQ>(w, z),
-            );
-            let zero = _mm256_and_ps(zero, open_v);
-            // Most triangles miss every lane by the signs of the edge functions alone
-            // (`verdict`'s first rejection); the rest of the test is skipped for them.
-            let mixed = _mm256_castsi256_ps(_mm256_srai_epi32::<31>(_mm256_castps_si256(_mm256_or_ps(
-                _mm256_xor_ps(u, v),
-                _mm256_xor_ps(u, w),
-            ))));
-            if _mm256_movemask_ps(_mm256_or_ps(_mm256_andnot_ps(mixed, open_v), zero)) == 0 {
+        let mut before_ok = false;
+        let boxes = RunBoxes::new(&r, self.extent());
+        let corners = self.corners4();
+        for run in self.runs() {
+            if let Some(b) = &run.bounds
+                && !boxes.reach(b, best.tmax, open_v)
+            {
+                before_ok = false;
                 continue;
             }
-            let inv_det = _mm256_div_ps(_mm256_set1_ps(1.0), det);
-            let t = _mm256_mul_ps(t_scaled, inv_det);
-            let ok =
-                _mm256_andnot_ps(zero, _mm256_and_ps(open_v, verdict(u, v, w, det, t_scaled, limit, t, best.tmax)));
-            best.take(ok, t, _mm256_mul_ps(v, inv_det), _mm256_mul_ps(w, inv_det), i as u32);
-            let zero = _mm256_movemask_ps(zero) as u32;
-            if zero != 0 {
-                best = best.scalar(prims, rays, i as u32, zero);
-            }
-            if any {
-                open = active & !(_mm256_movemask_ps(best.found) as u32);
-                if open == 0 {
-                    return best;
+            let (start, end) = (run.start as usize, run.end as usize);
+            for (i, tri) in (start..end).zip(&corners[start..end]) {
+                // SAFETY: each row of `Corners4` is four floats, 16-byte aligned.
+                let ld = |v: usize| unsafe { _mm256_broadcast_ps(&*tri.0[v].as_ptr().cast::<__m128>()) };
+                let perm = |p| [r.k[0], r.k[1], r.k[2]].map(|k| _mm256_permutevar8x32_ps(p, k));
+                let corner = |v: usize| lane_arithmetic!(@corner perm(ld(v)), r.s, r.ko, _mm256_sub_ps, _mm256_mul_ps);
+                let [a, b] = if tri.follows_fan() && before_ok { before } else { [corner(0), corner(1)] };
+                let c = corner(2);
+                before = [a, c];
+                before_ok = true;
+                let (u, v, w, det, t_scaled, limit) =
+                    lane_arithmetic!(@sheared a, b, c, best.tmax, _mm256_sub_ps, _mm256_mul_ps, _mm256_add_ps);
+                let z = _mm256_setzero_ps();
+                let zero = _mm256_or_ps(
+                    _mm256_or_ps(_mm256_cmp_ps::<_CMP_EQ_OQ>(u, z), _mm256_cmp_ps::<_CMP_EQ_OQ>(v, z)),
+                    _mm256_cmp_ps::<_CMP_EQ_OQ>(w, z),
+                );
+                let zero = _mm256_and_ps(zero, open_v);
+                // Most triangles miss every lane by the signs of the edge functions alone
+                // (`verdict`'s first rejection); the rest of the test is skipped for them.
+                let mixed = _mm256_castsi256_ps(_mm256_srai_epi32::<31>(_mm256_castps_si256(_mm256_or_ps(
+                    _mm256_xor_ps(u, v),
+                    _mm256_xor_ps(u, w),
+                ))));
+                if _mm256_movemask_ps(_mm256_or_ps(_mm256_andnot_ps(mixed, open_v), zero)) == 0 {
+                    continue;
                 }
-                open_v = open_mask(open);
+                let inv_det = _mm256_div_ps(_mm256_set1_ps(1.0), det);
+                let t = _mm256_mul_ps(t_scaled, inv_det);
+                let ok =
+                    _mm256_andnot_ps(zero, _mm256_and_ps(open_v, verdict(u, v, w, det, t_scaled, limit, t, best.tmax)));
+                best.take(ok, t, _mm256_mul_ps(v, inv_det), _mm256_mul_ps(w, inv_det), i as u32);
+                let zero = _mm256_movemask_ps(zero) as u32;
+                if zero != 0 {
+                    best = best.scalar(prims, rays, i as u32, zero);
+                }
+                if any {
+                    open = active & !(_mm256_movemask_ps(best.found) as u32);
+                    if open == 0 {
+                        return best;
+                    }
+                    open_v = open_mask(open);
+                }
             }
         }
         for (j, &(c, radius)) in self.sphere_list().iter().enumerate() {
@@ -385,6 +401,51 @@ fn verdict(
     _mm256_andnot_ps(mixed, _mm256_and_ps(within, t_ok))
 }
 
+/// The packet's rays for box tests of triangle runs: each lane's origin and reciprocal
+/// direction, and the margin by which boxes widen for it (`PackedTriangles::margin`'s,
+/// far above the rounding of either test, so a skipped run holds no hit).
+struct RunBoxes {
+    o: [__m256; 3],
+    inv: [__m256; 3],
+    pad: __m256,
+}
+
+impl RunBoxes {
+    #[target_feature(enable = "avx2")]
+    #[inline]
+    fn new(r: &Lanes8, extent: f32) -> Self {
+        let one = _mm256_set1_ps(1.0);
+        let inv = r.d.map(|d| _mm256_div_ps(one, d));
+        let abs = |x| _mm256_andnot_ps(_mm256_set1_ps(-0.0), x);
+        let far = _mm256_max_ps(_mm256_max_ps(abs(r.o[0]), abs(r.o[1])), abs(r.o[2]));
+        let pad = _mm256_mul_ps(_mm256_set1_ps(1e-3), _mm256_add_ps(_mm256_set1_ps(extent), far));
+        Self { o: r.o, inv, pad }
+    }
+
+    /// Whether any lane of `open` can reach box `b`, widened by its margin, within its
+    /// `tmax`. A NaN slab distance (0 · inf: a ray in a slab's plane) leaves that axis
+    /// unbounded, so it never excludes.
+    #[target_feature(enable = "avx2")]
+    #[inline]
+    fn reach(&self, b: &Aabb, tmax: __m256, open: __m256) -> bool {
+        let (mut near, mut far) = (_mm256_setzero_ps(), tmax);
+        for a in 0..3 {
+            let lo = _mm256_sub_ps(_mm256_set1_ps(b.min[a]), self.pad);
+            let hi = _mm256_add_ps(_mm256_set1_ps(b.max[a]), self.pad);
+            let t0 = _mm256_mul_ps(_mm256_sub_ps(lo, self.o[a]), self.inv[a]);
+            let t1 = _mm256_mul_ps(_mm256_sub_ps(hi, self.o[a]), self.inv[a]);
+            let nan = _mm256_cmp_ps::<_CMP_UNORD_Q>(t0, t1);
+            let tn = _mm256_blendv_ps(_mm256_min_ps(t0, t1), _mm256_set1_ps(f32::NEG_INFINITY), nan);
+            let tf = _mm256_blendv_ps(_mm256_max_ps(t0, t1), _mm256_set1_ps(f32::INFINITY), nan);
+            near = _mm256_max_ps(near, tn);
+            far = _mm256_min_ps(far, tf);
+        }
+        // `near <= far` fails only when ordered; a NaN tmax (never passed) would test.
+        let miss = _mm256_cmp_ps::<_CMP_GT_OQ>(near, far);
+        _mm256_movemask_ps(_mm256_andnot_ps(miss, open)) != 0
+    }
+}
+
 /// Each lane's nearest hit so far.
 struct Best {
     tmax: __m256,
@@ -491,6 +552,11 @@ mod tests {
             }
             // The grid's quads are fans: their second triangles reuse two corners.
             assert_eq!(packed.corners4().iter().filter(|c| c.follows_fan()).count(), 16);
+            // The grid's quads are small beside the scene: runs of them get boxes, which
+            // packets skip (fans cut at a skipped run included).
+            if n == 0 {
+                assert!(packed.runs().iter().any(|r| r.bounds.is_some()), "{:?}", packed.runs());
+            }
             // The AVX2 build of the kernel too, where the CPU would take AVX-512VL's.
             let mut avx2 = packed.clone();
             avx2.simd = InstructionSet::Avx2;

@@ -27,6 +27,9 @@ use crate::geometry::triangle::RayShear;
 use crate::geometry::{Aabb, Ray};
 use crate::shapes::Geometry;
 
+mod runs;
+pub(super) use runs::Run;
+
 /// Largest scene traced by [`PackedTriangles`] instead of the kd-tree. Full renders
 /// (`coordinator render SCENE --local-workers 0 --width 256 --spp 16`, median of 5,
 /// M samples/s, kd-tree → packed with block culling): Cornell box (32 triangles) 1.00 →
@@ -105,6 +108,8 @@ pub struct PackedTriangles {
     pub(super) simd: InstructionSet,
     /// The triangles again, one by one, and the spheres (center, radius): for packets.
     corners4: Vec<Corners4>,
+    /// The triangles in runs with boxes, for packets (`triangle_blocks/runs.rs`).
+    runs: Vec<Run>,
     sphere_list: Vec<(Vec3, f32)>,
 }
 
@@ -118,7 +123,9 @@ impl PackedTriangles {
         let mut blocks = vec![Block { p: [[[0.0; LANES]; 3]; 3] }; len.div_ceil(LANES)];
         let mut boxes = vec![Aabb::EMPTY; blocks.len()];
         let mut before = None;
+        let mut tris = Vec::with_capacity(len);
         for (i, tri) in corners.enumerate() {
+            tris.push(tri);
             corners4.push(Corners4::new(&tri, before.as_ref()));
             before = Some(tri);
             boxes[i / LANES] = tri.iter().fold(boxes[i / LANES], |b, &p| b.union(Aabb::new(p, p)));
@@ -152,6 +159,7 @@ impl PackedTriangles {
             spheres: spheres.len(),
             simd: InstructionSet::detect(),
             corners4,
+            runs: runs::plan(&tris, &bounds),
             sphere_list: spheres.to_vec(),
         }
     }
@@ -182,12 +190,25 @@ impl PackedTriangles {
             + self.boxes.capacity() * size_of::<Aabb>()
             + self.sphere_blocks.capacity() * size_of::<SphereBlock>()
             + self.corners4.capacity() * size_of::<Corners4>()
+            + self.runs.capacity() * size_of::<Run>()
             + self.sphere_list.capacity() * size_of::<(Vec3, f32)>()
     }
 
     /// The triangles' corners one by one, in index order.
     pub(super) fn corners4(&self) -> &[Corners4] {
         &self.corners4
+    }
+
+    /// The triangles in runs, in index order, each with the box to test first or none.
+    pub(super) fn runs(&self) -> &[Run] {
+        &self.runs
+    }
+
+    /// The longest side of the scene's bounds, from which [`Self::margin`] widens boxes
+    /// (a packet query computes the margin for eight origins).
+    #[inline(always)]
+    pub(super) fn extent(&self) -> f32 {
+        self.bounds.diagonal().max_element()
     }
 
     /// The spheres (center, radius), primitives `len()..`.
