@@ -27,7 +27,7 @@ use core::arch::x86_64::*;
 use glam::Vec3;
 
 use super::block_test::{InstructionSet, lane_arithmetic};
-use super::triangle_blocks::PackedTriangles;
+use super::triangle_blocks::{MARGIN, PackedTriangles};
 use super::{Hit, Primitives, RayPrecomp};
 use crate::geometry::{Aabb, Ray};
 
@@ -403,7 +403,7 @@ fn verdict(
 
 /// The packet's rays for box tests of triangle runs: each lane's origin and reciprocal
 /// direction, and the margin by which boxes widen for it (`PackedTriangles::margin`'s,
-/// far above the rounding of either test, so a skipped run holds no hit).
+/// from [`MARGIN`]: far above the rounding of either test, so a skipped run holds no hit).
 struct RunBoxes {
     o: [__m256; 3],
     inv: [__m256; 3],
@@ -418,7 +418,7 @@ impl RunBoxes {
         let inv = r.d.map(|d| _mm256_div_ps(one, d));
         let abs = |x| _mm256_andnot_ps(_mm256_set1_ps(-0.0), x);
         let far = _mm256_max_ps(_mm256_max_ps(abs(r.o[0]), abs(r.o[1])), abs(r.o[2]));
-        let pad = _mm256_mul_ps(_mm256_set1_ps(1e-3), _mm256_add_ps(_mm256_set1_ps(extent), far));
+        let pad = _mm256_mul_ps(_mm256_set1_ps(MARGIN), _mm256_add_ps(_mm256_set1_ps(extent), far));
         Self { o: r.o, inv, pad }
     }
 

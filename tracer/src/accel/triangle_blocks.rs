@@ -43,6 +43,12 @@ pub const SMALL_SPHERES: usize = 16;
 /// spans most of the scene and the slab tests cost more than they save.
 const CULL_MIN_BLOCKS: usize = 6;
 
+/// Boxes are widened by this times (the scene's extent + the largest coordinate of the
+/// ray's origin): far above the rounding of the slab test and of the primitives' tests
+/// (which can report hits a few ulps outside a primitive), so culling by boxes never
+/// drops a hit. The one-ray culling and the packets' runs (`ray_packets.rs`) both use it.
+pub(super) const MARGIN: f32 = 1e-3;
+
 /// The lane mask of a full block (eight bits: a pair's second block is shifted above it).
 const FULL: u32 = (1 << LANES) - 1;
 
@@ -67,6 +73,12 @@ impl Corners4 {
     #[inline(always)]
     pub(super) fn follows_fan(&self) -> bool {
         self.0[0][3] != 0.0
+    }
+
+    /// The three corners.
+    #[inline]
+    pub(super) fn corners(&self) -> [Vec3; 3] {
+        self.0.map(|[x, y, z, _]| Vec3::new(x, y, z))
     }
 
     fn new(tri: &[Vec3; 3], before: Option<&[Vec3; 3]>) -> Self {
@@ -123,9 +135,7 @@ impl PackedTriangles {
         let mut blocks = vec![Block { p: [[[0.0; LANES]; 3]; 3] }; len.div_ceil(LANES)];
         let mut boxes = vec![Aabb::EMPTY; blocks.len()];
         let mut before = None;
-        let mut tris = Vec::with_capacity(len);
         for (i, tri) in corners.enumerate() {
-            tris.push(tri);
             corners4.push(Corners4::new(&tri, before.as_ref()));
             before = Some(tri);
             boxes[i / LANES] = tri.iter().fold(boxes[i / LANES], |b, &p| b.union(Aabb::new(p, p)));
@@ -149,6 +159,7 @@ impl PackedTriangles {
             }
             b.r[i % LANES] = r;
         }
+        let runs = runs::plan(corners4.len(), |i| corners4[i].corners(), &bounds);
         Self {
             blocks,
             len,
@@ -159,7 +170,7 @@ impl PackedTriangles {
             spheres: spheres.len(),
             simd: InstructionSet::detect(),
             corners4,
-            runs: runs::plan(&tris, &bounds),
+            runs,
             sphere_list: spheres.to_vec(),
         }
     }
@@ -234,12 +245,10 @@ impl PackedTriangles {
         if n == LANES { u32::MAX } else { (1 << n) - 1 }
     }
 
-    /// The margin by which boxes are widened for this ray: far above the rounding of the
-    /// slab test and of the primitives' tests (which can report hits a few ulps outside
-    /// a primitive), so culling by boxes never drops a hit.
+    /// The margin by which boxes are widened for this ray (see [`MARGIN`]).
     #[inline]
     fn margin(&self, ray: &Ray) -> f32 {
-        1e-3 * (self.bounds.diagonal().max_element() + ray.origin.abs().max_element())
+        MARGIN * (self.extent() + ray.origin.abs().max_element())
     }
 
     /// Whether the ray can reach box `b`, widened by `pad`, within `tmax`.

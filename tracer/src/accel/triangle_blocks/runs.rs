@@ -29,9 +29,9 @@ pub(crate) struct Run {
     pub bounds: Option<Aabb>,
 }
 
-/// The cheapest cut of `tris` (in index order) into runs, within a scene of `bounds`.
-pub(crate) fn plan(tris: &[[Vec3; 3]], bounds: &Aabb) -> Vec<Run> {
-    let n = tris.len();
+/// The cheapest cut of triangles `0..n` (corners `tri(i)`, in index order) into runs,
+/// within a scene of `bounds`.
+pub(crate) fn plan(n: usize, tri: impl Fn(usize) -> [Vec3; 3], bounds: &Aabb) -> Vec<Run> {
     let whole = bounds.surface_area();
     if n == 0 {
         return Vec::new();
@@ -47,7 +47,7 @@ pub(crate) fn plan(tris: &[[Vec3; 3]], bounds: &Aabb) -> Vec<Run> {
     for j in 1..=n {
         let mut b = Aabb::EMPTY;
         for i in (0..j).rev() {
-            b = tris[i].iter().fold(b, |b, &p| b.grow(p));
+            b = tri(i).iter().fold(b, |b, &p| b.grow(p));
             let k = (j - i) as f32;
             let reach = (PACKET_REACH * b.surface_area() / whole).min(1.0);
             let tested = BOX_COST + k * reach;
@@ -62,7 +62,7 @@ pub(crate) fn plan(tris: &[[Vec3; 3]], bounds: &Aabb) -> Vec<Run> {
     let mut j = n;
     while j > 0 {
         let (i, test) = cut[j];
-        let bounds = test.then(|| tris[i..j].iter().flatten().fold(Aabb::EMPTY, |b, &p| b.grow(p)));
+        let bounds = test.then(|| (i..j).flat_map(&tri).fold(Aabb::EMPTY, |b, p| b.grow(p)));
         runs.push(Run { start: i as u32, end: j as u32, bounds });
         j = i;
     }
@@ -101,7 +101,7 @@ mod tests {
         }
         let bounds = tris.iter().flatten().fold(Aabb::EMPTY, |b, &p| b.grow(p));
         let bounds = bounds.union(Aabb::new(Vec3::splat(-10.0), Vec3::splat(10.0)));
-        let runs = plan(&tris, &bounds);
+        let runs = plan(tris.len(), |i| tris[i], &bounds);
         assert_eq!(runs.first().map(|r| r.start), Some(0));
         assert_eq!(runs.last().map(|r| r.end), Some(tris.len() as u32));
         assert!(runs.windows(2).all(|w| w[0].end == w[1].start && w[0].start < w[0].end));
@@ -114,8 +114,8 @@ mod tests {
             assert!(tris[r.start as usize..r.end as usize].iter().flatten().all(|&p| b.grow(p) == b));
         }
         // Degenerate scenes: nothing, or bounds without area.
-        assert!(plan(&[], &bounds).is_empty());
+        assert!(plan(0, |i| tris[i], &bounds).is_empty());
         let flat = Aabb::new(Vec3::ZERO, Vec3::new(1.0, 0.0, 0.0));
-        assert_eq!(plan(&tris, &flat), vec![Run { start: 0, end: tris.len() as u32, bounds: None }]);
+        assert_eq!(plan(tris.len(), |i| tris[i], &flat), vec![Run { start: 0, end: tris.len() as u32, bounds: None }]);
     }
 }
