@@ -9,6 +9,14 @@ use std::time::{Duration, Instant};
 
 use tracer::film::Image;
 
+/// Says that a test cannot run here, and why, on the process's stderr itself: the test
+/// harness hides what a passing test prints with `println!` or `eprintln!`, so a skip
+/// would look like a pass.
+pub fn skipped(why: impl std::fmt::Display) {
+    use std::io::Write;
+    let _ = writeln!(std::io::stderr(), "SKIPPED: {why}");
+}
+
 /// The workspace's target folder for this build profile: the test executable lives in
 /// `<target>/<profile>/deps/`, the binaries one level up.
 pub fn bin(name: &str) -> PathBuf {

@@ -27,7 +27,7 @@ fn python_with_bpy() -> Result<String, String> {
 
 /// [`python_with_bpy`], or None after saying SKIPPED and why.
 fn python_or_skip() -> Option<String> {
-    python_with_bpy().map_err(|why| println!("SKIPPED: {why}")).ok()
+    python_with_bpy().map_err(skipped).ok()
 }
 
 #[test]

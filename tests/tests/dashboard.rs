@@ -28,7 +28,7 @@ fn browser_missing() -> Option<String> {
 #[test]
 fn the_dashboard_shows_the_render_live_and_cancels_it() {
     if let Some(why) = browser_missing() {
-        println!("SKIPPED: {why}");
+        skipped(why);
         return;
     }
     let here = Path::new(env!("CARGO_MANIFEST_DIR"));

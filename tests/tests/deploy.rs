@@ -25,7 +25,7 @@ fn validate(files: &[PathBuf]) -> std::process::Output {
 #[test]
 fn kubernetes_manifests_match_the_api_schemas() {
     if Command::new("kubernetes-validate").arg("--version").output().is_err() {
-        println!("SKIPPED: kubernetes-validate is not installed (pip install kubernetes-validate; .ci/run does)");
+        skipped("kubernetes-validate is not installed (pip install kubernetes-validate; .ci/run does)");
         return;
     }
     let mut files: Vec<PathBuf> = std::fs::read_dir(deploy().join("kubernetes"))
@@ -101,7 +101,7 @@ fn deployment_files_use_only_real_flags() {
 #[test]
 fn systemd_units_verify() {
     if Command::new("systemd-analyze").arg("--version").output().is_err() {
-        println!("SKIPPED: systemd-analyze is not installed (Debian's systemd; .ci/run installs it)");
+        skipped("systemd-analyze is not installed (Debian's systemd; .ci/run installs it)");
         return;
     }
     let dir = TempDir::new("units");

@@ -150,11 +150,11 @@ fn a_full_disk_warns_but_does_not_stop_a_render() {
     match mounted {
         Ok(o) if o.status.success() => {}
         Ok(o) => {
-            println!("SKIPPED: cannot mount a tmpfs here ({})", String::from_utf8_lossy(&o.stderr).trim());
+            skipped(format_args!("cannot mount a tmpfs here ({})", String::from_utf8_lossy(&o.stderr).trim()));
             return;
         }
         Err(e) => {
-            println!("SKIPPED: no mount command ({e})");
+            skipped(format_args!("no mount command ({e})"));
             return;
         }
     }

@@ -69,7 +69,7 @@ fn a_worker_whose_link_is_cut_and_restored_still_gives_the_same_bits() {
     let hosts = match Hosts::create() {
         Ok(h) => h,
         Err(e) => {
-            eprintln!("skipping the network-namespace test: namespaces are not available here ({e})");
+            skipped(format_args!("network namespaces are not available here ({e})"));
             return;
         }
     };

@@ -111,7 +111,7 @@ impl Drop for Cluster {
 #[test]
 fn two_slurm_array_tasks_render_the_in_process_bits() {
     if let Some(why) = missing() {
-        println!("SKIPPED: {why}");
+        skipped(why);
         return;
     }
     let dir = TempDir::new("slurm");
