@@ -206,22 +206,36 @@ pub struct JobsService(pub Arc<Shared>);
 
 impl JobsService {
     /// May `caller` watch, fetch or cancel `job`? Users only their own; a job not
-    /// listed any more is judged by its stored image's owner.
-    fn may_touch(&self, caller: &Caller, job: &str) -> Result<(), Status> {
+    /// listed any more is judged by its stored image's owner, read off the async
+    /// threads (a file on the store's disk).
+    async fn may_touch(&self, caller: &Caller, job: &str) -> Result<(), Status> {
         if caller.role == Role::Admin {
             return Ok(());
         }
         let listed = self.0.farm().entry(job).ok().map(|e| e.job.owner.clone());
         let owner = match listed {
             Some(owner) => owner,
-            None => self.0.store().stored_image(job).and_then(|p| crate::farm::stored::stored_owner(&p)),
+            None => {
+                let image = self.0.store().stored_image(job);
+                blocking(move || image.and_then(|p| crate::farm::stored::stored_owner(&p))).await?
+            }
         };
-        if caller.may_touch(owner.as_deref()) {
+        Self::judge(caller, job, owner.as_deref())
+    }
+
+    /// `caller`'s access to `job`, owned by `owner`.
+    fn judge(caller: &Caller, job: &str, owner: Option<&str>) -> Result<(), Status> {
+        if caller.role == Role::Admin || caller.may_touch(owner) {
             Ok(())
         } else {
             Err(Status::permission_denied(format!("{job} is not one of your jobs")))
         }
     }
+}
+
+/// `f` on tokio's blocking threads: file reads and stats stay off the async ones.
+async fn blocking<T: Send + 'static>(f: impl FnOnce() -> T + Send + 'static) -> Result<T, Status> {
+    tokio::task::spawn_blocking(f).await.map_err(|e| Status::internal(e.to_string()))
 }
 
 #[tonic::async_trait]
@@ -258,10 +272,7 @@ impl proto::jobs_server::Jobs for JobsService {
             self.0.meters.bytes_in.inc_by(chunk.data.len() as u64);
         }
         let shared = Arc::clone(&self.0);
-        let (sha256, size) = tokio::task::spawn_blocking(move || shared.store().finish_upload(up))
-            .await
-            .map_err(|e| Status::internal(e.to_string()))?
-            .map_err(internal)?;
+        let (sha256, size) = blocking(move || shared.store().finish_upload(up)).await?.map_err(internal)?;
         Ok(Response::new(proto::AssetRef { path: String::new(), sha256, size }))
     }
 
@@ -287,7 +298,7 @@ impl proto::jobs_server::Jobs for JobsService {
     async fn watch_job(&self, req: Request<proto::JobRequest>) -> Result<Response<Self::WatchJobStream>, Status> {
         let caller = proto::auth::caller(&req);
         let job = req.into_inner().job_id;
-        self.may_touch(&caller, &job)?;
+        self.may_touch(&caller, &job).await?;
         self.0.farm().status(&job, Instant::now()).map_err(error_to_status)?;
         let (tx, rx) = mpsc::channel(4);
         let shared = Arc::clone(&self.0);
@@ -318,16 +329,13 @@ impl proto::jobs_server::Jobs for JobsService {
     async fn fetch_image(&self, req: Request<proto::JobRequest>) -> Result<Response<Self::FetchImageStream>, Status> {
         let caller = proto::auth::caller(&req);
         let job = req.into_inner().job_id;
-        self.may_touch(&caller, &job)?;
+        self.may_touch(&caller, &job).await?;
         let shared = Arc::clone(&self.0);
-        let bytes = tokio::task::spawn_blocking(move || shared.image_exr(&job))
-            .await
-            .map_err(|e| Status::internal(e.to_string()))?
-            .map_err(|e| match e {
-                ImageError::Unknown(e) => error_to_status(e),
-                ImageError::None(m) => Status::failed_precondition(m),
-                ImageError::Failed(m) => Status::internal(m),
-            })?;
+        let bytes = blocking(move || shared.image_exr(&job)).await?.map_err(|e| match e {
+            ImageError::Unknown(e) => error_to_status(e),
+            ImageError::None(m) => Status::failed_precondition(m),
+            ImageError::Failed(m) => Status::internal(m),
+        })?;
         let chunks: Vec<Result<proto::ImageChunk, Status>> =
             bytes.chunks(proto::ASSET_CHUNK_BYTES).map(|c| Ok(proto::ImageChunk { exr: c.to_vec() })).collect();
         Ok(Response::new(Box::pin(tokio_stream::iter(chunks))))
@@ -336,14 +344,14 @@ impl proto::jobs_server::Jobs for JobsService {
     async fn cancel_job(&self, req: Request<proto::JobRequest>) -> Result<Response<proto::JobStatus>, Status> {
         let caller = proto::auth::caller(&req);
         let job = req.into_inner().job_id;
-        self.may_touch(&caller, &job)?;
+        self.may_touch(&caller, &job).await?;
         Ok(Response::new(status_to_proto(self.0.cancel(&job).map_err(error_to_status)?)))
     }
 
     async fn update_job(&self, req: Request<proto::UpdateJobRequest>) -> Result<Response<proto::JobStatus>, Status> {
         let caller = proto::auth::caller(&req);
         let r = req.into_inner();
-        self.may_touch(&caller, &r.job_id)?;
+        self.may_touch(&caller, &r.job_id).await?;
         let change = crate::farm::state::JobChange { priority: r.priority, paused: r.paused, spp: r.spp };
         let mut farm = self.0.farm();
         farm.update_job(&r.job_id, &change).map_err(error_to_status)?;
@@ -370,9 +378,7 @@ impl proto::jobs_server::Jobs for JobsService {
         };
         let images = self.0.store().images();
         let group_name = group.clone();
-        let frames = tokio::task::spawn_blocking(move || crate::farm::stored::stored_frames(&images, &group))
-            .await
-            .map_err(|e| Status::internal(e.to_string()))?;
+        let frames = blocking(move || crate::farm::stored::stored_frames(&images, &group)).await?;
         let jobs = frames
             .into_iter()
             .filter(|f| caller.may_touch(f.owner.as_deref()))
@@ -386,16 +392,18 @@ impl proto::jobs_server::Jobs for JobsService {
         let job = req.into_inner().job_id;
         // Whether an image is stored first: a name that is no job's is not found, rather
         // than refused for having no owner.
-        let image = self.0.store().stored_image(&job).filter(|p| p.is_file());
-        let Some(image) = image else {
+        let listed = self.0.farm().entry(&job).ok().map(|e| e.job.owner.clone());
+        let image = self.0.store().stored_image(&job);
+        let stored = blocking(move || {
+            let image = image.filter(|p| p.is_file())?;
+            Some((crate::farm::stored::stored_owner(&image), crate::farm::stored::stored_frame_name(&image)))
+        })
+        .await?;
+        let Some((owner, name)) = stored else {
             return Err(Status::not_found(format!("no job {job} on the farm, and no image of it stored")));
         };
-        self.may_touch(&caller, &job)?;
-        let (owner, name) = tokio::task::spawn_blocking(move || {
-            (crate::farm::stored::stored_owner(&image), crate::farm::stored::stored_frame_name(&image))
-        })
-        .await
-        .map_err(|e| Status::internal(e.to_string()))?;
+        // A job still listed is judged by its listed owner, as `may_touch` does.
+        Self::judge(&caller, &job, listed.unwrap_or_else(|| owner.clone()).as_deref())?;
         Ok(Response::new(stored_job_to_proto(job, owner, name)))
     }
 
