@@ -212,8 +212,7 @@ impl JobsService {
         if caller.role == Role::Admin {
             return Ok(());
         }
-        let listed = self.0.farm().entry(job).ok().map(|e| e.job.owner.clone());
-        let owner = match listed {
+        let owner = match self.listed_owner(job) {
             Some(owner) => owner,
             None => {
                 let image = self.0.store().stored_image(job);
@@ -221,6 +220,11 @@ impl JobsService {
             }
         };
         Self::judge(caller, job, owner.as_deref())
+    }
+
+    /// The owner of `job` if the farm still lists it (`Some(None)`: listed, no owner).
+    fn listed_owner(&self, job: &str) -> Option<Option<String>> {
+        self.0.farm().entry(job).ok().map(|e| e.job.owner.clone())
     }
 
     /// `caller`'s access to `job`, owned by `owner`.
@@ -392,7 +396,7 @@ impl proto::jobs_server::Jobs for JobsService {
         let job = req.into_inner().job_id;
         // Whether an image is stored first: a name that is no job's is not found, rather
         // than refused for having no owner.
-        let listed = self.0.farm().entry(&job).ok().map(|e| e.job.owner.clone());
+        let listed = self.listed_owner(&job);
         let image = self.0.store().stored_image(&job);
         let stored = blocking(move || {
             let image = image.filter(|p| p.is_file())?;
