@@ -1,7 +1,7 @@
 //! `coordinator`: tilefarm's command line — render locally, serve a farm, submit jobs to
 //! it, inspect it, and benchmark the tracer.
 
-use coordinator::commands::{bench, certs, client, loadtest, render, serve};
+use coordinator::commands::{bench, certs, client, identities, loadtest, render, serve};
 
 use std::io::Write;
 
@@ -33,6 +33,11 @@ enum Command {
     Update(client::UpdateArgs),
     /// Cancel a job.
     Cancel(client::CancelArgs),
+    /// List a farm's workers and, for an admin, the identities they registered as, with
+    /// their records and bans.
+    Workers(identities::WorkersArgs),
+    /// Lift the ban on a worker identity (admins only); it is checked afresh as a new one.
+    Unban(identities::UnbanArgs),
     /// Make a farm's CA, certificates and access tokens (`certs init DIR`).
     Certs(certs::CertsArgs),
     /// Measure BVH build time, ray throughput and render speed.
@@ -64,6 +69,8 @@ fn main() -> std::process::ExitCode {
         Command::Status(args) => client::status(args),
         Command::Update(args) => client::update(args),
         Command::Cancel(args) => client::cancel(args),
+        Command::Workers(args) => identities::workers(args),
+        Command::Unban(args) => identities::unban(args),
         Command::Certs(args) => certs::run(args),
         Command::Bench(args) => bench::run(args),
         Command::Loadtest(args) => loadtest::run(args),

@@ -182,7 +182,7 @@ fn with_layers_for(mut job: JobArgs, image: &ImageArgs, wait: bool) -> anyhow::R
     Ok(job)
 }
 
-fn runtime() -> anyhow::Result<tokio::runtime::Runtime> {
+pub(crate) fn runtime() -> anyhow::Result<tokio::runtime::Runtime> {
     tokio::runtime::Builder::new_multi_thread().worker_threads(2).enable_all().build().context("async runtime")
 }
 

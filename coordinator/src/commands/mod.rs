@@ -7,6 +7,7 @@ pub mod certs;
 pub mod client;
 pub(crate) mod follow;
 pub(crate) mod frames;
+pub mod identities;
 pub(crate) mod in_process;
 pub mod job_args;
 pub mod loadtest;

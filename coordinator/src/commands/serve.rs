@@ -18,12 +18,17 @@ use crate::edge::server::Server;
 use crate::farm::Shared;
 use crate::farm::assets::AssetStore;
 use crate::farm::checkpoint;
+use crate::farm::identities::Bans;
 use crate::farm::lifecycle::submit_job;
 use crate::farm::state::{Farm, FarmConfig};
 use crate::farm::verify::Policy;
 
-/// Every result of a worker's first this-many is checked.
-const FIRST_RESULTS_CHECKED: u64 = 4;
+/// Every result of an identity's first this-many is checked, and the rate falls from
+/// there as this over its record until it reaches `--verify` (see `farm::verify`).
+const PROBATION: u64 = 16;
+
+/// The farm's bans, beside its store (or checkpoints): they outlive a restart.
+const BANS_FILE: &str = "bans.json";
 
 #[derive(Args)]
 pub struct ServeArgs {
@@ -66,12 +71,18 @@ pub struct ServeArgs {
     /// `fetch` reads it from there also after the job is no longer listed.
     #[arg(long, value_name = "MS", default_value_t = 86_400_000)]
     pub retain_finished_ms: u64,
-    /// The fraction of units rendered again by a second worker and compared bit for bit
-    /// (every unit of a worker's first 4 results, too). A worker whose result differs
-    /// from two others' is quarantined and what it returned is rendered again. 0 turns
-    /// checking off.
+    /// The fraction of units rendered again under another identity (another worker
+    /// certificate or token, or the coordinator itself) and compared bit for bit: at the
+    /// least; every result of an identity's first 16 is checked, and the rate falls from
+    /// there to this. An identity whose result differs from the truth is banned, and what
+    /// it returned unconfirmed renders again. 0 turns checking off.
     #[arg(long, value_name = "FRACTION", default_value_t = 0.02)]
     pub verify: f64,
+    /// Most workers one identity (a worker certificate or a user's token) may have
+    /// registered at once. Admin tokens are not limited.
+    #[arg(long, value_name = "N", default_value_t = crate::farm::state::DEFAULT_WORKERS_PER_IDENTITY,
+          value_parser = clap::value_parser!(u32).range(1..))]
+    pub max_workers_per_identity: u32,
     /// Stop (as on Ctrl-C) when standard input reaches end of file: a parent process
     /// that spawns `serve` and holds its stdin takes it down even when killed itself.
     #[arg(long, hide = true)]
@@ -144,6 +155,7 @@ impl FarmArgs {
             heartbeat: Duration::from_millis(self.heartbeat_ms),
             speculate_after: Duration::from_millis(self.speculate_after_ms),
             forget_worker_after: Duration::from_millis(self.forget_worker_ms),
+            ..FarmConfig::default()
         })
     }
 }
@@ -199,7 +211,8 @@ pub fn run(args: ServeArgs) -> anyhow::Result<()> {
         );
     }
     let mut config = args.farm.config()?;
-    config.verify = Policy::new(args.verify, FIRST_RESULTS_CHECKED).map_err(anyhow::Error::msg)?;
+    config.verify = Policy::new(args.verify, PROBATION).map_err(anyhow::Error::msg)?;
+    config.max_workers_per_identity = args.max_workers_per_identity as usize;
     tracer::memory::return_large_buffers_when_freed();
     let store_dir = args
         .checkpoint
@@ -209,6 +222,8 @@ pub fn run(args: ServeArgs) -> anyhow::Result<()> {
     let store = AssetStore::open(&store_dir)?;
     let mut shared = Shared::new(Farm::new(config), store);
     shared.prepared = args.farm.prepared_scenes(&store_dir.join("prepared"));
+    let bans = store_dir.join(BANS_FILE);
+    shared.farm().identities.restore(Bans::read(&bans)?, std::time::Instant::now());
     let shared = Arc::new(shared);
     let ckpt_root = args.checkpoint.as_ref().map(|d| d.join("job-checkpoints"));
     let images = store_dir.join(crate::farm::assets::IMAGES);
@@ -267,18 +282,38 @@ pub fn run(args: ServeArgs) -> anyhow::Result<()> {
             }
             store_finished(&shared, &images, ckpt_root.as_deref(), &mut saved, &mut store_retry).await;
             shared.forget_finished(retain);
+            save_bans(&shared, &bans).await;
         }
         tracing::info!("stopping");
         if let Some(h) = http {
             h.stop().await;
         }
         server.stop().await;
+        save_bans(&shared, &bans).await;
         if let Some(root) = &ckpt_root {
             save_jobs(&shared, root, &mut saved).await;
             tracing::info!(folder = %root.display(), "jobs checkpointed");
         }
         Ok(())
     })
+}
+
+/// Writes the farm's bans when they changed. A write that fails is a warning naming the
+/// file, and is tried again at the next turn.
+async fn save_bans(shared: &Arc<Shared>, path: &Path) {
+    let bans = {
+        let mut farm = shared.farm();
+        if !farm.identities.take_changed() {
+            return;
+        }
+        farm.identities.bans()
+    };
+    let p = path.to_path_buf();
+    let written = tokio::task::spawn_blocking(move || bans.write(&p)).await.map_err(anyhow::Error::from);
+    if let Err(e) = written.and_then(|r| r) {
+        tracing::warn!("bans not written, retrying: {e:#}");
+        shared.farm().identities.mark_changed();
+    }
 }
 
 /// Resolves when standard input reaches end of file (never, unless `watch`). A plain

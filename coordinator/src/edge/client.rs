@@ -43,12 +43,24 @@ impl StatusStream {
 /// A worker as `status` lists it.
 pub struct WorkerRow {
     pub id: u64,
+    /// Empty unless an admin asks, as `identity`.
     pub hostname: String,
+    pub identity: String,
     pub threads: u32,
     pub units_held: u32,
     pub units_done: u64,
     pub last_seen_s: f64,
     pub quarantined: bool,
+}
+
+/// An identity as `coordinator workers` lists it (admins only).
+pub struct IdentityRow {
+    pub name: String,
+    pub answers: u64,
+    pub refused: u32,
+    /// Why and when (seconds since 1970) it was banned.
+    pub ban: Option<(String, u64)>,
+    pub workers: u32,
 }
 
 fn message(s: tonic::Status) -> anyhow::Error {
@@ -162,6 +174,7 @@ impl FarmClient {
             .map(|w| WorkerRow {
                 id: w.worker_id,
                 hostname: w.hostname.chars().take(255).collect(),
+                identity: w.identity.chars().take(255).collect(),
                 threads: w.threads,
                 units_held: w.units_held,
                 units_done: w.units_done,
@@ -181,6 +194,29 @@ impl FarmClient {
         };
         let s = self.jobs.update_job(request).await.map_err(message)?;
         status_from_proto(s.into_inner()).map_err(anyhow::Error::msg)
+    }
+
+    /// The farm's identities with their records and bans (empty unless an admin asks).
+    pub async fn identities(&mut self) -> anyhow::Result<Vec<IdentityRow>> {
+        let reply = self.jobs.list_workers(proto::ListRequest {}).await.map_err(message)?.into_inner();
+        let clip = |s: String| s.chars().take(255).collect::<String>();
+        Ok(reply
+            .identities
+            .into_iter()
+            .map(|i| IdentityRow {
+                ban: i.banned.then(|| (clip(i.ban_reason), i.banned_at_unix_s)),
+                name: clip(i.name),
+                answers: i.answers,
+                refused: i.refused,
+                workers: i.workers,
+            })
+            .collect())
+    }
+
+    /// Lifts `identity`'s ban; returns why it had been banned.
+    pub async fn unban(&mut self, identity: &str) -> anyhow::Result<String> {
+        let request = proto::UnbanRequest { identity: identity.to_string() };
+        Ok(self.jobs.unban(request).await.map_err(message)?.into_inner().reason)
     }
 
     pub async fn cancel(&mut self, job: &str) -> anyhow::Result<JobStatus> {

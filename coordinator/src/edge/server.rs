@@ -14,7 +14,7 @@ use tokio_stream::wrappers::TcpListenerStream;
 use tonic::service::interceptor::InterceptedService;
 use tonic::transport::ServerTlsConfig;
 
-use crate::edge::service::{FarmService, JobsService};
+use crate::edge::service::{FarmService, JobsService, Registrations};
 use crate::farm::Shared;
 
 pub struct Server {
@@ -36,7 +36,8 @@ impl Server {
         let listener = tokio::net::TcpListener::bind(listen).await.with_context(|| format!("listening on {listen}"))?;
         let addr = listener.local_addr()?;
         let (stop, stopped) = oneshot::channel::<()>();
-        let farm = proto::farm_server::FarmServer::new(FarmService(Arc::clone(&shared)))
+        let registrations = if access.is_open() { Registrations::EachItsOwn } else { Registrations::ByIdentity };
+        let farm = proto::farm_server::FarmServer::new(FarmService(Arc::clone(&shared), registrations))
             .max_decoding_message_size(proto::MAX_MESSAGE_BYTES)
             .max_encoding_message_size(proto::MAX_MESSAGE_BYTES);
         let jobs = proto::jobs_server::JobsServer::new(JobsService(Arc::clone(&shared)))

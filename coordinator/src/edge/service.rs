@@ -26,7 +26,45 @@ const MAX_HELD_PER_HEARTBEAT: usize = 65_536;
 /// scenes while the coordinator checks them.
 const PREPARE_EARLY: usize = 4;
 
-pub struct FarmService(pub Arc<Shared>);
+/// The worker service, and whether its callers have identities (a farm with tokens or
+/// certificates); on an open farm each registration is trusted as its own identity.
+pub struct FarmService(pub Arc<Shared>, pub Registrations);
+
+/// The farm's identities as an admin sees them.
+fn identities_to_proto(farm: &crate::farm::Farm) -> Vec<proto::IdentityInfo> {
+    let since = |t: std::time::SystemTime| t.duration_since(std::time::UNIX_EPOCH).map_or(0, |d| d.as_secs());
+    farm.identities
+        .iter()
+        .map(|i| proto::IdentityInfo {
+            name: i.name.clone(),
+            answers: i.answers,
+            refused: i.refused,
+            banned: i.banned.is_some(),
+            ban_reason: i.banned.as_ref().map_or_else(String::new, |b| b.reason.clone()),
+            banned_at_unix_s: i.banned.as_ref().map_or(0, |b| since(b.at)),
+            workers: farm.workers.values().filter(|w| w.trust == i.id).count() as u32,
+        })
+        .collect()
+}
+
+/// At most the first 64 characters of something a client sent, for an error message:
+/// an echo must not be as large as the input.
+pub(crate) fn clip(input: &str) -> String {
+    const MAX: usize = 64;
+    if input.chars().count() <= MAX {
+        input.escape_debug().to_string()
+    } else {
+        format!("{}…", input.chars().take(MAX).collect::<String>().escape_debug())
+    }
+}
+
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Registrations {
+    /// Every worker registers as the identity it proved (certificate or token).
+    ByIdentity,
+    /// No access control: nothing tells callers apart.
+    EachItsOwn,
+}
 
 type BoxStream<T> = Pin<Box<dyn Stream<Item = Result<T, Status>> + Send>>;
 
@@ -50,8 +88,11 @@ impl proto::farm_server::Farm for FarmService {
             )));
         }
         let mut farm = self.0.farm();
-        let id =
-            farm.register_as(&caller.name, r.hostname.clone(), r.threads, Instant::now()).map_err(error_to_status)?;
+        let identity = (self.1 == Registrations::ByIdentity).then_some(caller.name.as_str());
+        let capped = caller.role != Role::Admin;
+        let id = farm
+            .register_as(identity, capped, r.hostname.clone(), r.threads, Instant::now())
+            .map_err(error_to_status)?;
         tracing::info!(worker = id, host = %r.hostname.escape_debug(), threads = r.threads, version = %r.version.escape_debug(), identity = %caller.name, "worker registered");
         Ok(Response::new(proto::RegisterReply {
             worker_id: id,
@@ -411,22 +452,46 @@ impl proto::jobs_server::Jobs for JobsService {
         Ok(Response::new(stored_job_to_proto(job, owner, name)))
     }
 
-    async fn list_workers(&self, _: Request<proto::ListRequest>) -> Result<Response<proto::ListWorkersReply>, Status> {
+    /// Every user sees the workers' counts; only admins see who they are (hostnames,
+    /// identities) and the identities' records and bans.
+    async fn list_workers(
+        &self,
+        req: Request<proto::ListRequest>,
+    ) -> Result<Response<proto::ListWorkersReply>, Status> {
+        let admin = proto::auth::caller(&req).role == Role::Admin;
         let farm = self.0.farm();
         let now = Instant::now();
+        let shown = |s: &str| if admin { s.to_string() } else { String::new() };
         let workers = farm
             .workers
             .values()
             .map(|w| proto::WorkerInfo {
                 worker_id: w.id,
-                hostname: w.hostname.clone(),
+                hostname: shown(&w.hostname),
                 threads: w.threads,
                 units_held: farm.jobs.iter().map(|e| e.job.held_by(w.id) as u32).sum(),
                 units_done: w.units_done,
                 last_seen_s: now.duration_since(w.last_seen).as_secs_f64(),
                 quarantined: w.quarantined,
+                identity: shown(farm.identities.get(w.trust).map_or("", |i| i.name.as_str())),
             })
             .collect();
-        Ok(Response::new(proto::ListWorkersReply { workers }))
+        let identities = if admin { identities_to_proto(&farm) } else { Vec::new() };
+        Ok(Response::new(proto::ListWorkersReply { workers, identities }))
+    }
+
+    async fn unban(&self, req: Request<proto::UnbanRequest>) -> Result<Response<proto::UnbanReply>, Status> {
+        if proto::auth::caller(&req).role != Role::Admin {
+            return Err(Status::permission_denied("only an admin may lift a ban"));
+        }
+        let name = req.into_inner().identity;
+        let lifted = self.0.farm().identities.unban(&name);
+        match lifted {
+            Some(ban) => {
+                tracing::warn!(identity = %name.escape_debug(), "ban lifted (it was banned: {})", ban.reason);
+                Ok(Response::new(proto::UnbanReply { reason: ban.reason }))
+            }
+            None => Err(Status::not_found(format!("{}: no such banned identity", clip(&name)))),
+        }
     }
 }

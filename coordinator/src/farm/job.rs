@@ -18,7 +18,9 @@ pub const ACCUMULATION_BYTES_PER_PIXEL: u64 = 52;
 /// Bytes a pixel's AOV layers add, when a job keeps them.
 pub const LAYER_BYTES_PER_PIXEL: u64 = tracer::film::LAYER_BYTES as u64;
 
-pub use crate::farm::unit::{Applied, Rejection, Spare, Unit, UnitId, UnitRecord, UnitResult, UnitState, WorkerId};
+pub use crate::farm::unit::{
+    Applied, By, IdentityId, Rejection, Spare, Unit, UnitId, UnitRecord, UnitResult, UnitState, WorkerId,
+};
 
 #[derive(Clone, Debug, PartialEq, Eq)]
 pub enum JobPhase {
@@ -128,9 +130,9 @@ pub struct Job {
     /// Units under check that wait for another worker's answer (not leased, and not in
     /// `pending`): any worker that has not answered yet may take one.
     checking: BTreeSet<UnitId>,
-    /// Workers a check caught answering wrongly, for the farm to quarantine.
-    caught: Vec<WorkerId>,
-    /// Units merged once two workers agreed on them.
+    /// Identities a check caught answering wrongly, for the farm to ban.
+    caught: Vec<IdentityId>,
+    /// Units merged once two identities agreed on them.
     pub units_checked: u64,
     /// Units thrown away (with the rest of their tiles) because their worker was caught
     /// lying; they render again.
@@ -474,21 +476,23 @@ impl Job {
 
     /// [`Job::apply_at`] now, unchecked (the tests' shorthand).
     #[cfg(test)]
-    pub fn apply(&mut self, worker: WorkerId, r: &UnitResult) -> Result<Applied, Rejection> {
-        self.apply_at(worker, r, Instant::now(), false)
+    pub fn apply(&mut self, by: impl Into<By>, r: &UnitResult) -> Result<Applied, Rejection> {
+        self.apply_at(by, r, Instant::now(), false)
     }
 
     /// Checks a result received at `now` and, if valid and new, merges it; with `check`
-    /// (or when the unit is already under check) it is held until a second worker's
+    /// (or when the unit is already under check) it is held until another identity's
     /// answer agrees. Merging is exact integer addition, so the final image does not
     /// depend on the order results arrive in.
     pub fn apply_at(
         &mut self,
-        worker: WorkerId,
+        by: impl Into<By>,
         r: &UnitResult,
         now: Instant,
         check: bool,
     ) -> Result<Applied, Rejection> {
+        let by = by.into();
+        let worker = by.worker;
         match &self.phase {
             JobPhase::Running => {}
             JobPhase::Done => {
@@ -544,14 +548,14 @@ impl Job {
             return Ok(Applied::Duplicate);
         }
         if check || unit.check.is_some() {
-            return self.answer(worker, r, now);
+            return self.answer(by, r, now);
         }
-        self.merge(r, now, Some(worker))?;
+        self.merge(r, now, Some(by.identity))?;
         Ok(Applied::Merged)
     }
 
     /// Merges a checked (`from` None) or unchecked result into its tile; the unit is done.
-    fn merge(&mut self, r: &UnitResult, now: Instant, from: Option<WorkerId>) -> Result<(), Rejection> {
+    fn merge(&mut self, r: &UnitResult, now: Instant, from: Option<IdentityId>) -> Result<(), Rejection> {
         let unit = &self.units[r.unit as usize];
         let (n, expected) = (unit.tile.pixel_count(), unit.samples.len());
         let malformed = |what: String| Rejection::Malformed { unit: r.unit, what };

@@ -1,4 +1,5 @@
 //! The farm's state: jobs ([`job`]) and their units ([`unit`]), lease deadlines ([`leases`]),
+//! workers ([`workers`]) and the identities they are trusted and banned as ([`identities`]),
 //! the unit order ([`schedule`]), job groups' frame order ([`groups`]), registered workers and the jobs in submission order
 //! ([`state`]), checkpoints ([`checkpoint`]), the content-addressed asset store
 //! ([`assets`]), what a job's status says ([`status`]), what lies beside a stored image ([`stored`]), and the job lifecycle
@@ -7,6 +8,7 @@
 pub mod assets;
 pub mod checkpoint;
 pub mod groups;
+pub mod identities;
 pub mod ids;
 pub mod job;
 pub mod leases;
@@ -18,6 +20,7 @@ pub mod status;
 pub mod stored;
 pub mod unit;
 pub mod verify;
+pub mod workers;
 
 pub use lifecycle::Shared;
 pub use state::{Farm, FarmConfig, FarmError};

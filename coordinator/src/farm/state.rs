@@ -10,12 +10,16 @@ use std::time::{Duration, Instant};
 use proto::domain::JobSpec;
 use tracer::scene::Scene;
 
+use super::identities::Identities;
 use super::job::{Applied, Job, JobPhase, Rejection, UnitId, UnitResult, WorkerId};
 use super::status::{JobStatus, status_of};
 use super::verify::Policy;
+pub use super::workers::Worker;
 
-/// Most warnings a job keeps (its scene's, then events such as a quarantine).
-const MAX_EVENTS: usize = 40;
+/// Live workers one identity may register unless `serve --max-workers-per-identity`
+/// says otherwise: a machine runs one worker with all its cores, so a few cover
+/// restarts; more would let one certificate flood the farm with registrations.
+pub const DEFAULT_WORKERS_PER_IDENTITY: u32 = 8;
 
 #[derive(Clone, Debug)]
 pub struct FarmConfig {
@@ -35,8 +39,10 @@ pub struct FarmConfig {
     pub max_upload_bytes: u64,
     /// Most bytes of uploaded files the store keeps.
     pub max_store_bytes: u64,
-    /// Which results a second worker renders again (none by default).
+    /// Which results another identity renders again (none by default).
     pub verify: Policy,
+    /// Most live workers one identity (a worker certificate, a token) may register.
+    pub max_workers_per_identity: usize,
 }
 
 impl Default for FarmConfig {
@@ -50,25 +56,9 @@ impl Default for FarmConfig {
             max_upload_bytes: 4 << 30,
             max_store_bytes: 64 << 30,
             verify: Policy::default(),
+            max_workers_per_identity: DEFAULT_WORKERS_PER_IDENTITY as usize,
         }
     }
-}
-
-#[derive(Clone, Debug)]
-pub struct Worker {
-    pub id: WorkerId,
-    /// Who registered it (a certificate's fingerprint, or the token's caller): only they
-    /// may act as this worker.
-    pub identity: String,
-    pub hostname: String,
-    pub threads: u32,
-    pub last_seen: Instant,
-    pub units_done: u64,
-    /// Results it returned that were taken (merged or held for a check).
-    pub answers: u64,
-    /// A check caught it answering wrongly: it gets no more work, and what it returned
-    /// was thrown away.
-    pub quarantined: bool,
 }
 
 /// A job's spec as the workers receive it, plus its loaded scene (for the in-process
@@ -129,14 +119,13 @@ pub struct JobChange {
     pub spp: Option<u32>,
 }
 
-/// Most live registrations one identity (a worker certificate, a token) may hold.
-pub const MAX_REGISTRATIONS_PER_IDENTITY: usize = 1024;
-
 #[derive(Default)]
 pub struct Farm {
     pub config: FarmConfig,
     pub workers: BTreeMap<WorkerId, Worker>,
-    next_worker: WorkerId,
+    pub(super) next_worker: WorkerId,
+    /// Who the workers are: what is trusted, checked and banned (see `identities`).
+    pub identities: Identities,
     /// In submission order (which breaks ties of the fair share).
     pub jobs: Vec<JobEntry>,
     index: HashMap<String, usize>,
@@ -175,74 +164,6 @@ pub struct Leased {
 impl Farm {
     pub fn new(config: FarmConfig) -> Self {
         Self { config, next_worker: first_worker_id(), next_job: 1, ..Default::default() }
-    }
-
-    /// Registers a worker of the farm's own (in-process, tests).
-    pub fn register(&mut self, hostname: String, threads: u32, now: Instant) -> WorkerId {
-        let id = self.next_worker;
-        self.next_worker += 1;
-        let identity = "admin".to_string();
-        let w =
-            Worker { id, identity, hostname, threads, last_seen: now, units_done: 0, answers: 0, quarantined: false };
-        self.workers.insert(id, w);
-        id
-    }
-
-    /// Registers a worker for `identity`, which may hold at most
-    /// [`MAX_REGISTRATIONS_PER_IDENTITY`] live registrations.
-    pub fn register_as(
-        &mut self,
-        identity: &str,
-        hostname: String,
-        threads: u32,
-        now: Instant,
-    ) -> Result<WorkerId, FarmError> {
-        self.reap(now);
-        let held = self.workers.values().filter(|w| w.identity == identity).count();
-        if held >= MAX_REGISTRATIONS_PER_IDENTITY {
-            return Err(FarmError::Exhausted(format!(
-                "this identity already has {held} workers registered, the most one may have"
-            )));
-        }
-        let id = self.register(hostname, threads, now);
-        if let Some(w) = self.workers.get_mut(&id) {
-            w.identity = identity.to_string();
-        }
-        Ok(id)
-    }
-
-    /// Is `identity` the one that registered `worker`? (An unknown worker is left to
-    /// the call itself, which tells it to register again.)
-    pub fn check_identity(&self, worker: WorkerId, identity: &str) -> Result<(), FarmError> {
-        match self.workers.get(&worker) {
-            Some(w) if w.identity != identity => {
-                Err(FarmError::Forbidden(format!("worker {worker} was registered by another identity")))
-            }
-            _ => Ok(()),
-        }
-    }
-
-    fn touch(&mut self, worker: WorkerId, now: Instant) -> Result<&mut Worker, FarmError> {
-        let w = self.workers.get_mut(&worker).ok_or(FarmError::UnknownWorker(worker))?;
-        w.last_seen = now;
-        if w.quarantined {
-            return Err(FarmError::Forbidden(format!(
-                "worker {worker} is quarantined: a result it returned differed from other workers' renders of the \
-                 same unit"
-            )));
-        }
-        Ok(w)
-    }
-
-    /// Workers seen within three lease periods, and not quarantined.
-    fn live(&self, now: Instant) -> impl Iterator<Item = &Worker> {
-        let grace = 3 * self.config.lease;
-        self.workers.values().filter(move |w| !w.quarantined && now.saturating_duration_since(w.last_seen) < grace)
-    }
-
-    /// How many workers are [live](Farm::live).
-    pub fn live_workers(&self, now: Instant) -> usize {
-        self.live(now).count()
     }
 
     /// Creates a job in the loading phase; returns its id. A job restored from a
@@ -358,17 +279,8 @@ impl Farm {
     /// Up to `max` units for `worker`: between running jobs by weighted fair share
     /// (`schedule`), in progressive order within each.
     pub fn lease(&mut self, worker: WorkerId, max: usize, now: Instant) -> Result<Vec<Leased>, FarmError> {
-        self.touch(worker, now)?;
+        let by = self.touch(worker, now)?;
         self.reap(now);
-        // With one worker left, nobody can check its answers: take them as they are.
-        if self.config.verify.enabled() && self.live_workers(now) < 2 {
-            for e in &mut self.jobs {
-                let n = e.job.settle_unchecked(worker, now);
-                if n > 0 {
-                    tracing::warn!(job = %e.job.id, units = n, "one worker left: results merged without a check");
-                }
-            }
-        }
         let deadline = now + self.config.lease;
         let mut out = Vec::new();
         // Unit by unit, to the running job with the least service for its priority.
@@ -378,7 +290,7 @@ impl Farm {
             let running = self.jobs.iter_mut().enumerate().filter(|(k, _)| eligible[*k]);
             let Some(k) = self.fair.pick(running.map(|(k, e)| (k, &mut e.job.share))) else { break };
             let e = &mut self.jobs[k];
-            match e.job.lease_next(worker, now, deadline, self.config.speculate_after) {
+            match e.job.lease_next(by, now, deadline, self.config.speculate_after) {
                 Some(unit) => {
                     self.fair.served(&mut e.job.share);
                     self.counters.leased += 1;
@@ -436,24 +348,32 @@ impl Farm {
         result: &UnitResult,
         now: Instant,
     ) -> Result<(Applied, bool), FarmError> {
-        let answers_before = self.touch(worker, now)?.answers;
-        let check = self.config.verify.must_check(answers_before, job, result.unit);
+        let by = self.touch(worker, now)?;
+        let record = self.identities.get(by.identity).map_or(0, |i| i.answers);
+        let check = self.config.verify.must_check(record, job, result.unit);
         let entry = self.entry_mut(job)?;
         let was_running = entry.job.phase == JobPhase::Running;
-        let applied = match entry.job.apply_at(worker, result, now, check) {
+        let applied = match entry.job.apply_at(by, result, now, check) {
             Ok(a) => a,
             Err(e) => {
                 self.counters.rejected += 1;
+                if let Rejection::Malformed { unit, .. } = &e {
+                    let unit = *unit;
+                    self.entry_mut(job)?.job.release(worker, unit, now);
+                    self.refused(by, job, unit);
+                }
                 return Err(e.into());
             }
         };
         let caught = entry.job.take_caught();
         if let Some(w) = self.workers.get_mut(&worker) {
             w.units_done += u64::from(applied == Applied::Merged);
-            w.answers += u64::from(applied.accepted());
+        }
+        if let Some(i) = self.identities.get_mut(by.identity) {
+            i.answers += u64::from(applied.accepted());
         }
         for liar in caught {
-            self.quarantine(liar, job, result.unit);
+            self.ban(liar, job, result.unit);
         }
         let finished = was_running && self.entry(job)?.job.phase == JobPhase::Done;
         Ok((applied, finished))
@@ -465,7 +385,7 @@ impl Farm {
         if !self.config.verify.enabled() {
             return Vec::new();
         }
-        let live: Vec<WorkerId> = self.live(now).map(|w| w.id).collect();
+        let live = self.live_identities(now);
         let mut out = Vec::new();
         for e in &mut self.jobs {
             for id in e.job.disputes_nobody_can_settle(&live) {
@@ -495,28 +415,7 @@ impl Farm {
             tracing::warn!(%job, unit, "the coordinator's render of a disputed unit was refused: {e}");
         }
         for liar in entry.job.take_caught() {
-            self.quarantine(liar, job, unit);
-        }
-    }
-
-    /// `liar`'s answer for `unit` of `job` differed from two others that agreed: it gets
-    /// no more work, and every job throws away what it contributed.
-    pub fn quarantine(&mut self, liar: WorkerId, job: &str, unit: UnitId) {
-        let Some(w) = self.workers.get_mut(&liar) else { return };
-        if w.quarantined {
-            return;
-        }
-        w.quarantined = true;
-        let who = format!("worker {liar} ({})", w.hostname.escape_debug());
-        tracing::warn!(worker = liar, %job, unit, "{who} returned a wrong result; quarantined");
-        for e in &mut self.jobs {
-            let n = e.job.discard_from(liar);
-            if (n > 0 || e.job.id == job) && e.job.warnings.len() < MAX_EVENTS {
-                e.job.warnings.push(format!(
-                    "{who} returned a wrong result for unit {unit} of {job} and was quarantined; {n} of its units \
-                     here were thrown away and render again"
-                ));
-            }
+            self.ban(liar, job, unit);
         }
     }
 

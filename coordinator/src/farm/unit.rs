@@ -8,7 +8,7 @@ use tracer::film::{SampleRange, Tile};
 
 use super::verify::Check;
 
-pub use super::ids::{UnitId, WorkerId};
+pub use super::ids::{By, IdentityId, UnitId, WorkerId};
 
 #[derive(Clone, Debug, PartialEq, Eq)]
 pub enum UnitState {
@@ -41,9 +41,9 @@ pub struct Unit {
     pub holders: Vec<WorkerId>,
     /// The answers of a unit under check (see [`crate::farm::verify`]).
     pub check: Option<Box<Check>>,
-    /// Whose result was merged, unchecked (None: checked, or restored from a
-    /// checkpoint): what to discard if that worker is caught lying.
-    pub unchecked_from: Option<WorkerId>,
+    /// Which identity's result was merged, unconfirmed by another identity (None:
+    /// confirmed, or restored from a checkpoint): what to discard if it is caught lying.
+    pub unchecked_from: Option<IdentityId>,
 }
 
 impl Unit {

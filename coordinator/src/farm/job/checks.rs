@@ -1,42 +1,44 @@
 //! A job's side of verified results (see [`crate::farm::verify`]): holding a checked
-//! unit's answers until two agree, leasing it to workers that have not answered, and
-//! throwing away what a worker caught lying contributed.
+//! unit's answers until two identities agree, leasing it to identities that have not
+//! answered, and throwing away what an identity caught lying contributed.
 
 use std::collections::BTreeSet;
 use std::time::Instant;
 
 use tracer::film::Accumulation;
 
-use super::{Applied, Job, JobPhase, Rejection, UnitId, UnitResult, UnitState, WorkerId};
+use super::{Applied, By, IdentityId, Job, JobPhase, Rejection, UnitId, UnitResult, UnitState, WorkerId};
 use crate::farm::verify::{MAX_ANSWERS, Outcome};
 
 impl Job {
-    /// A unit under check that `worker` has not answered, taken off the check queue.
-    pub(super) fn next_to_check(&mut self, worker: WorkerId) -> Option<UnitId> {
+    /// A unit under check that `identity` has not answered, taken off the check queue.
+    pub(super) fn next_to_check(&mut self, identity: IdentityId) -> Option<UnitId> {
         let units = &self.units;
         let id = self
             .checking
             .iter()
             .copied()
-            .find(|&id| !units[id as usize].check.as_ref().is_some_and(|c| c.answered(worker)))?;
+            .find(|&id| !units[id as usize].check.as_ref().is_some_and(|c| c.answered(identity)))?;
         self.checking.remove(&id);
         Some(id)
     }
 
-    /// Takes `worker`'s answer for a unit under check (a valid result, not done yet).
-    pub(super) fn answer(&mut self, worker: WorkerId, r: &UnitResult, now: Instant) -> Result<Applied, Rejection> {
+    /// Takes the answer of `by` for a unit under check (a valid result, not done yet). An
+    /// identity answers once: a second answer through another of its workers is a
+    /// duplicate, and vouches for nothing.
+    pub(super) fn answer(&mut self, by: By, r: &UnitResult, now: Instant) -> Result<Applied, Rejection> {
         let id = r.unit;
         let unit = &mut self.units[id as usize];
         let check = unit.check.get_or_insert_with(Default::default);
-        if check.answered(worker) {
+        if check.answered(by.identity) {
             return Ok(Applied::Duplicate);
         }
-        match check.add(worker, r) {
+        match check.add(by, r) {
             Outcome::Open => {
-                // Another worker must render it: off this worker's lease, onto the check
+                // Another identity must render it: off this worker's lease, onto the check
                 // queue (unless another worker is already on it).
                 match unit.state {
-                    UnitState::Leased { worker: w, since, .. } if w == worker => {
+                    UnitState::Leased { worker: w, since, .. } if w == by.worker => {
                         self.clock.ended(id, since);
                         unit.state = UnitState::Pending;
                         unit.spare = None;
@@ -62,18 +64,19 @@ impl Job {
             Outcome::Undecidable => {
                 self.units_mismatched += 1;
                 self.fail(format!(
-                    "unit {id}: {MAX_ANSWERS} workers returned {MAX_ANSWERS} different results for it, so none can be \
-                     trusted (several workers are broken or lying)"
+                    "unit {id}: {MAX_ANSWERS} identities returned {MAX_ANSWERS} different results for it, so none \
+                     can be trusted (several workers are broken or lying)"
                 ));
                 Ok(Applied::Discarded)
             }
         }
     }
 
-    /// Units whose answers disagree and that no worker in `live` can settle (each has
-    /// answered): taken off the check queue, for the coordinator to render itself
-    /// ([`Job::arbitrate`]). A farm of two workers, one of them lying, ends this way.
-    pub fn disputes_nobody_can_settle(&mut self, live: &[WorkerId]) -> Vec<UnitId> {
+    /// Units under check that no identity in `live` can settle (each has answered; or
+    /// only one identity is live and has answered): taken off the check queue, for the
+    /// coordinator to render itself ([`Job::arbitrate`]). A farm of two identities, one
+    /// of them lying, ends this way, and so does every check on a farm of one identity.
+    pub fn disputes_nobody_can_settle(&mut self, live: &[IdentityId]) -> Vec<UnitId> {
         if self.phase != JobPhase::Running {
             return Vec::new();
         }
@@ -86,7 +89,7 @@ impl Job {
                 units[id as usize]
                     .check
                     .as_ref()
-                    .is_some_and(|c| c.answers.len() >= 2 && live.iter().all(|&w| c.answered(w)))
+                    .is_some_and(|c| !c.answers.is_empty() && live.iter().all(|&i| c.answered(i)))
             })
             .collect();
         for id in &stuck {
@@ -104,7 +107,7 @@ impl Job {
         }
         let truth = crate::farm::verify::digest(r);
         if let Some(check) = unit.check.take() {
-            self.caught.extend(check.answers.iter().filter(|a| a.digest != truth).map(|a| a.worker));
+            self.caught.extend(check.answers.iter().filter(|a| a.digest != truth).map(|a| a.by.identity));
         }
         self.checking.remove(&r.unit);
         self.merge(r, now, None)?;
@@ -119,8 +122,8 @@ impl Job {
         }
     }
 
-    /// Workers caught answering wrongly since the last call.
-    pub fn take_caught(&mut self) -> Vec<WorkerId> {
+    /// Identities caught answering wrongly since the last call.
+    pub fn take_caught(&mut self) -> Vec<IdentityId> {
         std::mem::take(&mut self.caught)
     }
 
@@ -130,37 +133,13 @@ impl Job {
         self.checking.len()
     }
 
-    /// Merges, unchecked, the held answers of `lone`, the farm's one live worker: nobody
-    /// else can check them. (A held answer of a worker now gone is `lone`'s to check.)
-    /// Returns how many.
-    pub fn settle_unchecked(&mut self, lone: WorkerId, now: Instant) -> usize {
-        if self.phase != JobPhase::Running {
-            return 0;
-        }
-        let lone: Vec<(UnitId, UnitResult, WorkerId)> = self
-            .checking
-            .iter()
-            .filter_map(|&id| {
-                let c = self.units[id as usize].check.as_ref()?;
-                let only = c.answers.first().filter(|a| c.answers.len() == 1 && a.worker == lone)?;
-                Some((id, only.result.clone(), lone))
-            })
-            .collect();
-        for (id, result, worker) in &lone {
-            self.checking.remove(id);
-            self.units[*id as usize].check = None;
-            if self.merge(result, now, Some(*worker)).is_err() {
-                self.pending.insert(*id);
-            }
-        }
-        lone.len()
-    }
-
-    /// Throws away everything `liar` contributed: its answers to checks, its leases, and
-    /// every tile holding a result it returned unchecked (those tiles render again, their
-    /// honest units too: the merged sums cannot be taken apart). Returns the units
-    /// thrown away. A job already evicted (its image stored) cannot be reopened.
-    pub fn discard_from(&mut self, liar: WorkerId) -> u64 {
+    /// Throws away everything identity `liar` (whose workers are `workers`) contributed:
+    /// its answers to checks, its workers' leases, and every tile holding a result it
+    /// returned that no other identity confirmed (those tiles render again, their honest
+    /// units too: the merged sums cannot be taken apart). Units it settled with another
+    /// identity stay: that identity vouches for them. Returns the units thrown away. A
+    /// job already evicted (its image stored) cannot be reopened.
+    pub fn discard_from(&mut self, liar: IdentityId, workers: &[WorkerId]) -> u64 {
         if self.is_evicted() || self.phase == JobPhase::Loading {
             return 0;
         }
@@ -168,10 +147,10 @@ impl Job {
         for (id, u) in self.units.iter_mut().enumerate() {
             let id = id as UnitId;
             if let Some(c) = u.check.as_mut() {
-                c.drop_worker(liar);
+                c.drop_identity(liar);
             }
             if let UnitState::Leased { worker, since, .. } = u.state
-                && worker == liar
+                && workers.contains(&worker)
             {
                 self.clock.ended(id, since);
                 u.state = UnitState::Pending;
@@ -181,10 +160,10 @@ impl Job {
                     self.pending.insert(id)
                 };
             }
-            if u.spare.is_some_and(|s| s.worker == liar) {
+            if u.spare.is_some_and(|s| workers.contains(&s.worker)) {
                 u.spare = None;
             }
-            u.holders.retain(|&w| w != liar);
+            u.holders.retain(|w| !workers.contains(w));
             if u.state == UnitState::Done && u.unchecked_from == Some(liar) {
                 tainted.insert(u.tile_index);
             }

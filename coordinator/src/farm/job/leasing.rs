@@ -4,7 +4,7 @@
 
 use std::time::{Duration, Instant};
 
-use super::{Job, JobPhase, Spare, UnitId, UnitState, WorkerId};
+use super::{By, Job, JobPhase, Spare, UnitId, UnitState, WorkerId};
 use crate::farm::leases::Slot;
 
 /// A unit out for this many times the job's median unit time is a straggler...
@@ -20,7 +20,7 @@ impl Job {
     /// against stragglers): the first result wins.
     pub fn lease_next(
         &mut self,
-        worker: WorkerId,
+        by: impl Into<By>,
         now: Instant,
         deadline: Instant,
         speculate_after: Duration,
@@ -28,8 +28,9 @@ impl Job {
         if self.phase != JobPhase::Running || self.share.paused || self.budget_spent(now) {
             return None;
         }
+        let By { worker, identity } = by.into();
         // Units under check first: the job cannot end before they are settled.
-        if let Some(id) = self.next_to_check(worker).or_else(|| self.next_pending()) {
+        if let Some(id) = self.next_to_check(identity).or_else(|| self.next_pending()) {
             let unit = &mut self.units[id as usize];
             unit.state = UnitState::Leased { worker, deadline, since: now };
             unit.spare = None;
@@ -124,6 +125,35 @@ impl Job {
             }
         }
         n
+    }
+
+    /// Takes `unit` back from `worker` at once (its result was refused as malformed): a
+    /// spare lease on it carries on as the unit's lease, else it goes back to its queue,
+    /// rather than waiting for the lease to lapse.
+    pub fn release(&mut self, worker: WorkerId, unit: UnitId, now: Instant) {
+        let Some(u) = self.units.get_mut(unit as usize) else { return };
+        if u.spare.is_some_and(|s| s.worker == worker) {
+            u.spare = None;
+        }
+        let UnitState::Leased { worker: w, since, .. } = u.state else { return };
+        if w != worker {
+            return;
+        }
+        self.clock.ended(unit, since);
+        u.state = match u.spare.take() {
+            Some(s) => {
+                self.clock.leased(unit, now, s.deadline);
+                UnitState::Leased { worker: s.worker, deadline: s.deadline, since: now }
+            }
+            None => {
+                if u.check.is_some() {
+                    self.checking.insert(unit);
+                } else {
+                    self.pending.insert(unit);
+                }
+                UnitState::Pending
+            }
+        };
     }
 
     /// An ended job holds no leases: its workers are told to abandon its units at their

@@ -259,13 +259,14 @@ fn cancelled_jobs_lease_nothing_and_refuse_results() {
     assert_eq!(j.units_done, 0);
 }
 
-/// Leases the next unit to `worker` and answers it with its true value (`1000 + id`),
-/// or a wrong one when `lie`.
-fn render(j: &mut Job, worker: WorkerId, check: bool, lie: bool, t: Instant) -> (UnitId, Applied) {
-    let id = j.lease_next(worker, t, t + NEVER, NEVER).expect("a unit to lease");
+/// Leases the next unit to `by` and answers it with its true value (`1000 + id`), or a
+/// wrong one when `lie`.
+fn render(j: &mut Job, by: impl Into<By>, check: bool, lie: bool, t: Instant) -> (UnitId, Applied) {
+    let by = by.into();
+    let id = j.lease_next(by, t, t + NEVER, NEVER).expect("a unit to lease");
     let value = 1000 + id as i128 + if lie { 1 } else { 0 };
     let r = result_for(j, id, value);
-    (id, j.apply_at(worker, &r, t, check).unwrap())
+    (id, j.apply_at(by, &r, t, check).unwrap())
 }
 
 fn honest_image() -> Image {
@@ -310,7 +311,7 @@ fn a_liar_is_caught_by_the_third_answer_and_its_tiles_render_again() {
     assert_eq!(j.apply_at(2, &honest, t, false), Ok(Applied::Merged));
     assert_eq!(j.take_caught(), [9]);
     // Everything the liar merged goes, with the rest of its tiles.
-    assert_eq!(j.discard_from(9), 3);
+    assert_eq!(j.discard_from(9, &[9]), 3);
     assert_eq!(j.units_discarded, 3);
     assert!(lied.iter().all(|&u| j.units[u as usize].state == UnitState::Pending));
     // Honest workers finish the job: the image is the honest one, bit for bit.
@@ -347,7 +348,7 @@ fn a_finished_job_reopens_when_a_liar_is_caught_after_it() {
     while j.phase == JobPhase::Running {
         render(&mut j, 1, false, false, t);
     }
-    assert_eq!(j.discard_from(9), 1);
+    assert_eq!(j.discard_from(9, &[9]), 1);
     assert_eq!(j.phase, JobPhase::Running);
     while j.phase == JobPhase::Running {
         render(&mut j, 1, false, false, t);
@@ -355,30 +356,75 @@ fn a_finished_job_reopens_when_a_liar_is_caught_after_it() {
     assert_eq!(j.image(), honest_image());
 }
 
+/// Three workers of one identity (one certificate) are one answer to a check: they
+/// cannot settle it between them, and when the identity is caught everything it merged
+/// unconfirmed goes, whichever of its workers returned it.
 #[test]
-fn with_no_second_worker_held_answers_are_taken_unchecked() {
+fn workers_of_one_identity_cannot_vouch_for_each_other() {
+    let t = Instant::now();
+    let mut j = job();
+    let liar = |worker| By { worker, identity: 9 };
+    let lied: Vec<UnitId> = [91, 92].iter().map(|&w| render(&mut j, liar(w), false, true, t).0).collect();
+    let (checked, a) = render(&mut j, liar(93), true, true, t);
+    assert_eq!(a, Applied::Held);
+    // Its other workers are not given the check; the same answer from them is no second.
+    for w in [91, 92] {
+        assert_ne!(j.lease_next(liar(w), t, t + NEVER, NEVER), Some(checked));
+    }
+    let forged = result_for(&j, checked, 1001 + checked as i128);
+    j.units[checked as usize].holders.push(92);
+    assert_eq!(j.apply_at(liar(92), &forged, t, false), Ok(Applied::Duplicate));
+    assert_eq!(j.units_in_check(), 1);
+    // Two other identities settle it, and the liar is caught.
+    let truth = result_for(&j, checked, 1000 + checked as i128);
+    for honest in [1, 2] {
+        assert_eq!(j.lease_next(honest, t, t + NEVER, NEVER), Some(checked));
+        j.apply_at(honest, &truth, t, false).unwrap();
+    }
+    assert_eq!(j.units[checked as usize].state, UnitState::Done);
+    assert_eq!(j.take_caught(), [9]);
+    assert_eq!(j.discard_from(9, &[91, 92, 93]), 2);
+    assert!(lied.iter().all(|&u| j.units[u as usize].state == UnitState::Pending));
+    assert!(!j.units.iter().any(|u| u.holders.iter().any(|w| [91, 92, 93].contains(w))));
+    while j.phase == JobPhase::Running {
+        render(&mut j, 1, false, false, t);
+    }
+    assert_eq!(j.image(), honest_image());
+}
+
+/// With one identity live, nobody else can check its answers: the coordinator does.
+#[test]
+fn with_one_identity_live_its_checks_go_to_the_coordinator() {
     let t = Instant::now();
     let mut j = job();
     let (id, a) = render(&mut j, 1, true, false, t);
     assert_eq!(a, Applied::Held);
-    // Another worker's held answer is not settled: the lone worker can check it.
-    assert_eq!(j.settle_unchecked(2, t), 0);
-    assert_eq!(j.settle_unchecked(1, t), 1);
-    assert_eq!(j.units[id as usize].state, UnitState::Done);
-    assert_eq!(j.units[id as usize].unchecked_from, Some(1));
-    // An ended job merges nothing more.
-    let (_, a) = render(&mut j, 1, true, false, t);
-    assert_eq!(a, Applied::Held);
-    let done = j.units_done;
-    j.cancel();
-    assert_eq!((j.settle_unchecked(1, t), j.units_done), (0, done));
-    let mut j = job();
+    assert!(j.disputes_nobody_can_settle(&[1, 2]).is_empty(), "identity 2 can check it");
+    assert_eq!(j.disputes_nobody_can_settle(&[1]), [id]);
+    let truth = result_for(&j, id, 1000 + id as i128);
+    assert_eq!(j.arbitrate(&truth, t), Ok(Applied::Merged));
+    assert!(j.take_caught().is_empty());
+    assert_eq!((j.units[id as usize].state.clone(), j.units[id as usize].unchecked_from), (UnitState::Done, None));
     // A lapsed check lease goes back to the check queue, not the ordinary one.
     let (id, _) = render(&mut j, 1, true, false, t);
     let later = t + Duration::from_secs(1);
     assert_eq!(j.lease_next(2, later, later + Duration::from_millis(1), NEVER), Some(id));
     j.reap_expired(later + Duration::from_secs(1));
     assert_eq!(j.units_in_check(), 1);
+}
+
+/// A unit whose result was refused as malformed goes back at once, not when its lease
+/// lapses; a spare lease on it carries on instead.
+#[test]
+fn a_released_unit_is_leased_again_at_once() {
+    let t = Instant::now();
+    let mut j = job();
+    let id = j.lease_next(1, t, t + NEVER, NEVER).unwrap();
+    j.release(1, id, t);
+    assert_eq!(j.units[id as usize].state, UnitState::Pending);
+    assert_eq!(j.lease_next(2, t, t + NEVER, NEVER), Some(id), "first in line again");
+    j.release(1, id, t);
+    assert!(matches!(j.units[id as usize].state, UnitState::Leased { worker: 2, .. }), "not 1's to release");
 }
 
 /// A job that keeps the AOV layers takes only results that carry them, merges them, and

@@ -1,0 +1,168 @@
+//! The farm's workers: registering them under their identity (within its limit),
+//! checking that a call comes from the identity that registered the worker, which are
+//! live, and what happens to an identity that lies or sends malformed results.
+
+use std::time::Instant;
+
+use super::identities::MAX_REFUSED;
+use super::ids::{By, IdentityId, UnitId, WorkerId};
+use super::state::{Farm, FarmError};
+
+/// Most warnings a job keeps (its scene's, then events such as a ban).
+const MAX_EVENTS: usize = 40;
+
+#[derive(Clone, Debug)]
+pub struct Worker {
+    pub id: WorkerId,
+    /// Who registered it (a certificate's fingerprint, or the token's caller): only they
+    /// may act as this worker.
+    pub identity: String,
+    /// The identity it is trusted, checked and banned as (see `identities`).
+    pub trust: IdentityId,
+    pub hostname: String,
+    pub threads: u32,
+    pub last_seen: Instant,
+    pub units_done: u64,
+    /// Its identity is banned: it gets no more work, and what the identity returned
+    /// unconfirmed was thrown away.
+    pub quarantined: bool,
+}
+
+impl Farm {
+    /// Registers a worker of the farm's own (in-process, tests): an identity of its own.
+    pub fn register(&mut self, hostname: String, threads: u32, now: Instant) -> WorkerId {
+        let trust = self.identities.anonymous(now);
+        self.add_worker("admin".into(), trust, hostname, threads, now)
+    }
+
+    /// Registers a worker for `identity` (None: a farm without access control, where
+    /// each registration is an identity of its own). A banned identity is refused, and
+    /// a `capped` one (all but admins, who may do anything anyway: a local render's
+    /// workers) may hold at most `max_workers_per_identity` live registrations.
+    pub fn register_as(
+        &mut self,
+        identity: Option<&str>,
+        capped: bool,
+        hostname: String,
+        threads: u32,
+        now: Instant,
+    ) -> Result<WorkerId, FarmError> {
+        self.reap(now);
+        let Some(name) = identity else { return Ok(self.register(hostname, threads, now)) };
+        let trust = self.identities.named(name, now);
+        if let Some(ban) = &trust.banned {
+            return Err(FarmError::Forbidden(format!(
+                "this identity is banned ({}); an admin may lift the ban with `coordinator unban {}`",
+                ban.reason, trust.name
+            )));
+        }
+        let trust = trust.id;
+        let held = self.workers.values().filter(|w| w.trust == trust).count();
+        let most = self.config.max_workers_per_identity;
+        if capped && held >= most {
+            return Err(FarmError::Exhausted(format!(
+                "this identity already has {held} workers registered, the most one may have \
+                 (serve --max-workers-per-identity {most}); give each machine its own certificate"
+            )));
+        }
+        Ok(self.add_worker(name.to_string(), trust, hostname, threads, now))
+    }
+
+    fn add_worker(&mut self, identity: String, trust: IdentityId, hostname: String, threads: u32, now: Instant) -> u64 {
+        let id = self.next_worker;
+        self.next_worker += 1;
+        let w = Worker { id, identity, trust, hostname, threads, last_seen: now, units_done: 0, quarantined: false };
+        self.workers.insert(id, w);
+        let workers = &self.workers;
+        self.identities.forget_idle(|i| workers.values().any(|w| w.trust == i));
+        id
+    }
+
+    /// Is `identity` the one that registered `worker`? (An unknown worker is left to
+    /// the call itself, which tells it to register again.)
+    pub fn check_identity(&self, worker: WorkerId, identity: &str) -> Result<(), FarmError> {
+        match self.workers.get(&worker) {
+            Some(w) if w.identity != identity => {
+                Err(FarmError::Forbidden(format!("worker {worker} was registered by another identity")))
+            }
+            _ => Ok(()),
+        }
+    }
+
+    /// Marks `worker` seen; says who it is, or why it may do nothing.
+    pub(super) fn touch(&mut self, worker: WorkerId, now: Instant) -> Result<By, FarmError> {
+        let w = self.workers.get_mut(&worker).ok_or(FarmError::UnknownWorker(worker))?;
+        w.last_seen = now;
+        if w.quarantined {
+            return Err(FarmError::Forbidden(format!(
+                "worker {worker} is quarantined: its identity returned a result that differed from other \
+                 identities' renders of the same unit, or malformed results"
+            )));
+        }
+        Ok(By { worker, identity: w.trust })
+    }
+
+    /// Workers seen within three lease periods, and not quarantined.
+    pub(super) fn live(&self, now: Instant) -> impl Iterator<Item = &super::state::Worker> {
+        let grace = 3 * self.config.lease;
+        self.workers.values().filter(move |w| !w.quarantined && now.saturating_duration_since(w.last_seen) < grace)
+    }
+
+    /// How many workers are [live](Farm::live).
+    pub fn live_workers(&self, now: Instant) -> usize {
+        self.live(now).count()
+    }
+
+    /// The identities of the live workers, each once.
+    pub(super) fn live_identities(&self, now: Instant) -> Vec<IdentityId> {
+        let mut ids: Vec<IdentityId> = self.live(now).map(|w| w.trust).collect();
+        ids.sort_unstable();
+        ids.dedup();
+        ids
+    }
+
+    /// A result of `by` for `unit` of `job` was refused as malformed: after
+    /// [`MAX_REFUSED`] of them its identity is banned, as a liar is.
+    pub(super) fn refused(&mut self, by: By, job: &str, unit: UnitId) {
+        let Some(i) = self.identities.get_mut(by.identity) else { return };
+        i.refused += 1;
+        if i.refused >= MAX_REFUSED {
+            let reason = format!("returned {} malformed results", i.refused);
+            self.ban_for(by.identity, reason, job, unit);
+        }
+    }
+
+    /// Identity `liar`'s answer for `unit` of `job` differed from the truth (two other
+    /// identities that agreed, or the coordinator's own render).
+    pub fn ban(&mut self, liar: IdentityId, job: &str, unit: UnitId) {
+        self.ban_for(liar, format!("returned a wrong result for unit {unit} of {job}"), job, unit);
+    }
+
+    /// Bans `liar`: none of its workers gets more work or may register again, and every
+    /// job throws away what it returned that no other identity confirmed.
+    fn ban_for(&mut self, liar: IdentityId, reason: String, job: &str, unit: UnitId) {
+        if !self.identities.ban(liar, reason.clone()) {
+            return;
+        }
+        let name = self.identities.get(liar).map_or_else(String::new, |i| i.name.clone());
+        let mut workers = Vec::new();
+        for w in self.workers.values_mut().filter(|w| w.trust == liar) {
+            w.quarantined = true;
+            workers.push(w.id);
+        }
+        tracing::warn!(identity = %name, ?workers, %job, unit, "identity banned: {reason}");
+        for e in &mut self.jobs {
+            let n = e.job.discard_from(liar, &workers);
+            if (n > 0 || e.job.id == job) && e.job.warnings.len() < MAX_EVENTS {
+                e.job.warnings.push(format!(
+                    "identity {name} {reason} and was banned, its {} workers quarantined; {n} of its units here \
+                     were thrown away and render again",
+                    workers.len()
+                ));
+            }
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests;
