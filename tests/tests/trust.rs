@@ -1,0 +1,261 @@
+//! Trust per identity, end to end on a farm with TLS and tokens, against the project's
+//! own hostile client (a gRPC client written against `proto/tilefarm.proto` with a real
+//! worker certificate): one certificate with several worker ids cannot forge an image
+//! or get honest workers quarantined, its ban outlives a restart until an admin lifts
+//! it, malformed results ban their identity, and one identity's registrations are
+//! capped.
+
+use std::path::{Path, PathBuf};
+use std::process::{Command, Stdio};
+use std::sync::Arc;
+use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
+use std::time::Duration;
+
+use tilefarm_e2e::*;
+use tonic::transport::{Certificate, Channel, ClientTlsConfig, Endpoint, Identity};
+
+const LIMIT: Duration = Duration::from_secs(240);
+/// 64×64 in 16² tiles × 4 batches of 4 spp: 64 units.
+const JOB: [&str; 8] = ["--width", "64", "--spp", "16", "--tile", "16", "--batch-spp", "4"];
+
+fn runtime() -> tokio::runtime::Runtime {
+    tokio::runtime::Builder::new_current_thread().enable_all().build().unwrap()
+}
+
+fn cornell() -> PathBuf {
+    scenes().join("cornell-box/scene.toml")
+}
+
+fn token(tls: &Path, name: &str) -> String {
+    std::fs::read_to_string(tls.join(format!("{name}.token"))).unwrap().trim().to_string()
+}
+
+/// `certs init` with four worker certificates and user alice, then `serve --tls` on it.
+fn tls_farm(dir: &TempDir) -> (Coordinator, PathBuf) {
+    let tls = dir.path("tls");
+    let mut init = Command::new(bin("coordinator"));
+    init.args(["certs", "init"]).arg(&tls).args(["--workers", "4", "--users", "alice"]);
+    let out = run(&mut init, LIMIT);
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    (serve(dir, &tls), tls)
+}
+
+fn serve(dir: &TempDir, tls: &Path) -> Coordinator {
+    let store = dir.path("store");
+    Coordinator::serve(&[
+        "--listen",
+        "127.0.0.1:0",
+        "--tls",
+        tls.to_str().unwrap(),
+        "--store",
+        store.to_str().unwrap(),
+        "--lease-ms",
+        "2000",
+        "--heartbeat-ms",
+        "500",
+    ])
+}
+
+fn worker(coord: &Coordinator, tls: &Path, name: &str, cache: &Path) -> Proc {
+    let mut cmd = Command::new(bin("worker"));
+    cmd.args(["--coordinator", &coord.url, "--threads", "1", "--tls"])
+        .arg(tls)
+        .args(["--tls-name", name, "--cache"])
+        .arg(cache)
+        .stdin(Stdio::null());
+    Proc::spawn("worker", &mut cmd)
+}
+
+/// A channel to the farm presenting worker certificate `name` (or none).
+async fn channel(url: &str, tls: &Path, name: Option<&str>) -> Channel {
+    let ca = Certificate::from_pem(std::fs::read(tls.join("ca.pem")).unwrap());
+    let mut config = ClientTlsConfig::new().ca_certificate(ca).domain_name("tilefarm-coordinator");
+    if let Some(name) = name {
+        let cert = std::fs::read(tls.join(format!("{name}.pem"))).unwrap();
+        let key = std::fs::read(tls.join(format!("{name}.key"))).unwrap();
+        config = config.identity(Identity::from_pem(cert, key));
+    }
+    Endpoint::from_shared(url.to_string()).unwrap().tls_config(config).unwrap().connect().await.unwrap()
+}
+
+fn admin<T>(tls: &Path, msg: T) -> tonic::Request<T> {
+    let mut req = tonic::Request::new(msg);
+    req.metadata_mut().insert("authorization", format!("Bearer {}", token(tls, "admin")).parse().unwrap());
+    req
+}
+
+fn list_workers(url: &str, tls: &Path) -> proto::ListWorkersReply {
+    runtime().block_on(async {
+        let mut jobs = proto::jobs_client::JobsClient::new(channel(url, tls, None).await);
+        jobs.list_workers(admin(tls, proto::ListRequest {})).await.unwrap().into_inner()
+    })
+}
+
+fn register_request() -> proto::RegisterRequest {
+    proto::RegisterRequest {
+        protocol_version: proto::PROTOCOL_VERSION,
+        threads: 1,
+        hostname: "hostile".into(),
+        version: "0".into(),
+    }
+}
+
+/// What the hostile client does with every unit it leases.
+#[derive(Clone, Copy)]
+enum Attack {
+    /// Answers black at once, rendering nothing.
+    Black,
+    /// Answers with one sample too many in every count.
+    Malformed,
+}
+
+/// The hostile client: `ids` registrations of worker certificate `cert`, each leasing
+/// and answering every unit as `attack` says, until the farm refuses it or `stop`.
+/// Returns (results sent, results accepted, the error that ended it).
+fn hostile(
+    url: String,
+    tls: PathBuf,
+    cert: &'static str,
+    ids: usize,
+    attack: Attack,
+    stop: Arc<AtomicBool>,
+    sent: Arc<AtomicU64>,
+) -> std::thread::JoinHandle<(u64, String)> {
+    std::thread::spawn(move || {
+        runtime().block_on(async move {
+            let mut farm = proto::farm_client::FarmClient::new(channel(&url, &tls, Some(cert)).await);
+            let mut workers = Vec::new();
+            for _ in 0..ids {
+                workers.push(farm.register(register_request()).await.unwrap().into_inner().worker_id);
+            }
+            let mut accepted = 0;
+            while !stop.load(Ordering::SeqCst) {
+                for &w in &workers {
+                    let lease = proto::LeaseRequest { worker_id: w, max_units: 2 };
+                    let units = match farm.lease(lease).await {
+                        Ok(r) => r.into_inner().units,
+                        Err(e) => return (accepted, e.message().to_string()),
+                    };
+                    for u in units {
+                        let job = u.job.as_ref().map(|j| j.job_id.clone()).unwrap_or_default();
+                        let mut r = forged_result(w, &job, &u, 0);
+                        if let Attack::Malformed = attack {
+                            r.counts.iter_mut().for_each(|c| *c += 1);
+                        }
+                        sent.fetch_add(1, Ordering::SeqCst);
+                        if farm.submit_result(r).await.is_ok_and(|a| a.into_inner().accepted) {
+                            accepted += 1;
+                        }
+                    }
+                }
+                tokio::time::sleep(Duration::from_millis(20)).await;
+            }
+            (accepted, "stopped".into())
+        })
+    })
+}
+
+fn submit(coord: &Coordinator, tls: &Path, out: &Path) {
+    let mut cmd = Command::new(bin("coordinator"));
+    cmd.args(["submit", cornell().to_str().unwrap(), "-q", "--wait", "-o", out.to_str().unwrap()])
+        .args(JOB)
+        .args(["--coordinator", &coord.url, "--tls"])
+        .arg(tls)
+        .env("TILEFARM_TOKEN", token(tls, "alice"));
+    let sub = run(&mut cmd, LIMIT);
+    assert!(sub.status.success(), "{}", String::from_utf8_lossy(&sub.stderr));
+}
+
+fn admin_command(coord: &Coordinator, tls: &Path, args: &[&str]) -> std::process::Output {
+    let mut cmd = Command::new(bin("coordinator"));
+    cmd.args(args).args(["--coordinator", &coord.url, "--tls"]).arg(tls).env("TILEFARM_TOKEN", token(tls, "admin"));
+    run(&mut cmd, LIMIT)
+}
+
+#[test]
+fn one_certificate_with_three_ids_cannot_forge_an_image_and_stays_banned() {
+    let dir = TempDir::new("trust-forgery");
+    let reference = dir.path("reference.exr");
+    render(&cornell(), &reference, &[&JOB[..], &["--local-workers", "0"]].concat(), LIMIT);
+    let (coord, tls) = tls_farm(&dir);
+    let _honest =
+        [worker(&coord, &tls, "worker-1", &dir.path("c1")), worker(&coord, &tls, "worker-2", &dir.path("c2"))];
+    let (stop, sent) = (Arc::new(AtomicBool::new(false)), Arc::new(AtomicU64::new(0)));
+    let forger = hostile(coord.url.clone(), tls.clone(), "worker-3", 3, Attack::Black, stop.clone(), sent.clone());
+    eventually("two honest workers and three forged ids register", LIMIT, || {
+        list_workers(&coord.url, &tls).workers.len() == 5
+    });
+
+    let out = dir.path("farm.exr");
+    submit(&coord, &tls, &out);
+    stop.store(true, Ordering::SeqCst);
+    let (accepted, ended) = forger.join().unwrap();
+    let list = list_workers(&coord.url, &tls);
+    let banned: Vec<_> = list.identities.iter().filter(|i| i.banned).collect();
+    let quarantined: Vec<_> = list.workers.iter().filter(|w| w.quarantined).collect();
+    println!(
+        "the forger sent {} black results, {accepted} accepted before its ban ({ended}); banned: {:?}",
+        sent.load(Ordering::SeqCst),
+        banned.iter().map(|i| (&i.name, &i.ban_reason)).collect::<Vec<_>>()
+    );
+    assert!(sent.load(Ordering::SeqCst) > 0, "the forger got work and lied");
+    assert_same_bits(&read_exr(&out), &read_exr(&reference), "a farm with a forging certificate");
+    assert_eq!(banned.len(), 1, "only the forging identity is banned: {:?}", list.identities);
+    assert_eq!(quarantined.len(), 3, "its three ids, and no honest worker: {:?}", list.workers);
+    assert!(quarantined.iter().all(|w| w.identity == banned[0].name && w.hostname == "hostile"));
+    let forger_identity = banned[0].name.clone();
+
+    // It cannot come back under a new registration, nor after a restart.
+    drop(coord);
+    let coord = serve(&dir, &tls);
+    let refused = runtime().block_on(async {
+        let mut farm = proto::farm_client::FarmClient::new(channel(&coord.url, &tls, Some("worker-3")).await);
+        farm.register(register_request()).await.unwrap_err()
+    });
+    assert!(refused.message().contains("banned"), "{}", refused.message());
+    let listed = admin_command(&coord, &tls, &["workers"]);
+    let text = String::from_utf8_lossy(&listed.stdout);
+    assert!(text.contains(&forger_identity) && text.contains("BANNED"), "{text}");
+
+    // An admin lifts the ban; the certificate registers again.
+    let lifted = admin_command(&coord, &tls, &["unban", &forger_identity]);
+    assert!(lifted.status.success(), "{}", String::from_utf8_lossy(&lifted.stderr));
+    runtime().block_on(async {
+        let mut farm = proto::farm_client::FarmClient::new(channel(&coord.url, &tls, Some("worker-3")).await);
+        farm.register(register_request()).await.expect("registers once the ban is lifted");
+    });
+}
+
+#[test]
+fn malformed_results_ban_their_identity_and_registrations_are_capped() {
+    let dir = TempDir::new("trust-malformed");
+    let reference = dir.path("reference.exr");
+    render(&cornell(), &reference, &[&JOB[..], &["--local-workers", "0"]].concat(), LIMIT);
+    let (coord, tls) = tls_farm(&dir);
+    let _honest = worker(&coord, &tls, "worker-1", &dir.path("c1"));
+    let (stop, sent) = (Arc::new(AtomicBool::new(false)), Arc::new(AtomicU64::new(0)));
+    let broken = hostile(coord.url.clone(), tls.clone(), "worker-2", 1, Attack::Malformed, stop.clone(), sent.clone());
+    eventually("both register", LIMIT, || list_workers(&coord.url, &tls).workers.len() == 2);
+    let out = dir.path("farm.exr");
+    submit(&coord, &tls, &out);
+    stop.store(true, Ordering::SeqCst);
+    let (accepted, ended) = broken.join().unwrap();
+    let sent = sent.load(Ordering::SeqCst);
+    println!("the broken worker sent {sent} malformed results ({accepted} accepted) and was told: {ended}");
+    assert_eq!(accepted, 0);
+    assert!((1..=5).contains(&sent), "banned within 5 malformed results, sent {sent}");
+    assert!(ended.contains("quarantined"), "{ended}");
+    let list = list_workers(&coord.url, &tls);
+    assert_eq!(list.identities.iter().filter(|i| i.banned).count(), 1, "{:?}", list.identities);
+    assert_same_bits(&read_exr(&out), &read_exr(&reference), "a farm with a broken worker");
+
+    // One certificate holds at most 8 live registrations.
+    let refused = runtime().block_on(async {
+        let mut farm = proto::farm_client::FarmClient::new(channel(&coord.url, &tls, Some("worker-4")).await);
+        for _ in 0..8 {
+            farm.register(register_request()).await.unwrap();
+        }
+        farm.register(register_request()).await.unwrap_err()
+    });
+    assert!(refused.message().contains("--max-workers-per-identity 8"), "{}", refused.message());
+}
