@@ -204,7 +204,10 @@ impl AssetStore {
 }
 
 /// The files of a scene on this machine, relative to their deepest common folder:
-/// `(scene, other files, files referred to but missing)`.
+/// `(scene, other files, files referred to but missing)`. What a farm receives of them:
+/// their paths below that folder, with the folders above the scene's named `up1`,
+/// `up2`, … (a `..` reference resolves the same, and the farm's job folder does not
+/// mirror the submitter's folders).
 pub struct LocalScene {
     pub root: PathBuf,
     pub scene: PathBuf,
@@ -213,19 +216,46 @@ pub struct LocalScene {
 }
 
 impl LocalScene {
+    /// Collects the scene at `scene_path` and every file it refers to. A file reached
+    /// through a symbolic link that leads outside the scene's folder is an error naming
+    /// it: `submit` sends nothing but the scene's own files (a link to a private key
+    /// would otherwise land in the farm's store, where every worker can fetch it).
     pub fn collect(scene_path: &Path) -> anyhow::Result<Self> {
         // Named as the user gave it: a folder or a PNG is "not a scene file".
         tracer::scene::load::scene_kind(scene_path, &scene_path.display().to_string())?;
+        let given_dir = scene_path.parent().filter(|p| !p.as_os_str().is_empty()).unwrap_or(Path::new("."));
+        let dir = std::fs::canonicalize(given_dir).with_context(|| format!("{}", given_dir.display()))?;
         let scene = std::fs::canonicalize(scene_path).with_context(|| format!("{}", scene_path.display()))?;
+        let outside = |f: &Path, c: &Path| {
+            anyhow::anyhow!(
+                "{}: a symbolic link that leads outside the scene's folder ({}), to {}; submit sends only the \
+                 scene's own files: copy it into the folder",
+                f.display(),
+                dir.display(),
+                c.display()
+            )
+        };
+        if scene.parent() != Some(dir.as_path()) {
+            return Err(outside(scene_path, &scene));
+        }
         let listed = tracer::scene::assets::scene_files(scene_path)?;
         let (mut files, mut missing) = (Vec::new(), Vec::new());
         for f in listed.into_iter().skip(1) {
             match std::fs::canonicalize(&f) {
-                Ok(c) if c.is_file() => files.push(c),
+                Ok(c) if c.is_file() => {
+                    // Where the path leads without following links: a difference is a link.
+                    let plain = lexical(&dir.join(f.strip_prefix(given_dir).unwrap_or(&f)));
+                    if plain != c && !c.starts_with(&dir) {
+                        return Err(outside(&f, &c));
+                    }
+                    // Under the name the scene uses (a link inside the folder is read
+                    // through), so that the farm finds it by that name.
+                    files.push(plain)
+                }
                 _ => missing.push(f),
             }
         }
-        let mut root = scene.parent().map(Path::to_path_buf).unwrap_or_default();
+        let mut root = dir;
         for f in &files {
             while !f.starts_with(&root) {
                 root = root.parent().map(Path::to_path_buf).unwrap_or_default();
@@ -234,11 +264,37 @@ impl LocalScene {
         Ok(Self { root, scene, files, missing })
     }
 
-    /// The path of `file` relative to the root, with `/` separators.
+    /// The path of `file` as the farm receives it: relative to the root, with `/`
+    /// separators, the folders above the scene's renamed `up1`, `up2`, ….
     pub fn relative(&self, file: &Path) -> String {
         let rel = file.strip_prefix(&self.root).unwrap_or(file);
-        rel.components().map(|c| c.as_os_str().to_string_lossy()).collect::<Vec<_>>().join("/")
+        let chain: Vec<_> = self
+            .scene
+            .parent()
+            .and_then(|d| d.strip_prefix(&self.root).ok())
+            .map_or_else(Vec::new, |d| d.components().collect());
+        let mut same = true;
+        let parts = rel.components().enumerate().map(|(i, c)| {
+            same &= chain.get(i) == Some(&c);
+            if same { format!("up{}", chain.len() - i) } else { c.as_os_str().to_string_lossy().into_owned() }
+        });
+        parts.collect::<Vec<_>>().join("/")
     }
+}
+
+/// `path` with `.` and `..` resolved as text, links not followed.
+fn lexical(path: &Path) -> PathBuf {
+    let mut out = PathBuf::new();
+    for c in path.components() {
+        match c {
+            Component::CurDir => {}
+            Component::ParentDir => {
+                out.pop();
+            }
+            c => out.push(c),
+        }
+    }
+    out
 }
 
 #[cfg(test)]
@@ -306,6 +362,42 @@ mod tests {
         let mut rel: Vec<String> = s.files.iter().map(|f| s.relative(f)).collect();
         rel.sort();
         assert_eq!(rel, ["cup.mtl", "cup.obj", "table.obj"]);
+    }
+
+    /// A scene folder in a temporary folder, with a file outside it.
+    fn scene_with(tag: &str, mesh_ref: &str) -> (PathBuf, PathBuf) {
+        let top = std::env::temp_dir().join(format!("tilefarm-collect-{tag}-{}", std::process::id()));
+        let _ = std::fs::remove_dir_all(&top);
+        let dir = top.join("alice/shots/a");
+        std::fs::create_dir_all(&dir).unwrap();
+        std::fs::create_dir_all(top.join("alice/assets")).unwrap();
+        std::fs::write(top.join("alice/assets/m.obj"), "v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n").unwrap();
+        let scene = dir.join("scene.toml");
+        let text = format!("[camera]\nposition = [0, 0, -5]\nlook_at = [0, 0, 0]\n[[mesh]]\nobj = \"{mesh_ref}\"\n");
+        std::fs::write(&scene, text).unwrap();
+        (top, scene)
+    }
+
+    #[test]
+    fn links_out_of_the_scene_folder_are_refused_and_paths_above_it_are_not_sent() {
+        // A plain `..` reference: sent, with the folders above the scene renamed.
+        let (top, scene) = scene_with("up", "../../assets/m.obj");
+        let s = LocalScene::collect(&scene).unwrap();
+        assert_eq!(s.relative(&s.scene), "up2/up1/scene.toml");
+        assert_eq!(s.files.iter().map(|f| s.relative(f)).collect::<Vec<_>>(), ["assets/m.obj"]);
+        std::fs::remove_dir_all(&top).ok();
+        // A link beside the scene that leads out of its folder: an error naming it.
+        let (top, scene) = scene_with("link", "m.obj");
+        std::os::unix::fs::symlink(top.join("alice/assets/m.obj"), scene.with_file_name("m.obj")).unwrap();
+        let e = LocalScene::collect(&scene).err().expect("refused").to_string();
+        assert!(e.contains("m.obj: a symbolic link that leads outside the scene's folder"), "{e}");
+        // A link that stays inside is followed, and sent under the name the scene uses.
+        std::fs::remove_file(scene.with_file_name("m.obj")).unwrap();
+        std::fs::copy(top.join("alice/assets/m.obj"), scene.with_file_name("real.obj")).unwrap();
+        std::os::unix::fs::symlink("real.obj", scene.with_file_name("m.obj")).unwrap();
+        let s = LocalScene::collect(&scene).unwrap();
+        assert_eq!(s.files.iter().map(|f| s.relative(f)).collect::<Vec<_>>(), ["m.obj"]);
+        std::fs::remove_dir_all(&top).ok();
     }
 
     #[test]
