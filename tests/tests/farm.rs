@@ -86,6 +86,28 @@ fn a_worker_joining_half_way_contributes_and_the_image_is_unchanged() {
     drop(second);
 }
 
+/// Registers a forger and leases until it holds a unit.
+async fn registered_with_a_unit(
+    farm: &mut proto::farm_client::FarmClient<tonic::transport::Channel>,
+) -> (u64, proto::Unit) {
+    let request = proto::RegisterRequest {
+        protocol_version: proto::PROTOCOL_VERSION,
+        threads: 1,
+        hostname: "forger".into(),
+        version: "0".into(),
+    };
+    let me = farm.register(request).await.unwrap().into_inner().worker_id;
+    let start = Instant::now();
+    loop {
+        assert!(start.elapsed() < LIMIT);
+        let lease = proto::LeaseRequest { worker_id: me, max_units: 1 };
+        if let Some(u) = farm.lease(lease).await.unwrap().into_inner().units.pop() {
+            return (me, u);
+        }
+        tokio::time::sleep(Duration::from_millis(50)).await;
+    }
+}
+
 #[test]
 fn forged_and_malformed_results_are_rejected_and_the_image_is_unaffected() {
     use proto::farm_client::FarmClient;
@@ -99,79 +121,67 @@ fn forged_and_malformed_results_are_rejected_and_the_image_is_unaffected() {
     assert!(sub.status.success(), "{}", String::from_utf8_lossy(&sub.stderr));
     let job = String::from_utf8_lossy(&sub.stdout).trim().to_string();
     let rt = runtime();
+    /// A forged result for a unit and what the farm must answer.
+    type Case = (&'static str, fn(proto::UnitResult, &proto::Unit) -> proto::UnitResult, Code);
+    let pixels = |u: &proto::Unit| u.tile.map_or(0, |t| (t.width * t.height) as usize);
+    let cases: Vec<Case> = vec![
+        (
+            "a unit it does not hold",
+            |g, u| proto::UnitResult { unit_id: u.unit_id + 40, ..g },
+            Code::FailedPrecondition,
+        ),
+        ("a unit that does not exist", |g, _| proto::UnitResult { unit_id: 1 << 40, ..g }, Code::InvalidArgument),
+        ("too few pixels", |g, _| proto::UnitResult { sums: g.sums[48..].to_vec(), ..g }, Code::InvalidArgument),
+        ("a torn pixel", |g, _| proto::UnitResult { sums: g.sums[1..].to_vec(), ..g }, Code::InvalidArgument),
+        (
+            "wrong sample counts",
+            |g, _| proto::UnitResult { counts: g.counts.iter().map(|c| c + 1).collect(), ..g },
+            Code::InvalidArgument,
+        ),
+        (
+            "negative radiance",
+            |mut g, _| {
+                g.sums[..16].copy_from_slice(&(-1i128).to_le_bytes());
+                g
+            },
+            Code::InvalidArgument,
+        ),
+        (
+            "the wrong sample range",
+            |g, u| proto::UnitResult { sample_end: u.sample_end + 1, ..g },
+            Code::InvalidArgument,
+        ),
+        (
+            "the wrong tile",
+            |g, u| {
+                let tile = u.tile.unwrap();
+                proto::UnitResult { tile: Some(proto::Tile { x0: tile.x0 + 1, ..tile }), ..g }
+            },
+            Code::InvalidArgument,
+        ),
+        ("an unknown job", |g, _| proto::UnitResult { job_id: "job-999".into(), ..g }, Code::NotFound),
+        ("an unknown worker", |g, _| proto::UnitResult { worker_id: 9999, ..g }, Code::NotFound),
+    ];
     rt.block_on(async {
         let mut farm = FarmClient::connect(coord.url.clone()).await.unwrap();
-        let me = farm
-            .register(proto::RegisterRequest {
-                protocol_version: proto::PROTOCOL_VERSION,
-                threads: 1,
-                hostname: "forger".into(),
-                version: "0".into(),
-            })
-            .await
-            .unwrap()
-            .into_inner()
-            .worker_id;
-        let mut units = Vec::new();
-        let start = Instant::now();
-        while units.len() < 2 {
-            assert!(start.elapsed() < LIMIT);
-            units.extend(
-                farm.lease(proto::LeaseRequest { worker_id: me, max_units: 2 }).await.unwrap().into_inner().units,
-            );
-            tokio::time::sleep(Duration::from_millis(50)).await;
-        }
-        let u = &units[0];
-        let tile = u.tile.unwrap();
-        let n = (tile.width * tile.height) as usize;
-        let samples = u.sample_end - u.sample_start;
-        let good = forged_result(me, &job, u, 0);
-        let negative = {
-            let mut s = vec![0u8; n * 48];
-            s[..16].copy_from_slice(&(-1i128).to_le_bytes());
-            s
-        };
-        let cases: Vec<(&str, proto::UnitResult, Code)> = vec![
-            (
-                "a unit it does not hold",
-                proto::UnitResult { unit_id: u.unit_id + 40, ..good.clone() },
-                Code::FailedPrecondition,
-            ),
-            (
-                "a unit that does not exist",
-                proto::UnitResult { unit_id: 1 << 40, ..good.clone() },
-                Code::InvalidArgument,
-            ),
-            (
-                "too few pixels",
-                proto::UnitResult { sums: vec![0u8; (n - 1) * 48], ..good.clone() },
-                Code::InvalidArgument,
-            ),
-            ("a torn pixel", proto::UnitResult { sums: vec![0u8; n * 48 - 1], ..good.clone() }, Code::InvalidArgument),
-            (
-                "wrong sample counts",
-                proto::UnitResult { counts: vec![samples + 1; n], ..good.clone() },
-                Code::InvalidArgument,
-            ),
-            ("negative radiance", proto::UnitResult { sums: negative, ..good.clone() }, Code::InvalidArgument),
-            (
-                "the wrong sample range",
-                proto::UnitResult { sample_end: u.sample_end + 1, ..good.clone() },
-                Code::InvalidArgument,
-            ),
-            (
-                "the wrong tile",
-                proto::UnitResult { tile: Some(proto::Tile { x0: tile.x0 + 1, ..tile }), ..good.clone() },
-                Code::InvalidArgument,
-            ),
-            ("an unknown job", proto::UnitResult { job_id: "job-999".into(), ..good.clone() }, Code::NotFound),
-            ("an unknown worker", proto::UnitResult { worker_id: 9999, ..good.clone() }, Code::NotFound),
-        ];
-        for (what, msg, code) in cases {
-            let err = farm.submit_result(msg).await.expect_err(what);
+        // Each case from a registration of its own (on this open farm, an identity of its
+        // own): three malformed results ban an identity, and its fourth would be refused
+        // for that (as the last part shows).
+        for (what, forge, code) in cases {
+            let (me, u) = registered_with_a_unit(&mut farm).await;
+            assert!(pixels(&u) > 1);
+            let err = farm.submit_result(forge(forged_result(me, &job, &u, 0), &u)).await.expect_err(what);
             assert_eq!(err.code(), code, "{what}: {}", err.message());
             assert!(!err.message().is_empty());
         }
+        let (me, u) = registered_with_a_unit(&mut farm).await;
+        let mut codes = Vec::new();
+        for _ in 0..4 {
+            let mut r = forged_result(me, &job, &u, 0);
+            r.counts[0] += 1;
+            codes.push(farm.submit_result(r).await.unwrap_err().code());
+        }
+        assert_eq!(codes, [Code::InvalidArgument; 3].into_iter().chain([Code::PermissionDenied]).collect::<Vec<_>>());
     });
     // Real workers finish the job; the forger's leases lapse and are re-leased.
     let _w = coord.worker(2, &dir.path("cache"));

@@ -246,6 +246,31 @@ fn forged_results_for_held_leases_are_caught_and_never_reach_the_image() {
     });
     let status = run(Command::new(bin("coordinator")).args(["status", "--coordinator", &coord.url]), LIMIT);
     let shown = String::from_utf8_lossy(&status.stdout);
-    assert!(shown.contains("QUARANTINED") && shown.contains("was quarantined"), "{shown}");
+    assert!(shown.contains("QUARANTINED") && shown.contains("was banned"), "{shown}");
     assert_eq!(shown.matches("QUARANTINED").count(), 1, "only the rogue: {shown}");
+}
+
+/// `submit` never follows a link out of the scene's folder: a scene whose OBJ is a link
+/// to a private file fails before anything is uploaded, naming the link, and the
+/// farm's store holds none of it.
+#[cfg(unix)]
+#[test]
+fn submit_refuses_a_link_out_of_the_scene_folder() {
+    let dir = TempDir::new("hostile-link");
+    let secret = dir.path("id_ed25519");
+    std::fs::write(&secret, "v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n# PRIVATE KEY\n").unwrap();
+    let folder = dir.path("shot");
+    std::fs::create_dir_all(&folder).unwrap();
+    std::os::unix::fs::symlink(&secret, folder.join("model.obj")).unwrap();
+    let scene = folder.join("scene.toml");
+    std::fs::write(&scene, format!("{SPHERE}[[mesh]]\nobj = \"model.obj\"\n")).unwrap();
+    let coord = Coordinator::start(&dir.path("store"), &[]);
+    let out = coord.submit(&scene, &[], LIMIT);
+    assert!(!out.status.success(), "a link out of the folder was submitted");
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(err.contains("model.obj: a symbolic link that leads outside the scene's folder"), "{err}");
+    let blobs: Vec<_> = std::fs::read_dir(dir.path("store").join("blobs")).unwrap().flatten().collect();
+    let secret_text = std::fs::read(&secret).unwrap();
+    assert!(blobs.iter().all(|b| std::fs::read(b.path()).unwrap() != secret_text), "the secret reached the store");
+    assert!(list_jobs(&coord.url).is_empty(), "no job was made");
 }

@@ -482,7 +482,7 @@ pub fn status(args: StatusArgs) -> anyhow::Result<()> {
                 w.units_held,
                 w.units_done,
                 w.last_seen_s,
-                if w.quarantined { "  QUARANTINED (returned a wrong result)" } else { "" }
+                if w.quarantined { "  QUARANTINED (its identity is banned: coordinator workers)" } else { "" }
             )?;
         }
         print_all(&out)

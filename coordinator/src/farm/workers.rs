@@ -155,8 +155,8 @@ impl Farm {
             let n = e.job.discard_from(liar, &workers);
             if (n > 0 || e.job.id == job) && e.job.warnings.len() < MAX_EVENTS {
                 e.job.warnings.push(format!(
-                    "identity {name} {reason} and was banned, its {} workers quarantined; {n} of its units here \
-                     were thrown away and render again",
+                    "identity {name} {reason} and was banned ({} of its workers quarantined); {n} of its units \
+                     here were thrown away and render again",
                     workers.len()
                 ));
             }
