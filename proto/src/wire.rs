@@ -151,7 +151,13 @@ pub fn settings_from_proto(s: Option<&crate::RenderSettings>) -> Result<(Overrid
         time_budget: s.time_budget_ms.map(std::time::Duration::from_millis),
         up: if s.up.is_empty() { tracer::scene::UpAxis::Y } else { s.up.parse()? },
     };
-    let integrator = if s.integrator.is_empty() { Integrator::Path } else { s.integrator.parse()? };
+    let integrator = if s.integrator.is_empty() {
+        Integrator::Path
+    } else {
+        s.integrator.parse().map_err(|_| {
+            format!("unknown integrator {} (expected one of: {})", quote(&s.integrator), Integrator::NAMES.join(", "))
+        })?
+    };
     Ok((overrides, integrator))
 }
 
@@ -303,6 +309,32 @@ pub fn outcome_to_proto(o: Result<bool, String>) -> crate::ResultOutcome {
         Ok(accepted) => crate::ResultOutcome { accepted, refused: String::new() },
         Err(refused) => crate::ResultOutcome { accepted: false, refused },
     }
+}
+
+/// Most characters of an error message sent to a client: messages quote what the client
+/// sent, and an echo must not be as large as the input.
+pub const MAX_ERROR_CHARS: usize = 1024;
+
+/// At most the first 64 characters of something a client sent, escaped, for quoting
+/// in an error message.
+pub fn quote(input: &str) -> String {
+    const MAX: usize = 64;
+    let head: String = input.chars().take(MAX).collect();
+    if head.len() < input.len() {
+        format!("'{}…'", head.escape_debug())
+    } else {
+        format!("'{}'", head.escape_debug())
+    }
+}
+
+/// An error message as a client may receive it: at most [`MAX_ERROR_CHARS`] characters.
+pub fn bounded(message: String) -> String {
+    if message.chars().count() <= MAX_ERROR_CHARS {
+        return message;
+    }
+    let mut m: String = message.chars().take(MAX_ERROR_CHARS).collect();
+    m.push('…');
+    m
 }
 
 #[cfg(test)]
@@ -510,5 +542,19 @@ mod tests {
             let e = result_from_proto(b).unwrap_err();
             assert!(e.starts_with("unit job-1/3: "), "{e}");
         }
+    }
+
+    #[test]
+    fn echoes_of_input_are_bounded() {
+        let huge = "x".repeat(10 << 20);
+        let settings = crate::RenderSettings { integrator: huge.clone(), ..Default::default() };
+        let e = settings_from_proto(Some(&settings)).unwrap_err();
+        assert!(
+            e.len() < 300 && e.contains("unknown integrator 'xxx") && e.contains("…'"),
+            "{}",
+            &e[..e.len().min(300)]
+        );
+        assert_eq!(quote("path"), "'path'");
+        assert_eq!(bounded(huge).chars().count(), MAX_ERROR_CHARS + 1);
     }
 }

@@ -13,7 +13,7 @@ use tonic::{Request, Response, Status, Streaming};
 
 use proto::auth::{Caller, Role};
 
-use super::wire::{error_to_status, status_to_proto, stored_frame_to_proto, stored_job_to_proto};
+use super::wire::{error_to_status, invalid, status_to_proto, stored_frame_to_proto, stored_job_to_proto};
 use crate::farm::Shared;
 use crate::farm::job::UnitResult;
 use crate::farm::lifecycle::ImageError;
@@ -45,17 +45,6 @@ fn identities_to_proto(farm: &crate::farm::Farm) -> Vec<proto::IdentityInfo> {
             workers: farm.workers.values().filter(|w| w.trust == i.id).count() as u32,
         })
         .collect()
-}
-
-/// At most the first 64 characters of something a client sent, for an error message:
-/// an echo must not be as large as the input.
-pub(crate) fn clip(input: &str) -> String {
-    const MAX: usize = 64;
-    if input.chars().count() <= MAX {
-        input.escape_debug().to_string()
-    } else {
-        format!("{}…", input.chars().take(MAX).collect::<String>().escape_debug())
-    }
 }
 
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -144,7 +133,7 @@ impl proto::farm_server::Farm for FarmService {
     async fn submit_result(&self, req: Request<proto::UnitResult>) -> Result<Response<proto::SubmitReply>, Status> {
         let caller = proto::auth::caller(&req);
         let proto::wire::ReceivedResult { worker_id, job_id, result } =
-            proto::wire::result_from_proto(req.into_inner()).map_err(Status::invalid_argument)?;
+            proto::wire::result_from_proto(req.into_inner()).map_err(invalid)?;
         self.0.farm().check_identity(worker_id, &caller.name).map_err(error_to_status)?;
         let key = format!("{job_id}/{}", result.unit);
         match self.0.submit_result(worker_id, &job_id, &result) {
@@ -207,7 +196,7 @@ impl proto::farm_server::Farm for FarmService {
         let path = {
             let store = self.0.store();
             if sha.len() != 64 || !sha.bytes().all(|b| b.is_ascii_hexdigit()) || !store.contains(&sha) {
-                return Err(Status::not_found(format!("no asset {sha}")));
+                return Err(Status::not_found(format!("no asset {}", proto::wire::quote(&sha))));
             }
             store.blob_path(&sha)
         };
@@ -328,9 +317,9 @@ impl proto::jobs_server::Jobs for JobsService {
         let caller = proto::auth::caller(&req);
         let owner = (caller.role == Role::User).then(|| caller.name.clone());
         let r = req.into_inner();
-        let spec = proto::wire::submission_from_proto(r.scene, r.assets, r.settings.as_ref(), r.group)
-            .map_err(Status::invalid_argument)?;
-        let priority = crate::farm::schedule::priority(r.priority).map_err(Status::invalid_argument)?;
+        let spec =
+            proto::wire::submission_from_proto(r.scene, r.assets, r.settings.as_ref(), r.group).map_err(invalid)?;
+        let priority = crate::farm::schedule::priority(r.priority).map_err(invalid)?;
         let job_id = crate::farm::lifecycle::submit_job(&self.0, r.name, owner, spec, None).map_err(error_to_status)?;
         if let Ok(e) = self.0.farm().entry_mut(&job_id) {
             e.job.share.priority = priority;
@@ -417,8 +406,7 @@ impl proto::jobs_server::Jobs for JobsService {
 
     async fn stored_frames(&self, req: Request<proto::GroupRequest>) -> Result<Response<proto::ListJobsReply>, Status> {
         let caller = proto::auth::caller(&req);
-        let Some(group) = proto::wire::group_from_proto(req.into_inner().name).map_err(Status::invalid_argument)?
-        else {
+        let Some(group) = proto::wire::group_from_proto(req.into_inner().name).map_err(invalid)? else {
             return Err(Status::invalid_argument("group: a name is needed"));
         };
         let images = self.0.store().images();
@@ -491,7 +479,7 @@ impl proto::jobs_server::Jobs for JobsService {
                 tracing::warn!(identity = %name.escape_debug(), "ban lifted (it was banned: {})", ban.reason);
                 Ok(Response::new(proto::UnbanReply { reason: ban.reason }))
             }
-            None => Err(Status::not_found(format!("{}: no such banned identity", clip(&name)))),
+            None => Err(Status::not_found(format!("{}: no such banned identity", proto::wire::quote(&name)))),
         }
     }
 }

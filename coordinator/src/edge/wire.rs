@@ -125,19 +125,25 @@ fn seconds(s: f64) -> f64 {
     if s.is_finite() { s.max(0.0) } else { 0.0 }
 }
 
-/// The status code a farm error travels as.
+/// The status code a farm error travels as, its message bounded.
 pub fn error_to_status(e: FarmError) -> Status {
+    let m = proto::wire::bounded(e.to_string());
     match e {
-        FarmError::UnknownWorker(_) | FarmError::UnknownJob(_) => Status::not_found(e.to_string()),
+        FarmError::UnknownWorker(_) | FarmError::UnknownJob(_) => Status::not_found(m),
         FarmError::Invalid(_) | FarmError::Rejected(Rejection::UnknownUnit(_) | Rejection::Malformed { .. }) => {
-            Status::invalid_argument(e.to_string())
+            Status::invalid_argument(m)
         }
         FarmError::NotUploaded(_) | FarmError::Rejected(Rejection::NotHolder(..) | Rejection::NotRunning(_)) => {
-            Status::failed_precondition(e.to_string())
+            Status::failed_precondition(m)
         }
-        FarmError::Forbidden(_) => Status::permission_denied(e.to_string()),
-        FarmError::Exhausted(_) => Status::resource_exhausted(e.to_string()),
+        FarmError::Forbidden(_) => Status::permission_denied(m),
+        FarmError::Exhausted(_) => Status::resource_exhausted(m),
     }
+}
+
+/// A message that did not decode, as the client is told: its message bounded.
+pub fn invalid(message: String) -> Status {
+    Status::invalid_argument(proto::wire::bounded(message))
 }
 
 #[cfg(test)]

@@ -217,8 +217,13 @@ impl Shared {
     }
 
     /// Ends a job with `error` (a job event: the farm's log keeps it at info, and the
-    /// job's owner gets the error itself, once, from the job's status).
+    /// job's owner gets the error itself, once, from the job's status). The owner sees
+    /// the job's files by their own names, never where the farm keeps them.
     pub fn fail(self: &Arc<Self>, job: &str, error: String) {
+        let store = self.store().dir().to_path_buf();
+        let error = error
+            .replace(&format!("{}/", store.join("jobs").join(job).display()), "")
+            .replace(&store.display().to_string(), "<the farm's store>");
         if let Ok(e) = self.farm().entry_mut(job) {
             tracing::info!(job = %job, "job failed: {error}");
             e.job.fail(error);
