@@ -278,7 +278,15 @@ pub fn run(args: ServeArgs) -> anyhow::Result<()> {
                 tried = shared.farm().jobs.iter().filter(|e| checkpointed(e)).map(|e| e.job.id.clone()).collect();
                 let t = std::time::Instant::now();
                 save_jobs(&shared, root, &mut saved).await;
+                let before = pacer.interval();
                 pacer.wrote(t.elapsed());
+                if pacer.interval() > before.max(Duration::from_millis(args.checkpoint_interval_ms)) {
+                    tracing::info!(
+                        "checkpoints took {:.1} s to write: writing every {:.0} s, not every --checkpoint-interval-ms",
+                        t.elapsed().as_secs_f64(),
+                        pacer.interval().as_secs_f64()
+                    );
+                }
             }
             store_finished(&shared, &images, ckpt_root.as_deref(), &mut saved, &mut store_retry).await;
             shared.forget_finished(retain);
