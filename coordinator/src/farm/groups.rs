@@ -71,7 +71,7 @@ mod tests {
     fn a_groups_frames_start_and_render_in_order_a_few_at_a_time() {
         let mut f = Farm::new(FarmConfig::default());
         let now = Instant::now();
-        let w = f.register("h".into(), 2, now);
+        let w = f.register("h".into(), 4, now); // holds up to 32 units
         let frame = |group: &str| JobSpec { group: Some(group.into()), ..super::super::state::tests::spec() };
         let alone = f.add_job("alone".into(), None, super::super::state::tests::spec());
         let frames: Vec<String> = (1..=5).map(|i| f.add_job(format!("shot.{i:04}"), None, frame("shot"))).collect();

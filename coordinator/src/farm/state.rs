@@ -21,6 +21,12 @@ pub use super::workers::Worker;
 /// restarts; more would let one certificate flood the farm with registrations.
 pub const DEFAULT_WORKERS_PER_IDENTITY: u32 = 8;
 
+/// Most units a worker may hold at once, per thread it registered with (it leases two
+/// per thread, and may hold up to four more rendered but not yet sent).
+const HELD_PER_THREAD: usize = 8;
+/// Threads a worker is counted with at the most, whatever it claims.
+const MAX_THREADS: u32 = 1024;
+
 #[derive(Clone, Debug)]
 pub struct FarmConfig {
     /// A lease lapses this long after its last renewal.
@@ -282,6 +288,12 @@ impl Farm {
         let by = self.touch(worker, now)?;
         self.reap(now);
         let deadline = now + self.config.lease;
+        let siblings: Vec<WorkerId> = self.workers.values().filter(|w| w.trust == by.identity).map(|w| w.id).collect();
+        // A worker leases twice its threads and may hold as many again rendered but not
+        // yet sent: more than that is hoarding.
+        let threads = self.workers.get(&worker).map_or(1, |w| w.threads.clamp(1, MAX_THREADS)) as usize;
+        let held: usize = self.jobs.iter().map(|e| e.job.held_by(worker)).sum();
+        let max = max.min((HELD_PER_THREAD * threads).saturating_sub(held));
         let mut out = Vec::new();
         // Unit by unit, to the running job with the least service for its priority.
         let mut dry = vec![false; self.jobs.len()];
@@ -290,7 +302,7 @@ impl Farm {
             let running = self.jobs.iter_mut().enumerate().filter(|(k, _)| eligible[*k]);
             let Some(k) = self.fair.pick(running.map(|(k, e)| (k, &mut e.job.share))) else { break };
             let e = &mut self.jobs[k];
-            match e.job.lease_next(by, now, deadline, self.config.speculate_after) {
+            match e.job.lease_next_among(by, &siblings, now, deadline, self.config.speculate_after) {
                 Some(unit) => {
                     self.fair.served(&mut e.job.share);
                     self.counters.leased += 1;

@@ -25,10 +25,26 @@ impl Job {
         deadline: Instant,
         speculate_after: Duration,
     ) -> Option<UnitId> {
+        let by = by.into();
+        self.lease_next_among(by, &[by.worker], now, deadline, speculate_after)
+    }
+
+    /// [`Job::lease_next`] for a worker whose identity has the workers `siblings` (itself
+    /// among them): a spare lease goes only to another identity than the unit's holders,
+    /// so that an identity that holds units without returning them (a hoarder, with as
+    /// many ids as it may register) cannot also take their spares.
+    pub fn lease_next_among(
+        &mut self,
+        by: By,
+        siblings: &[WorkerId],
+        now: Instant,
+        deadline: Instant,
+        speculate_after: Duration,
+    ) -> Option<UnitId> {
         if self.phase != JobPhase::Running || self.share.paused || self.budget_spent(now) {
             return None;
         }
-        let By { worker, identity } = by.into();
+        let By { worker, identity } = by;
         // Units under check first: the job cannot end before they are settled.
         if let Some(id) = self.next_to_check(identity).or_else(|| self.next_pending()) {
             let unit = &mut self.units[id as usize];
@@ -51,7 +67,9 @@ impl Job {
             .map(|(_, id)| id)
             .find(|&id| {
                 let u = &units[id as usize];
-                u.spare.is_none() && !u.holders.contains(&worker) && matches!(u.state, UnitState::Leased { .. })
+                u.spare.is_none()
+                    && !u.holders.iter().any(|h| siblings.contains(h))
+                    && matches!(u.state, UnitState::Leased { .. })
             })?;
         let unit = &mut self.units[id as usize];
         unit.spare = Some(Spare { worker, deadline });

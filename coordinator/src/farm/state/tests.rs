@@ -70,7 +70,7 @@ fn leased_by_job(f: &mut Farm, w: WorkerId, n: usize, now: Instant) -> HashMap<S
 fn running_jobs_share_the_workers_by_priority() {
     let mut f = Farm::new(FarmConfig::default());
     let now = Instant::now();
-    let w = f.register("h".into(), 2, now);
+    let w = f.register("h".into(), 16, now); // holds up to 128 units
     let a = f.add_job("a".into(), None, spec());
     let b = f.add_job("b".into(), None, spec());
     // 64 tiles × 4 batches each.
