@@ -61,6 +61,11 @@ impl<Id: Ord + Copy> LeaseClock<Id> {
         self.out_since.iter().copied()
     }
 
+    /// How many primary leases are out.
+    pub fn out(&self) -> usize {
+        self.out_since.len()
+    }
+
     pub fn clear(&mut self) {
         self.deadlines.clear();
         self.out_since.clear();

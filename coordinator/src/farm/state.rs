@@ -11,7 +11,7 @@ use proto::domain::JobSpec;
 use tracer::scene::Scene;
 
 use super::identities::Identities;
-use super::job::{Applied, Job, JobPhase, Rejection, UnitId, UnitResult, WorkerId};
+use super::job::{Applied, By, Job, JobPhase, Rejection, UnitId, UnitResult, WorkerId};
 use super::status::{JobStatus, status_of};
 use super::verify::Policy;
 pub use super::workers::Worker;
@@ -26,6 +26,8 @@ pub const DEFAULT_WORKERS_PER_IDENTITY: u32 = 8;
 const HELD_PER_THREAD: usize = 8;
 /// Threads a worker is counted with at the most, whatever it claims.
 const MAX_THREADS: u32 = 1024;
+/// Units an identity may always hold, whatever its share (see `Farm::room_in_share`).
+const MIN_SHARE: usize = 8;
 
 #[derive(Clone, Debug)]
 pub struct FarmConfig {
@@ -293,7 +295,7 @@ impl Farm {
         // yet sent: more than that is hoarding.
         let threads = self.workers.get(&worker).map_or(1, |w| w.threads.clamp(1, MAX_THREADS)) as usize;
         let held: usize = self.jobs.iter().map(|e| e.job.held_by(worker)).sum();
-        let max = max.min((HELD_PER_THREAD * threads).saturating_sub(held));
+        let max = max.min((HELD_PER_THREAD * threads).saturating_sub(held)).min(self.room_in_share(by, now));
         let mut out = Vec::new();
         // Unit by unit, to the running job with the least service for its priority.
         let mut dry = vec![false; self.jobs.len()];
@@ -313,6 +315,24 @@ impl Farm {
             }
         }
         Ok(out)
+    }
+
+    /// How many more units the identity of `by` may hold: with several identities live,
+    /// each holds at most an even share of the running jobs' open units (queued or out;
+    /// at least [`MIN_SHARE`]), so that an identity that leases units and never returns
+    /// them (a hoarder, with all the ids it may register) cannot take a small job whole;
+    /// the others render the rest and then take spares of what it holds.
+    fn room_in_share(&self, by: By, now: Instant) -> usize {
+        let identities = self.live_identities(now).len();
+        if identities < 2 {
+            return usize::MAX;
+        }
+        let running = self.jobs.iter().filter(|e| e.job.phase == JobPhase::Running);
+        let open: usize = running.clone().map(|e| e.job.queued() + e.job.units_out()).sum();
+        let share = open.div_ceil(identities).max(MIN_SHARE);
+        let mine = |w: WorkerId| self.workers.get(&w).is_some_and(|w| w.trust == by.identity);
+        let held = running.flat_map(|e| e.job.lease_holders()).filter(|&w| mine(w)).count();
+        share.saturating_sub(held)
     }
 
     /// Which jobs may be given a unit now: those running and not paused, with units left

@@ -192,6 +192,19 @@ impl Job {
         self.pending.len() + self.checking.len()
     }
 
+    /// Units out on a primary lease.
+    pub fn units_out(&self) -> usize {
+        self.clock.out()
+    }
+
+    /// The workers holding this job's units on primary leases, one entry a unit.
+    pub fn lease_holders(&self) -> impl Iterator<Item = WorkerId> + '_ {
+        self.clock.oldest_out().filter_map(|(_, id)| match self.units[id as usize].state {
+            UnitState::Leased { worker, .. } => Some(worker),
+            _ => None,
+        })
+    }
+
     /// Units `worker` holds a lease on (primary or spare). Only units out are looked at
     /// (the lease clock lists them; a spare only ever rides on a unit out), not every
     /// unit of the job: the dashboard and the metrics ask often.

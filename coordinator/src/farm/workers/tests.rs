@@ -175,3 +175,40 @@ fn an_identity_registers_at_most_its_share_of_workers_and_admins_any() {
     f.reap(Instant::now() + Duration::from_secs(3600));
     register(&mut f, "cert:a");
 }
+
+/// A hoarder with all the ids it may register takes at most an even share of a small
+/// job while other identities are live; they get the rest, and spares of its units go
+/// only to them.
+#[test]
+fn a_hoarder_takes_at_most_its_share_and_never_its_own_spares() {
+    let (mut f, job) = farm(0.0, 0);
+    // Leases that outlast the test: the hoarder renews its leases forever.
+    f.config.lease = Duration::from_secs(600);
+    let t = Instant::now();
+    let a = f.register_as(Some("cert:a"), true, "a".into(), 16, t).unwrap();
+    let b = f.register_as(Some("cert:b"), true, "b".into(), 16, t).unwrap();
+    let hoarder: Vec<WorkerId> = (0..8).map(|_| register(&mut f, "cert:hoarder")).collect();
+    let hoarded: usize = hoarder.iter().map(|&w| f.lease(w, 256, t).unwrap().len()).sum();
+    assert_eq!(hoarded, 64usize.div_ceil(3), "an even share of 64 units among 3 identities");
+    let mut rest = 0;
+    for w in [a, b].into_iter().cycle().take(8) {
+        for l in f.lease(w, 256, t).unwrap() {
+            let r = result(&f, &job, l.unit, 1000 + l.unit as i128);
+            f.submit(w, &job, &r, t).unwrap();
+            rest += 1;
+        }
+    }
+    assert_eq!(hoarded + rest, 64, "the honest identities render the rest");
+    // Long after, with the queue empty, spares of the hoarded units go to the honest
+    // identities only, and the job ends without the hoarder.
+    let later = t + Duration::from_secs(30);
+    assert!(hoarder.iter().all(|&w| f.lease(w, 256, later).unwrap().is_empty()));
+    while f.entry(&job).unwrap().job.phase == JobPhase::Running {
+        let spares = f.lease(a, 8, later).unwrap();
+        assert!(!spares.is_empty(), "spares of the hoarder's units");
+        for l in spares {
+            let r = result(&f, &job, l.unit, 1000 + l.unit as i128);
+            f.submit(a, &job, &r, later).unwrap();
+        }
+    }
+}
