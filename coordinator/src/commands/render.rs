@@ -444,6 +444,7 @@ impl Renderers {
             "127.0.0.1:0",
             proto::auth::Access::default().with_token(token.clone(), proto::auth::Caller::admin()),
             None,
+            Default::default(),
         )
         .await?;
         let children = LocalWorkers::spawn(workers, threads, &server.url(), cache, scene_cache, &token)?;
