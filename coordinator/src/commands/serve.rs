@@ -272,7 +272,7 @@ pub fn run(args: ServeArgs) -> anyhow::Result<()> {
         println!("listening on {}", server.url());
         let http = match &args.http {
             Some(listen) => {
-                let h = HttpServer::start(Arc::clone(&shared), listen, access).await?;
+                let h = HttpServer::start(Arc::clone(&shared), listen, access, limits).await?;
                 tracing::info!(metrics = %format!("{}/metrics", h.url()), "serving HTTP");
                 Some(h)
             }
