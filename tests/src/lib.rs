@@ -120,8 +120,15 @@ impl Coordinator {
 
     /// `coordinator serve ARGS…`, waiting for its address.
     pub fn serve(args: &[&str]) -> Self {
+        Self::serve_with(args, |_| {})
+    }
+
+    /// As [`Coordinator::serve`], with `setup` adjusting the command first (its
+    /// environment, limits).
+    pub fn serve_with(args: &[&str], setup: impl FnOnce(&mut Command)) -> Self {
         let mut cmd = Command::new(bin("coordinator"));
         cmd.arg("serve").args(args).stdout(Stdio::piped()).stderr(Stdio::inherit());
+        setup(&mut cmd);
         let mut proc = Proc::spawn("coordinator serve", &mut cmd);
         let stdout = proc.child.stdout.take().expect("stdout");
         let (tx, rx) = std::sync::mpsc::channel();

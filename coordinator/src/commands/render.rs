@@ -409,7 +409,7 @@ async fn start_dashboard(shared: &Arc<Shared>, listen: &str) -> anyhow::Result<H
     }
     let token = proto::auth::Token::random().map_err(anyhow::Error::msg)?;
     let access = proto::auth::Access::default().with_token(token.clone(), proto::auth::Caller::admin());
-    let http = HttpServer::start(Arc::clone(shared), listen, access).await?;
+    let http = HttpServer::start(Arc::clone(shared), listen, access, Default::default()).await?;
     eprintln!("dashboard: {}/#token={}", http.url(), token.secret());
     Ok(http)
 }
@@ -444,6 +444,7 @@ impl Renderers {
             "127.0.0.1:0",
             proto::auth::Access::default().with_token(token.clone(), proto::auth::Caller::admin()),
             None,
+            Default::default(),
         )
         .await?;
         let children = LocalWorkers::spawn(workers, threads, &server.url(), cache, scene_cache, &token)?;

@@ -13,6 +13,7 @@ use proto::tls::TlsDir;
 use tonic::transport::ServerTlsConfig;
 use tracer::scene::prepared::PreparedScenes;
 
+use crate::edge::conn::Limits;
 use crate::edge::http::HttpServer;
 use crate::edge::server::Server;
 use crate::farm::Shared;
@@ -88,7 +89,48 @@ pub struct ServeArgs {
     #[arg(long, hide = true)]
     pub exit_on_stdin_eof: bool,
     #[command(flatten)]
+    pub connections: ConnectionArgs,
+    #[command(flatten)]
     pub farm: FarmArgs,
+}
+
+/// How long connections may take, and how many may wait, so that a flood of idle
+/// connections cannot use up the process's open files.
+#[derive(Args, Clone, Debug)]
+pub struct ConnectionArgs {
+    /// A TLS handshake on the gRPC port must finish within this many milliseconds.
+    #[arg(long, value_name = "MS", default_value_t = 10_000)]
+    pub handshake_timeout_ms: u64,
+    /// An HTTP request's header must arrive within this many milliseconds of the
+    /// connection opening or of the previous response (so an idle kept-alive connection
+    /// closes after this too).
+    #[arg(long, value_name = "MS", default_value_t = 10_000)]
+    pub header_timeout_ms: u64,
+    /// A gRPC connection that has made no authenticated call this many milliseconds
+    /// after it opened is closed; an authenticated one quiet for this long is pinged,
+    /// and closed if the ping goes unanswered.
+    #[arg(long, value_name = "MS", default_value_t = 300_000)]
+    pub idle_timeout_ms: u64,
+    /// Most connections per port that have not yet authenticated (gRPC) or are waiting
+    /// for a request (HTTP); past it, the oldest of them is closed to admit the new one.
+    #[arg(long, value_name = "N", default_value_t = 256)]
+    pub max_pending_connections: usize,
+}
+
+impl ConnectionArgs {
+    pub fn limits(&self) -> anyhow::Result<Limits> {
+        anyhow::ensure!(
+            self.handshake_timeout_ms > 0 && self.header_timeout_ms > 0 && self.idle_timeout_ms > 0,
+            "--handshake-timeout-ms, --header-timeout-ms and --idle-timeout-ms must be at least 1"
+        );
+        anyhow::ensure!(self.max_pending_connections > 0, "--max-pending-connections must be at least 1");
+        Ok(Limits {
+            handshake: Duration::from_millis(self.handshake_timeout_ms),
+            header: Duration::from_millis(self.header_timeout_ms),
+            idle: Duration::from_millis(self.idle_timeout_ms),
+            max_pending: self.max_pending_connections,
+        })
+    }
 }
 
 /// How the farm treats leases; shared by `serve` and `render`.
@@ -210,6 +252,7 @@ pub fn run(args: ServeArgs) -> anyhow::Result<()> {
              unencrypted): serve it on 127.0.0.1 behind a TLS proxy, or give --insecure on a network you trust"
         );
     }
+    let limits = args.connections.limits()?;
     let mut config = args.farm.config()?;
     config.verify = Policy::new(args.verify, PROBATION).map_err(anyhow::Error::msg)?;
     config.max_workers_per_identity = args.max_workers_per_identity as usize;
@@ -239,12 +282,12 @@ pub fn run(args: ServeArgs) -> anyhow::Result<()> {
     let runtime =
         tokio::runtime::Builder::new_multi_thread().worker_threads(2).enable_all().build().context("async runtime")?;
     runtime.block_on(async move {
-        let server = Server::start(Arc::clone(&shared), &args.listen, access.clone(), tls).await?;
+        let server = Server::start(Arc::clone(&shared), &args.listen, access.clone(), tls, limits).await?;
         // The first line of output is the URL, for scripts and tests.
         println!("listening on {}", server.url());
         let http = match &args.http {
             Some(listen) => {
-                let h = HttpServer::start(Arc::clone(&shared), listen, access).await?;
+                let h = HttpServer::start(Arc::clone(&shared), listen, access, limits).await?;
                 tracing::info!(metrics = %format!("{}/metrics", h.url()), "serving HTTP");
                 Some(h)
             }

@@ -2,23 +2,32 @@
 //! in `dashboard`), Prometheus metrics at `/metrics`, and health for orchestrators'
 //! probes at `/healthz` (the process serves) and `/readyz` (the farm takes work). Metrics need the admin token whenever the farm has tokens — the same tokens as
 //! the gRPC API, sent as `Authorization: Bearer …`; the health endpoints say nothing
-//! about the farm and need none.
+//! about the farm and need none. Connections are served by hyper directly (rather than
+//! `axum::serve`), which bounds the wait for a request's header and lets the listener
+//! admit connections through its [`Gate`].
 
+use std::convert::Infallible;
 use std::net::SocketAddr;
+use std::pin::Pin;
 use std::sync::Arc;
+use std::task::{Context as TaskContext, Poll};
 use std::time::{Duration, Instant};
 
 use anyhow::Context;
 use axum::Router;
+use axum::body::{Body, Bytes, HttpBody};
 use axum::extract::State;
 use axum::http::{HeaderMap, StatusCode, header};
 use axum::response::{IntoResponse, Response};
 use axum::routing::{get, post};
 use prometheus::{Encoder, Gauge, IntCounter, IntGauge, IntGaugeVec, Opts, Registry, TextEncoder};
 use proto::auth::{Access, Role};
-use tokio::sync::oneshot;
+use tokio::net::TcpStream;
+use tokio::sync::{oneshot, watch};
+use tokio_stream::StreamExt;
 
 use super::app::App;
+use super::conn::{Accepted, Busy, Gate, Guarded, Limits};
 use super::dashboard;
 use crate::farm::Shared;
 use crate::farm::job::JobPhase;
@@ -26,12 +35,13 @@ use crate::farm::job::JobPhase;
 pub struct HttpServer {
     pub addr: SocketAddr,
     stop: Option<oneshot::Sender<()>>,
-    task: tokio::task::JoinHandle<std::io::Result<()>>,
+    task: tokio::task::JoinHandle<()>,
 }
 
 impl HttpServer {
-    /// Binds `listen` (port 0: any free port) and serves in the background.
-    pub async fn start(shared: Arc<Shared>, listen: &str, access: Access) -> anyhow::Result<Self> {
+    /// Binds `listen` (port 0: any free port) and serves in the background, holding
+    /// connections to `limits`.
+    pub async fn start(shared: Arc<Shared>, listen: &str, access: Access, limits: Limits) -> anyhow::Result<Self> {
         let listener =
             tokio::net::TcpListener::bind(listen).await.with_context(|| format!("--http {listen}: listening"))?;
         let addr = listener.local_addr()?;
@@ -53,13 +63,7 @@ impl HttpServer {
                 event_streams: Default::default(),
             });
         let (stop, stopped) = oneshot::channel::<()>();
-        let task = tokio::spawn(async move {
-            axum::serve(listener, app)
-                .with_graceful_shutdown(async {
-                    let _ = stopped.await;
-                })
-                .await
-        });
+        let task = tokio::spawn(serve(listener, app, limits, stopped));
         Ok(Self { addr, stop: Some(stop), task })
     }
 
@@ -72,6 +76,79 @@ impl HttpServer {
             let _ = s.send(());
         }
         let _ = tokio::time::timeout(Duration::from_secs(3), &mut self.task).await;
+    }
+}
+
+/// Accepts until `stopped`, each connection in its own task; then lets the open ones
+/// finish their requests and close.
+async fn serve(listener: tokio::net::TcpListener, app: Router, limits: Limits, mut stopped: oneshot::Receiver<()>) {
+    let mut incoming = Accepted::new(listener, Gate::new("HTTP", limits.max_pending), None);
+    let (closing, closing_rx) = watch::channel(());
+    loop {
+        let io = tokio::select! {
+            _ = &mut stopped => break,
+            io = incoming.next() => io,
+        };
+        if let Some(Ok(io)) = io {
+            tokio::spawn(connection(io, app.clone(), limits.header, closing_rx.clone()));
+        }
+    }
+    drop(incoming);
+    drop(closing_rx);
+    let _ = closing.send(());
+    closing.closed().await;
+}
+
+/// One HTTP/1.1 connection. Hyper closes it when a request's header (the first, or the
+/// next on a kept-alive connection) takes longer than `header`; while a response is
+/// being sent, the connection is busy, so its listener's gate does not close it to make
+/// room.
+async fn connection(io: Guarded<TcpStream>, app: Router, header: Duration, mut closing: watch::Receiver<()>) {
+    let conn = Arc::clone(io.conn());
+    let app = hyper_util::service::TowerToHyperService::new(app);
+    let service = hyper::service::service_fn(move |request: hyper::Request<hyper::body::Incoming>| {
+        let busy = conn.busy();
+        let answer = hyper::service::Service::call(&app, request);
+        async move {
+            let response = answer.await?;
+            Ok::<_, Infallible>(response.map(|body| Body::new(Held { body, _busy: busy })))
+        }
+    });
+    let served = hyper::server::conn::http1::Builder::new()
+        .timer(hyper_util::rt::TokioTimer::new())
+        .header_read_timeout(header)
+        .serve_connection(hyper_util::rt::TokioIo::new(io), service);
+    tokio::pin!(served);
+    tokio::select! {
+        _ = served.as_mut() => return,
+        _ = closing.changed() => served.as_mut().graceful_shutdown(),
+    }
+    let _ = served.await;
+}
+
+/// A response's body, keeping its connection busy until it is sent (or dropped).
+struct Held {
+    body: Body,
+    _busy: Busy,
+}
+
+impl HttpBody for Held {
+    type Data = Bytes;
+    type Error = axum::Error;
+
+    fn poll_frame(
+        self: Pin<&mut Self>,
+        cx: &mut TaskContext<'_>,
+    ) -> Poll<Option<Result<hyper::body::Frame<Bytes>, axum::Error>>> {
+        Pin::new(&mut self.get_mut().body).poll_frame(cx)
+    }
+
+    fn is_end_stream(&self) -> bool {
+        self.body.is_end_stream()
+    }
+
+    fn size_hint(&self) -> hyper::body::SizeHint {
+        self.body.size_hint()
     }
 }
 

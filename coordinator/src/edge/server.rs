@@ -9,11 +9,11 @@ use std::time::{Duration, Instant};
 use anyhow::Context;
 use proto::auth::{Access, ServerAuth, Service};
 use tokio::sync::oneshot;
-use tokio_stream::StreamExt;
-use tokio_stream::wrappers::TcpListenerStream;
+use tonic::service::Interceptor;
 use tonic::service::interceptor::InterceptedService;
 use tonic::transport::ServerTlsConfig;
 
+use crate::edge::conn::{Accepted, Gate, Limits};
 use crate::edge::service::{FarmService, JobsService, Registrations};
 use crate::farm::Shared;
 
@@ -26,12 +26,14 @@ pub struct Server {
 
 impl Server {
     /// Binds `listen` (port 0 asks the OS for a free port) and serves in the background,
-    /// to the callers `access` admits, over TLS when `tls` is given.
+    /// to the callers `access` admits, over TLS when `tls` is given, holding connections
+    /// to `limits`.
     pub async fn start(
         shared: Arc<Shared>,
         listen: &str,
         access: Access,
         tls: Option<ServerTlsConfig>,
+        limits: Limits,
     ) -> anyhow::Result<Self> {
         let listener = tokio::net::TcpListener::bind(listen).await.with_context(|| format!("listening on {listen}"))?;
         let addr = listener.local_addr()?;
@@ -44,11 +46,16 @@ impl Server {
             .max_decoding_message_size(proto::MAX_MESSAGE_BYTES)
             .max_encoding_message_size(proto::MAX_MESSAGE_BYTES);
         let access = Arc::new(access);
-        let farm = InterceptedService::new(farm, ServerAuth::new(Arc::clone(&access), Service::Workers));
-        let jobs = InterceptedService::new(jobs, ServerAuth::new(access, Service::Jobs));
-        let mut builder = tonic::transport::Server::builder();
+        let gate = Gate::new("gRPC", limits.max_pending);
+        let admit = |service| Admit { auth: ServerAuth::new(Arc::clone(&access), service), gate: Arc::clone(&gate) };
+        let farm = InterceptedService::new(farm, admit(Service::Workers));
+        let jobs = InterceptedService::new(jobs, admit(Service::Jobs));
+        // A peer that stops answering pings (gone without closing) gives its connection up.
+        let mut builder = tonic::transport::Server::builder()
+            .http2_keepalive_interval(Some(limits.idle))
+            .http2_keepalive_timeout(Some(KEEPALIVE_ANSWER));
         let scheme = if let Some(tls) = tls {
-            builder = builder.tls_config(tls).context("the TLS configuration")?;
+            builder = builder.tls_config(tls.timeout(limits.handshake)).context("the TLS configuration")?;
             "https"
         } else {
             "http"
@@ -72,7 +79,7 @@ impl Server {
         }
         let task =
             tokio::spawn(builder.add_service(health).add_service(farm).add_service(jobs).serve_with_incoming_shutdown(
-                TcpListenerStream::new(listener).map(no_delay),
+                Accepted::new(listener, gate, Some(limits.idle)),
                 async {
                     let _ = stopped.await;
                 },
@@ -93,10 +100,24 @@ impl Server {
     }
 }
 
-/// Small request/response messages must not wait for Nagle's algorithm (~40 ms each).
-fn no_delay(s: std::io::Result<tokio::net::TcpStream>) -> std::io::Result<tokio::net::TcpStream> {
-    if let Ok(stream) = &s {
-        let _ = stream.set_nodelay(true);
+/// How long a keepalive ping may go unanswered before the connection is closed.
+const KEEPALIVE_ANSWER: Duration = Duration::from_secs(20);
+
+/// The farm's access control, which also marks the connection of a call it lets
+/// through as authenticated: the connection no longer counts against the listener's
+/// cap on pending connections, nor expires for not authenticating.
+#[derive(Clone)]
+struct Admit {
+    auth: ServerAuth,
+    gate: Arc<Gate>,
+}
+
+impl Interceptor for Admit {
+    fn call(&mut self, request: tonic::Request<()>) -> Result<tonic::Request<()>, tonic::Status> {
+        let request = self.auth.call(request)?;
+        if let Some(peer) = request.remote_addr() {
+            self.gate.prove(peer);
+        }
+        Ok(request)
     }
-    s
 }
