@@ -259,3 +259,88 @@ fn malformed_results_ban_their_identity_and_registrations_are_capped() {
     });
     assert!(refused.message().contains("--max-workers-per-identity 8"), "{}", refused.message());
 }
+
+/// The hoarder: `ids` registrations of worker certificate `cert` that lease all they
+/// can and renew every lease by heartbeat, never answering, until `stop`. Returns the
+/// most units it held at once.
+fn hoarder(
+    url: String,
+    tls: PathBuf,
+    cert: &'static str,
+    ids: usize,
+    stop: Arc<AtomicBool>,
+) -> std::thread::JoinHandle<usize> {
+    std::thread::spawn(move || {
+        runtime().block_on(async move {
+            let mut farm = proto::farm_client::FarmClient::new(channel(&url, &tls, Some(cert)).await);
+            let mut held: Vec<(u64, Vec<proto::UnitKey>)> = Vec::new();
+            for _ in 0..ids {
+                held.push((farm.register(register_request()).await.unwrap().into_inner().worker_id, Vec::new()));
+            }
+            let mut most = 0;
+            while !stop.load(Ordering::SeqCst) {
+                for (w, keys) in &mut held {
+                    let lease = proto::LeaseRequest { worker_id: *w, max_units: 256 };
+                    if let Ok(r) = farm.lease(lease).await {
+                        let units = r.into_inner().units;
+                        keys.extend(units.iter().map(|u| proto::UnitKey {
+                            job_id: u.job.as_ref().map(|j| j.job_id.clone()).unwrap_or_default(),
+                            unit_id: u.unit_id,
+                        }));
+                    }
+                    let beat = proto::HeartbeatRequest { worker_id: *w, held: keys.clone() };
+                    if let Ok(r) = farm.heartbeat(beat).await {
+                        let gone = r.into_inner().abandon;
+                        keys.retain(|k| !gone.contains(k));
+                    }
+                }
+                most = most.max(held.iter().map(|(_, k)| k.len()).sum());
+                tokio::time::sleep(Duration::from_millis(200)).await;
+            }
+            most
+        })
+    })
+}
+
+/// A hoarder with 8 ids of one certificate, leasing everything it may and renewing it
+/// forever, delays a job by less than its own time: it holds only its share while
+/// others are live, and spares of its units go to the others.
+#[test]
+fn a_hoarder_with_eight_ids_does_not_stall_a_job() {
+    const BIG: [&str; 8] = ["--width", "256", "--spp", "64", "--tile", "32", "--batch-spp", "16"];
+    let dir = TempDir::new("trust-hoarder");
+    let reference = dir.path("reference.exr");
+    render(&cornell(), &reference, &[&BIG[..], &["--local-workers", "0"]].concat(), LIMIT);
+    let (coord, tls) = tls_farm(&dir);
+    let _honest =
+        [worker(&coord, &tls, "worker-1", &dir.path("c1")), worker(&coord, &tls, "worker-2", &dir.path("c2"))];
+    eventually("the honest workers register", LIMIT, || list_workers(&coord.url, &tls).workers.len() == 2);
+    let timed = |name: &str| {
+        let out = dir.path(name);
+        let mut cmd = Command::new(bin("coordinator"));
+        cmd.args(["submit", cornell().to_str().unwrap(), "-q", "--wait", "-o", out.to_str().unwrap()])
+            .args(BIG)
+            .args(["--coordinator", &coord.url, "--tls"])
+            .arg(&tls)
+            .env("TILEFARM_TOKEN", token(&tls, "alice"));
+        let t = std::time::Instant::now();
+        let sub = run(&mut cmd, LIMIT);
+        assert!(sub.status.success(), "{}", String::from_utf8_lossy(&sub.stderr));
+        assert_same_bits(&read_exr(&out), &read_exr(&reference), name);
+        t.elapsed().as_secs_f64()
+    };
+    timed("warm-up.exr"); // loads the scene and builds the honest identities' records
+    let alone = timed("alone.exr");
+    let stop = Arc::new(AtomicBool::new(false));
+    let hoard = hoarder(coord.url.clone(), tls.clone(), "worker-3", 8, stop.clone());
+    eventually("the hoarder's 8 ids register", LIMIT, || list_workers(&coord.url, &tls).workers.len() == 10);
+    let hoarded = timed("hoarded.exr");
+    stop.store(true, Ordering::SeqCst);
+    let most = hoard.join().unwrap();
+    println!(
+        "job alone {alone:.2} s, beside a hoarder of 8 ids {hoarded:.2} s ({:.2}×); it held {most} units at most",
+        hoarded / alone
+    );
+    assert!(most > 0, "the hoarder got units");
+    assert!(hoarded <= 2.0 * alone, "{hoarded:.2} s against {alone:.2} s alone");
+}

@@ -37,6 +37,9 @@ pub struct Identity {
     pub answers: u64,
     /// Results refused as malformed.
     pub refused: u32,
+    /// Units other identities finished while its workers still held them, less one for
+    /// each result it returned: a hoarder's climb, an honest but slow one's do not.
+    pub strikes: u32,
     pub banned: Option<Ban>,
     pub last_seen: Instant,
 }
@@ -74,7 +77,7 @@ impl Identities {
         self.next += 1;
         let id = self.next;
         self.by_name.insert(name.clone(), id);
-        self.by_id.insert(id, Identity { id, name, answers: 0, refused: 0, banned, last_seen: now });
+        self.by_id.insert(id, Identity { id, name, answers: 0, refused: 0, strikes: 0, banned, last_seen: now });
         id
     }
 

@@ -562,10 +562,15 @@ impl Job {
         let tile_index = unit.tile_index;
         if let UnitState::Leased { since, .. } = unit.state {
             self.clock.ended(r.unit, since);
-            if self.unit_times.len() == UNIT_TIMES_KEPT {
-                self.unit_times.pop_front();
+            // The time of an ordinary unit: a straggler's (one given a spare) measures
+            // how long its first worker sat on it, and would raise the median that
+            // decides what a straggler is, until none are spared in time.
+            if unit.spare.is_none() {
+                if self.unit_times.len() == UNIT_TIMES_KEPT {
+                    self.unit_times.pop_front();
+                }
+                self.unit_times.push_back(now.saturating_duration_since(since));
             }
-            self.unit_times.push_back(now.saturating_duration_since(since));
         }
         let acc = Accumulation {
             tile: unit.tile,

@@ -11,7 +11,7 @@ use proto::domain::JobSpec;
 use tracer::scene::Scene;
 
 use super::identities::Identities;
-use super::job::{Applied, By, Job, JobPhase, Rejection, UnitId, UnitResult, WorkerId};
+use super::job::{Applied, By, Job, JobPhase, Rejection, UnitId, UnitResult, UnitState, WorkerId};
 use super::status::{JobStatus, status_of};
 use super::verify::Policy;
 pub use super::workers::Worker;
@@ -28,6 +28,8 @@ const HELD_PER_THREAD: usize = 8;
 const MAX_THREADS: u32 = 1024;
 /// Units an identity may always hold, whatever its share (see `Farm::room_in_share`).
 const MIN_SHARE: usize = 8;
+/// Strikes (units others finished while it held them) that stop an identity leasing.
+const MAX_STRIKES: u32 = 8;
 
 #[derive(Clone, Debug)]
 pub struct FarmConfig {
@@ -321,11 +323,16 @@ impl Farm {
     /// each holds at most an even share of the running jobs' open units (queued or out;
     /// at least [`MIN_SHARE`]), so that an identity that leases units and never returns
     /// them (a hoarder, with all the ids it may register) cannot take a small job whole;
-    /// the others render the rest and then take spares of what it holds.
+    /// the others render the rest and then take spares of what it holds. An identity
+    /// with [`MAX_STRIKES`] units finished by others while it held them (less one for
+    /// each result it returned) leases nothing more until others take its work.
     fn room_in_share(&self, by: By, now: Instant) -> usize {
         let identities = self.live_identities(now).len();
         if identities < 2 {
             return usize::MAX;
+        }
+        if self.identities.get(by.identity).is_some_and(|i| i.strikes >= MAX_STRIKES) {
+            return 0;
         }
         let running = self.jobs.iter().filter(|e| e.job.phase == JobPhase::Running);
         let open: usize = running.clone().map(|e| e.job.queued() + e.job.units_out()).sum();
@@ -385,6 +392,10 @@ impl Farm {
         let check = self.config.verify.must_check(record, job, result.unit);
         let entry = self.entry_mut(job)?;
         let was_running = entry.job.phase == JobPhase::Running;
+        let primary = entry.job.units.get(result.unit as usize).and_then(|u| match u.state {
+            UnitState::Leased { worker: p, .. } if p != worker => Some(p),
+            _ => None,
+        });
         let applied = match entry.job.apply_at(by, result, now, check) {
             Ok(a) => a,
             Err(e) => {
@@ -403,6 +414,13 @@ impl Farm {
         }
         if let Some(i) = self.identities.get_mut(by.identity) {
             i.answers += u64::from(applied.accepted());
+            i.strikes = i.strikes.saturating_sub(u32::from(applied.accepted()));
+        }
+        // Another identity finished a unit that this worker's lease still held: a strike
+        // against the holder's identity (see `room_in_share`).
+        let beaten = primary.filter(|_| applied == Applied::Merged).and_then(|p| self.workers.get(&p)).map(|w| w.trust);
+        if let Some(i) = beaten.filter(|&t| t != by.identity).and_then(|t| self.identities.get_mut(t)) {
+            i.strikes += 1;
         }
         for liar in caught {
             self.ban(liar, job, result.unit);
@@ -417,7 +435,9 @@ impl Farm {
         if !self.config.verify.enabled() {
             return Vec::new();
         }
-        let live = self.live_identities(now);
+        // An identity that has stopped leasing for its strikes (a hoarder) will not answer.
+        let mut live = self.live_identities(now);
+        live.retain(|&i| self.identities.get(i).is_none_or(|i| i.strikes < MAX_STRIKES));
         let mut out = Vec::new();
         for e in &mut self.jobs {
             for id in e.job.disputes_nobody_can_settle(&live) {

@@ -44,7 +44,13 @@ impl Job {
                         unit.spare = None;
                         self.checking.insert(id);
                     }
-                    UnitState::Leased { .. } => {}
+                    UnitState::Leased { .. } => {
+                        // It answered on a spare lease: free the spare for another
+                        // identity, rather than leave it with one that has answered.
+                        if unit.spare.is_some_and(|s| s.worker == by.worker) {
+                            unit.spare = None;
+                        }
+                    }
                     _ => {
                         self.checking.insert(id);
                     }

@@ -413,6 +413,24 @@ fn with_one_identity_live_its_checks_go_to_the_coordinator() {
     assert_eq!(j.units_in_check(), 1);
 }
 
+/// A checked unit a hoarder holds: an identity that answers it on a spare lease frees
+/// the spare at once for a third, instead of sitting on it until the spare lapses.
+#[test]
+fn an_answer_on_a_spare_frees_the_spare_for_another_identity() {
+    let t = Instant::now();
+    let mut j = job();
+    // The hoarder holds every unit, and never answers.
+    let id = j.lease_next(9, t, t + NEVER, NEVER).unwrap();
+    while j.lease_next(9, t, t + NEVER, NEVER).is_some() {}
+    let later = t + Duration::from_secs(1);
+    assert_eq!(j.lease_next_among(By::from(1), &[1], later, later + NEVER, Duration::ZERO), Some(id), "a spare");
+    let truth = result_for(&j, id, 1000 + id as i128);
+    assert_eq!(j.apply_at(1, &truth, later, true), Ok(Applied::Held));
+    assert_eq!(j.units[id as usize].spare, None, "freed");
+    assert_eq!(j.lease_next_among(By::from(2), &[2], later, later + NEVER, Duration::ZERO), Some(id));
+    assert_eq!(j.apply_at(2, &truth, later, false), Ok(Applied::Merged));
+}
+
 /// A unit whose result was refused as malformed goes back at once, not when its lease
 /// lapses; a spare lease on it carries on instead.
 #[test]
