@@ -344,3 +344,72 @@ fn a_hoarder_with_eight_ids_does_not_stall_a_job() {
     assert!(most > 0, "the hoarder got units");
     assert!(hoarded <= 2.0 * alone, "{hoarded:.2} s against {alone:.2} s alone");
 }
+
+/// A user's jobs together may take at most `--max-user-memory-mb`: the third of three
+/// jobs of the largest size fails as it starts, saying which limit, and the coordinator's
+/// memory stays within the budget.
+#[test]
+fn a_users_third_largest_job_is_refused_and_memory_stays_in_budget() {
+    let dir = TempDir::new("trust-budget");
+    let tls = dir.path("tls");
+    let mut init = Command::new(bin("coordinator"));
+    init.args(["certs", "init"]).arg(&tls).args(["--users", "alice"]);
+    assert!(run(&mut init, LIMIT).status.success());
+    let store = dir.path("store");
+    let limits = ["--max-job-memory-mb", "40", "--max-user-memory-mb", "90"];
+    let coord = Coordinator::serve(
+        &[
+            &["--listen", "127.0.0.1:0", "--tls", tls.to_str().unwrap(), "--store", store.to_str().unwrap()],
+            &limits[..],
+        ]
+        .concat(),
+    );
+    let rss = || {
+        let status = std::fs::read_to_string(format!("/proc/{}/status", coord.proc.pid())).unwrap();
+        let line = status.lines().find(|l| l.starts_with("VmRSS:")).unwrap().to_string();
+        line.split_whitespace().nth(1).unwrap().parse::<u64>().unwrap() >> 10 // MiB
+    };
+    let before = rss();
+    // 800×800 at 52 bytes a pixel: 31.7 MiB of sums, and its units; no workers, so
+    // they stay running.
+    let submit = || {
+        let mut cmd = Command::new(bin("coordinator"));
+        cmd.args(["submit", cornell().to_str().unwrap(), "-q", "--width", "800", "--height", "800", "--spp", "16"])
+            .args(["--coordinator", &coord.url, "--tls"])
+            .arg(&tls)
+            .env("TILEFARM_TOKEN", token(&tls, "alice"));
+        let out = run(&mut cmd, LIMIT);
+        assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+        String::from_utf8_lossy(&out.stdout).trim().to_string()
+    };
+    let state_of = |job: &str| {
+        runtime().block_on(async {
+            let mut jobs = proto::jobs_client::JobsClient::new(channel(&coord.url, &tls, None).await);
+            let all = jobs.list_jobs(admin(&tls, proto::ListRequest {})).await.unwrap().into_inner().jobs;
+            all.into_iter().find(|j| j.job_id == job).unwrap()
+        })
+    };
+    let settled = |job: &str| {
+        let mut last = None;
+        eventually("the job starts or fails", LIMIT, || {
+            let s = state_of(job);
+            let done = matches!(s.state(), proto::JobState::Running | proto::JobState::Failed);
+            last = Some(s);
+            done
+        });
+        last.unwrap()
+    };
+    for _ in 0..2 {
+        let job = submit();
+        assert_eq!(settled(&job).state(), proto::JobState::Running);
+    }
+    let third = settled(&submit());
+    assert_eq!(third.state(), proto::JobState::Failed, "{third:?}");
+    assert!(third.error.contains("--max-user-memory-mb"), "{}", third.error);
+    let after = rss();
+    println!(
+        "coordinator memory {before} MiB before, {after} MiB with two 32 MiB jobs running; the third: {}",
+        third.error
+    );
+    assert!(after <= before + 90, "{after} MiB against {before} MiB before and a 90 MiB budget");
+}

@@ -84,6 +84,19 @@ pub struct ServeArgs {
     #[arg(long, value_name = "N", default_value_t = crate::farm::state::DEFAULT_WORKERS_PER_IDENTITY,
           value_parser = clap::value_parser!(u32).range(1..))]
     pub max_workers_per_identity: u32,
+    /// Most jobs one user may have loading, queued or running at once; another is
+    /// refused, saying so.
+    #[arg(long, value_name = "N", default_value_t = 16, value_parser = clap::value_parser!(u32).range(1..))]
+    pub max_user_jobs: u32,
+    /// Most memory one user's jobs may take together while they run, in MiB (each job's
+    /// image, 52 bytes a pixel, and its units); a job past it fails as it starts,
+    /// naming the limit.
+    #[arg(long, value_name = "MIB", default_value_t = 16_384, value_parser = clap::value_parser!(u64).range(1..))]
+    pub max_user_memory_mb: u64,
+    /// Most memory all running jobs may take together, in MiB; a job past it fails as it
+    /// starts, naming the limit.
+    #[arg(long, value_name = "MIB", default_value_t = 32_768, value_parser = clap::value_parser!(u64).range(1..))]
+    pub max_farm_memory_mb: u64,
     /// Stop (as on Ctrl-C) when standard input reaches end of file: a parent process
     /// that spawns `serve` and holds its stdin takes it down even when killed itself.
     #[arg(long, hide = true)]
@@ -197,6 +210,10 @@ impl FarmArgs {
             heartbeat: Duration::from_millis(self.heartbeat_ms),
             speculate_after: Duration::from_millis(self.speculate_after_ms),
             forget_worker_after: Duration::from_millis(self.forget_worker_ms),
+            // A local render's one job is bounded by --max-job-memory-mb alone; `serve`
+            // sets the users' and the farm's budgets.
+            max_user_bytes: u64::MAX,
+            max_farm_bytes: u64::MAX,
             ..FarmConfig::default()
         })
     }
@@ -256,6 +273,8 @@ pub fn run(args: ServeArgs) -> anyhow::Result<()> {
     let mut config = args.farm.config()?;
     config.verify = Policy::new(args.verify, PROBATION).map_err(anyhow::Error::msg)?;
     config.max_workers_per_identity = args.max_workers_per_identity as usize;
+    config.max_user_jobs = args.max_user_jobs as usize;
+    (config.max_user_bytes, config.max_farm_bytes) = (args.max_user_memory_mb << 20, args.max_farm_memory_mb << 20);
     tracer::memory::return_large_buffers_when_freed();
     let store_dir = args
         .checkpoint

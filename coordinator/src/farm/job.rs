@@ -15,6 +15,10 @@ use crate::farm::schedule;
 pub const MAX_UNITS: u64 = 1 << 22;
 /// Bytes of a pixel's accumulation: three i128 sums and a u32 count.
 pub const ACCUMULATION_BYTES_PER_PIXEL: u64 = 52;
+/// Bytes a unit's record takes in a running job (the unit, its holders, its place in the
+/// queues and the lease clock), rounded up: what a job of many tiny units costs beyond
+/// its pixels.
+pub const UNIT_BYTES: u64 = 384;
 /// Bytes a pixel's AOV layers add, when a job keeps them.
 pub const LAYER_BYTES_PER_PIXEL: u64 = tracer::film::LAYER_BYTES as u64;
 
@@ -243,16 +247,15 @@ impl Job {
 
     /// The scene loaded: lay out the units and start.
     /// Checks, before anything is allocated, that a job of this shape fits: at most
-    /// [`MAX_UNITS`] units, tiles within the wire's limit, and its accumulations (52 bytes
-    /// per pixel, and 176 more with `layers`) within `max_bytes`. The error names the
-    /// setting and the limit.
+    /// [`MAX_UNITS`] units, tiles within the wire's limit, and its [memory](Job::memory)
+    /// within `max_bytes`; returns that memory. The error names the setting and the limit.
     pub fn check_size(
         (width, height): (u32, u32),
         spp: u32,
         (tile, batch): (u32, u32),
         layers: bool,
         max_bytes: u64,
-    ) -> Result<(), String> {
+    ) -> Result<u64, String> {
         if tile == 0 || tile > proto::wire::MAX_TILE_SIDE {
             return Err(format!("tile size {tile}: must be between 1 and {}", proto::wire::MAX_TILE_SIDE));
         }
@@ -266,18 +269,20 @@ impl Job {
         if batch == 0 || batch > proto::wire::MAX_SAMPLES_PER_UNIT {
             return Err(format!("batch_spp {batch}: must be between 1 and {}", proto::wire::MAX_SAMPLES_PER_UNIT));
         }
-        let per_pixel = ACCUMULATION_BYTES_PER_PIXEL + if layers { LAYER_BYTES_PER_PIXEL } else { 0 };
-        let bytes = u64::from(width) * u64::from(height) * per_pixel;
-        if bytes > max_bytes {
-            return Err(format!(
-                "a {width}×{height} image needs {} MiB of accumulation, more than this farm's limit of {} MiB \
+        let too_large = |bytes: u64, units: u64| {
+            format!(
+                "a {width}×{height} image in {units} units needs {} MiB, more than this farm's limit of {} MiB \
                  (--max-job-memory-mb)",
                 bytes >> 20,
                 max_bytes >> 20
-            ));
-        }
+            )
+        };
         let tiles = u64::from(width.div_ceil(tile)) * u64::from(height.div_ceil(tile));
         let units = tiles * u64::from(spp.div_ceil(batch));
+        // The pixels alone first: that names the image's size, the likelier mistake.
+        if Self::memory((width, height), 0, layers) > max_bytes {
+            return Err(too_large(Self::memory((width, height), 0, layers), units));
+        }
         if units > MAX_UNITS {
             return Err(format!(
                 "{units} units of work ({tiles} tiles × {} batches of {batch} spp): more than the {MAX_UNITS} a job may \
@@ -285,7 +290,18 @@ impl Job {
                 spp.div_ceil(batch)
             ));
         }
-        Ok(())
+        let bytes = Self::memory((width, height), units, layers);
+        if bytes > max_bytes {
+            return Err(too_large(bytes, units));
+        }
+        Ok(bytes)
+    }
+
+    /// What a job of this shape holds in the coordinator's memory while it runs: its
+    /// accumulations (52 bytes a pixel, 176 more with `layers`) and its units' records.
+    pub fn memory((width, height): (u32, u32), units: u64, layers: bool) -> u64 {
+        let per_pixel = ACCUMULATION_BYTES_PER_PIXEL + if layers { LAYER_BYTES_PER_PIXEL } else { 0 };
+        u64::from(width) * u64::from(height) * per_pixel + units * UNIT_BYTES
     }
 
     pub fn start(&mut self, width: u32, height: u32, spp: u32, tile_size: u32, batch_spp: u32, non_negative: bool) {

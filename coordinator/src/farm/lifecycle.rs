@@ -418,6 +418,7 @@ pub fn submit_job(
     let who = owner.clone().unwrap_or_else(|| "admin".into());
     let queued = {
         let mut farm = shared.farm();
+        farm.may_submit(owner.as_deref())?;
         let id = farm.add_job(name.clone(), owner, spec);
         let e = farm.entry_mut(&id)?;
         let queued = e.job.phase == JobPhase::Queued;
@@ -556,12 +557,14 @@ fn load_job(shared: &Arc<Shared>, job: &str, restore: Option<Restored>) -> anyho
         spp = map.most().max(1);
     }
     let max_bytes = shared.farm().config.max_job_bytes;
-    super::job::Job::check_size((w, h), spp, (tile, batch), settings.aovs, max_bytes).map_err(anyhow::Error::msg)?;
+    let bytes = super::job::Job::check_size((w, h), spp, (tile, batch), settings.aovs, max_bytes)
+        .map_err(anyhow::Error::msg)?;
     let mut farm = shared.farm();
-    let e = farm.entry_mut(job)?;
-    if e.job.phase.is_final() {
+    if farm.entry(job)?.job.phase.is_final() {
         return Ok(()); // cancelled while loading
     }
+    farm.reserve(job, bytes).map_err(anyhow::Error::msg)?;
+    let e = farm.entry_mut(job)?;
     match restore {
         None => {
             (e.job.layers, e.job.adaptive, e.job.budget) = (settings.aovs, settings.noise, spec.overrides.time_budget);

@@ -53,6 +53,12 @@ pub struct FarmConfig {
     pub verify: Policy,
     /// Most live workers one identity (a worker certificate, a token) may register.
     pub max_workers_per_identity: usize,
+    /// Most jobs one user may have loading, queued or running.
+    pub max_user_jobs: usize,
+    /// Most bytes one user's running jobs may take together ([`Job::memory`]).
+    pub max_user_bytes: u64,
+    /// Most bytes all running jobs may take together.
+    pub max_farm_bytes: u64,
 }
 
 impl Default for FarmConfig {
@@ -67,6 +73,9 @@ impl Default for FarmConfig {
             max_store_bytes: 64 << 30,
             verify: Policy::default(),
             max_workers_per_identity: DEFAULT_WORKERS_PER_IDENTITY as usize,
+            max_user_jobs: 16,
+            max_user_bytes: 16 << 30,
+            max_farm_bytes: 32 << 30,
         }
     }
 }
@@ -86,6 +95,8 @@ pub struct JobEntry {
     pub scene_warnings: usize,
     /// A queued frame's checkpoint, for when it starts.
     pub pending_restore: Option<super::job::Restored>,
+    /// What its running takes in memory ([`Job::memory`]), once its scene has loaded.
+    pub bytes: u64,
 }
 
 impl JobEntry {
@@ -208,6 +219,7 @@ impl Farm {
             stored: None,
             scene_warnings: 0,
             pending_restore: None,
+            bytes: 0,
         };
         self.jobs.push(entry);
         id
@@ -248,6 +260,62 @@ impl Farm {
         if let Some(paused) = change.paused {
             j.share.paused = paused;
         }
+        Ok(())
+    }
+
+    /// Whether `owner` may submit one more job ([`FarmConfig::max_user_jobs`]); admins
+    /// (no owner) may.
+    pub fn may_submit(&self, owner: Option<&str>) -> Result<(), FarmError> {
+        let Some(user) = owner else { return Ok(()) };
+        let most = self.config.max_user_jobs;
+        let live = self.jobs.iter().filter(|e| e.job.owner.as_deref() == Some(user) && !e.job.phase.is_final()).count();
+        if live >= most {
+            return Err(FarmError::Exhausted(format!(
+                "{user} already has {live} jobs loading, queued or running, the most a user may have \
+                 (--max-user-jobs {most}); wait for one to finish, or cancel one"
+            )));
+        }
+        Ok(())
+    }
+
+    /// Reserves `bytes` for `job` as it starts, within its user's budget and the farm's;
+    /// the error names the limit. Jobs loading, queued or running count, and finished
+    /// ones until their image is stored and their sums leave memory.
+    pub fn reserve(&mut self, job: &str, bytes: u64) -> Result<(), String> {
+        let owner = self.entry(job).map_err(|e| e.to_string())?.job.owner.clone();
+        let held = |same: &dyn Fn(&JobEntry) -> bool| -> u64 {
+            let holds = |e: &JobEntry| match e.job.phase {
+                JobPhase::Done => !e.job.is_evicted(),
+                ref p => !p.is_final(),
+            };
+            self.jobs.iter().filter(|e| e.job.id != job && holds(e) && same(e)).map(|e| e.bytes).sum()
+        };
+        let mib = |b: u64| b.div_ceil(1 << 20);
+        if let Some(user) = &owner {
+            let mine = held(&|e| e.job.owner.as_ref() == Some(user));
+            let most = self.config.max_user_bytes;
+            if mine + bytes > most {
+                return Err(format!(
+                    "this job needs {} MiB, and {user}'s other jobs hold {} MiB: more than a user's limit of {} MiB \
+                     (--max-user-memory-mb); wait for one to finish, or cancel one",
+                    mib(bytes),
+                    mib(mine),
+                    mib(most)
+                ));
+            }
+        }
+        let all = held(&|_| true);
+        let most = self.config.max_farm_bytes;
+        if all + bytes > most {
+            return Err(format!(
+                "this job needs {} MiB, and the farm's running jobs hold {} MiB: more than its limit of {} MiB \
+                 (--max-farm-memory-mb); submit it again when others have finished",
+                mib(bytes),
+                mib(all),
+                mib(most)
+            ));
+        }
+        self.entry_mut(job).map_err(|e| e.to_string())?.bytes = bytes;
         Ok(())
     }
 

@@ -107,3 +107,26 @@ fn job_changes_are_checked() {
     f.entry_mut(&a).unwrap().job.cancel();
     assert!(bad(&mut f, JobChange { paused: Some(true), ..JobChange::default() }).contains("has ended"));
 }
+
+/// A user's jobs are limited in number and in memory together, and so are all jobs.
+#[test]
+fn users_and_the_farm_keep_to_their_budgets() {
+    let config = FarmConfig { max_user_jobs: 2, max_user_bytes: 100, max_farm_bytes: 150, ..FarmConfig::default() };
+    let mut f = Farm::new(config);
+    let alice = Some("alice".to_string());
+    let a = f.add_job("a".into(), alice.clone(), spec());
+    let b = f.add_job("b".into(), alice.clone(), spec());
+    let e = f.may_submit(Some("alice")).unwrap_err().to_string();
+    assert!(e.contains("--max-user-jobs 2"), "{e}");
+    assert!(f.may_submit(Some("bob")).is_ok() && f.may_submit(None).is_ok());
+    f.reserve(&a, 60).unwrap();
+    let e = f.reserve(&b, 50).unwrap_err();
+    assert!(e.contains("--max-user-memory-mb"), "{e}");
+    let c = f.add_job("c".into(), Some("bob".into()), spec());
+    let e = f.reserve(&c, 100).unwrap_err();
+    assert!(e.contains("--max-farm-memory-mb"), "{e}");
+    // A job that has ended holds nothing.
+    f.entry_mut(&a).unwrap().job.cancel();
+    f.reserve(&c, 100).unwrap();
+    assert!(f.may_submit(Some("alice")).is_ok(), "one of alice's two has ended");
+}
