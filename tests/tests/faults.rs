@@ -310,3 +310,46 @@ fn a_farm_stopped_with_ctrl_c_checkpoints_and_continues_after_restart() {
     assert_eq!((j.units_done, j.samples_done), (j.units_total, j.samples_total));
     assert_same_bits(&read_exr(&out), &expected, "across a coordinator restart");
 }
+
+/// A farm killed with SIGKILL (no chance to checkpoint on the way out) redoes at most
+/// one checkpoint interval of work: what was done one interval and a write before the
+/// kill is restored.
+#[test]
+fn a_farm_killed_outright_loses_at_most_one_checkpoint_interval() {
+    const LONG: [&str; 8] = ["--width", "128", "--spp", "256", "--tile", "16", "--batch-spp", "4"];
+    let dir = TempDir::new("serve-sigkill");
+    let ckpt = dir.path("ckpt");
+    let listen = format!("127.0.0.1:{}", free_port());
+    let interval = Duration::from_millis(500);
+    let ms = interval.as_millis().to_string();
+    let serve_args =
+        ["--listen", listen.as_str(), "--checkpoint", ckpt.to_str().unwrap(), "--checkpoint-interval-ms", &ms];
+    let first = Coordinator::serve(&serve_args);
+    let _worker = first.retrying_worker(&dir.path("cache"));
+    let job = first.submit_id(&cornell(), &LONG, LIMIT);
+    let seen = wait_for_progress(&first.url, 0.2);
+    // One interval, and as long again for the write to land.
+    std::thread::sleep(2 * interval + Duration::from_millis(200));
+    let before_kill = list_jobs(&first.url).into_iter().find(|j| j.job_id == job).unwrap();
+    assert!(before_kill.units_done < before_kill.units_total, "finished before the kill");
+    signal(first.proc.pid(), "-KILL");
+    drop(first);
+    let second = Coordinator::serve(&serve_args);
+    let start = Instant::now();
+    let restored = loop {
+        let j = list_jobs(&second.url).into_iter().find(|j| j.job_id == job).expect("the job is restored");
+        if j.state() != proto::JobState::Loading {
+            break j;
+        }
+        assert!(start.elapsed() < LIMIT);
+        std::thread::sleep(Duration::from_millis(20));
+    };
+    eprintln!(
+        "units done: {} seen, {} at the kill {:?} later, {} restored",
+        seen.units_done,
+        before_kill.units_done,
+        2 * interval + Duration::from_millis(200),
+        restored.units_done
+    );
+    assert!(restored.units_done >= seen.units_done, "{} < {}", restored.units_done, seen.units_done);
+}
