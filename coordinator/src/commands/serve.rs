@@ -422,7 +422,11 @@ async fn save_jobs(shared: &Arc<Shared>, root: &Path, saved: &mut HashMap<String
             .filter(|e| checkpointed(e))
             .map(|e| (e, (e.job.units_done, e.job.phase == crate::farm::job::JobPhase::Cancelled)))
             .filter(|(e, now)| saved.get(&e.job.id) != Some(now))
-            .map(|(e, now)| (e.job.id.clone(), now, checkpoint::Snapshot::of(&e.spec, &e.job)))
+            .map(|(e, now)| {
+                let mut snap = checkpoint::Snapshot::of(&e.spec, &e.job);
+                snap.job.unconfirmed = farm.unconfirmed_names(&e.job);
+                (e.job.id.clone(), now, snap)
+            })
             .collect()
     };
     for (id, now, snap) in snaps {

@@ -19,7 +19,7 @@ use proto::domain::{AssetRef, JobSpec};
 use sha2::{Digest, Sha256};
 use tracer::film::{Accumulation, SampleRange, Tile};
 
-use super::job::{Job, Restored, UnitRecord};
+use super::job::{Job, Restored, UnitId, UnitRecord};
 
 /// Version 3 records whether each tile keeps the AOV layers, and their sums; version 2
 /// the job's owner after its name. Versions 1 (no owner) and 2 (no layers) are still read.
@@ -29,6 +29,13 @@ const MAGIC_1: &[u8; 16] = b"tilefarm-ckpt-1\n";
 const FILE: &str = "checkpoint.tfck";
 /// Beside a checkpoint: its job was cancelled, and must come back cancelled.
 const CANCELLED: &str = "cancelled";
+/// Beside a checkpoint: the done units each identity returned that no other identity
+/// confirmed (JSON, identity name to unit ids), so that a ban after a restart still
+/// throws them away. Written before the checkpoint, so it lists at least the
+/// checkpoint's (a unit it lists that is confirmed by then is only rendered again).
+const UNCONFIRMED: &str = "unconfirmed.json";
+/// Largest unconfirmed-units file read back (a job has at most 4,194,304 units).
+const MAX_UNCONFIRMED_BYTES: u64 = 64 << 20;
 
 /// A job as persisted.
 #[derive(Clone, Debug, PartialEq)]
@@ -57,6 +64,7 @@ impl Snapshot {
                 rays: job.rays,
                 nonfinite: job.nonfinite,
                 cancelled: job.phase == crate::farm::job::JobPhase::Cancelled,
+                unconfirmed: Vec::new(),
             },
         }
     }
@@ -313,12 +321,14 @@ pub fn decode(bytes: &[u8]) -> anyhow::Result<Snapshot> {
             rays,
             nonfinite,
             cancelled: false,
+            unconfirmed: Vec::new(),
         },
     })
 }
 
 /// Writes the checkpoint atomically; returns its size.
 pub fn write(dir: &Path, s: &Snapshot) -> anyhow::Result<u64> {
+    write_unconfirmed(dir, &s.job.unconfirmed)?;
     let dest = path(dir);
     let tmp = dir.join(format!("{FILE}.tmp"));
     let f = std::fs::File::create(&tmp).with_context(|| format!("creating {}", tmp.display()))?;
@@ -357,6 +367,37 @@ pub fn mark_cancelled(dir: &Path) -> anyhow::Result<()> {
     Ok(())
 }
 
+/// Writes the [`UNCONFIRMED`] file in `dir` (atomically), or removes it when `list` is empty.
+fn write_unconfirmed(dir: &Path, list: &[(String, Vec<UnitId>)]) -> anyhow::Result<()> {
+    let p = dir.join(UNCONFIRMED);
+    if list.is_empty() {
+        return match std::fs::remove_file(&p) {
+            Err(e) if e.kind() != std::io::ErrorKind::NotFound => Err(e).with_context(|| p.display().to_string()),
+            _ => Ok(()),
+        };
+    }
+    let map: std::collections::BTreeMap<&str, &Vec<UnitId>> = list.iter().map(|(n, u)| (n.as_str(), u)).collect();
+    let tmp = dir.join(format!("{UNCONFIRMED}.tmp"));
+    let text = serde_json::to_vec(&map).expect("unit ids serialise");
+    let f = std::fs::File::create(&tmp).with_context(|| format!("creating {}", tmp.display()))?;
+    std::io::Write::write_all(&mut &f, &text).and_then(|()| f.sync_all()).with_context(|| tmp.display().to_string())?;
+    std::fs::rename(&tmp, &p).with_context(|| format!("replacing {}", p.display()))
+}
+
+/// Reads the [`UNCONFIRMED`] file in `dir` (none: nothing unconfirmed).
+fn read_unconfirmed(dir: &Path) -> anyhow::Result<Vec<(String, Vec<UnitId>)>> {
+    let p = dir.join(UNCONFIRMED);
+    let size = match std::fs::metadata(&p) {
+        Err(e) if e.kind() == std::io::ErrorKind::NotFound => return Ok(Vec::new()),
+        m => m.with_context(|| p.display().to_string())?.len(),
+    };
+    anyhow::ensure!(size <= MAX_UNCONFIRMED_BYTES, "{}: {size} bytes, more than it can hold", p.display());
+    let text = std::fs::read(&p).with_context(|| p.display().to_string())?;
+    let map: std::collections::BTreeMap<String, Vec<UnitId>> =
+        serde_json::from_slice(&text).with_context(|| format!("{} refused", p.display()))?;
+    Ok(map.into_iter().collect())
+}
+
 /// Reads the checkpoint in `dir`; `None` when there is none.
 pub fn read(dir: &Path) -> anyhow::Result<Option<Snapshot>> {
     let p = path(dir);
@@ -364,6 +405,7 @@ pub fn read(dir: &Path) -> anyhow::Result<Option<Snapshot>> {
         Ok(bytes) => {
             let mut snap = decode(&bytes).with_context(|| format!("checkpoint {} refused", p.display()))?;
             snap.job.cancelled = dir.join(CANCELLED).exists();
+            snap.job.unconfirmed = read_unconfirmed(dir)?;
             Ok(Some(snap))
         }
         Err(e) if e.kind() == std::io::ErrorKind::NotFound => Ok(None),
@@ -529,10 +571,19 @@ mod tests {
         let dir = std::env::temp_dir().join(format!("tilefarm-ckpt-test-{}", std::process::id()));
         std::fs::create_dir_all(&dir).unwrap();
         assert!(read(&dir).unwrap().is_none());
-        let s = snapshot();
+        let mut s = snapshot();
         write(&dir, &s).unwrap();
         assert_eq!(read(&dir).unwrap().unwrap(), s);
         assert!(!dir.join("checkpoint.tfck.tmp").exists());
+        // Who returned units unconfirmed comes back too, and goes when nothing is.
+        s.job.unconfirmed = vec![("cert:0123".into(), vec![0, 2]), ("registration 4".into(), vec![1])];
+        write(&dir, &s).unwrap();
+        assert_eq!(read(&dir).unwrap().unwrap(), s);
+        s.job.unconfirmed.clear();
+        write(&dir, &s).unwrap();
+        assert!(!dir.join(UNCONFIRMED).exists());
+        std::fs::write(dir.join(UNCONFIRMED), "{\"x\": [\"a\"]}").unwrap();
+        assert!(read(&dir).is_err(), "a damaged list is refused, not taken as nothing");
         std::fs::remove_dir_all(&dir).ok();
     }
 

@@ -60,6 +60,9 @@ pub struct Restored {
     pub nonfinite: u64,
     /// The job had been cancelled: it comes back cancelled, its image so far kept.
     pub cancelled: bool,
+    /// Done units that an identity (by name) returned and no other confirmed: thrown
+    /// away if it is (or has been) banned.
+    pub unconfirmed: Vec<(String, Vec<UnitId>)>,
 }
 
 pub struct Job {
@@ -425,6 +428,26 @@ impl Job {
         self.reset_adaptive();
         if self.all_settled() {
             self.finish();
+        }
+    }
+
+    /// Done units each identity returned that no other identity confirmed.
+    pub fn unconfirmed(&self) -> std::collections::BTreeMap<IdentityId, Vec<UnitId>> {
+        let mut by = std::collections::BTreeMap::<IdentityId, Vec<UnitId>>::new();
+        for (id, u) in self.units.iter().enumerate() {
+            if let (UnitState::Done, Some(who)) = (&u.state, u.unchecked_from) {
+                by.entry(who).or_default().push(id as UnitId);
+            }
+        }
+        by
+    }
+
+    /// Marks restored done `units` as returned by `identity` and not confirmed.
+    pub fn mark_unconfirmed(&mut self, identity: IdentityId, units: &[UnitId]) {
+        for &id in units {
+            if let Some(u) = self.units.get_mut(id as usize).filter(|u| u.state == UnitState::Done) {
+                u.unchecked_from = Some(identity);
+            }
         }
     }
 

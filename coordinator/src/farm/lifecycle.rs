@@ -16,7 +16,7 @@ use tracer::scene::Scene;
 use tracer::scene::prepared::PreparedScenes;
 
 use super::assets::AssetStore;
-use super::job::{Applied, JobPhase, Restored, UnitResult, WorkerId};
+use super::job::{Applied, IdentityId, JobPhase, Restored, UnitId, UnitResult, WorkerId};
 use super::state::{Farm, FarmError};
 use super::status::JobStatus;
 use super::stored::{write_frame, write_owner};
@@ -531,7 +531,7 @@ impl Prepared {
 }
 
 /// Loads a job's scene from its files and starts the job (or restores its checkpoint).
-fn load_job(shared: &Arc<Shared>, job: &str, restore: Option<Restored>) -> anyhow::Result<()> {
+fn load_job(shared: &Arc<Shared>, job: &str, mut restore: Option<Restored>) -> anyhow::Result<()> {
     let spec = Arc::clone(&shared.farm().entry(job)?.spec);
     let prepared = Prepared::of(shared, job)?;
     let (camera, settings, scene_warnings) = prepared.view();
@@ -564,6 +564,18 @@ fn load_job(shared: &Arc<Shared>, job: &str, restore: Option<Restored>) -> anyho
         return Ok(()); // cancelled while loading
     }
     farm.reserve(job, bytes).map_err(anyhow::Error::msg)?;
+    // Who returned the restored units that no other identity confirmed (and whether
+    // that identity has been banned since).
+    let unconfirmed: Vec<(IdentityId, bool, Vec<UnitId>)> = restore
+        .as_mut()
+        .map(|r| std::mem::take(&mut r.unconfirmed))
+        .unwrap_or_default()
+        .into_iter()
+        .map(|(name, units)| {
+            let i = farm.identities.named(&name, Instant::now());
+            (i.id, i.banned.is_some(), units)
+        })
+        .collect();
     let e = farm.entry_mut(job)?;
     match restore {
         None => {
@@ -581,6 +593,12 @@ fn load_job(shared: &Arc<Shared>, job: &str, restore: Option<Restored>) -> anyho
             (e.job.adaptive, e.job.budget) = (settings.noise, spec.overrides.time_budget);
             e.job.tile_spp = spec.spp_map.as_ref().map(|m| m.tile_spp.clone()).unwrap_or_default();
             e.job.restore(r).map_err(|m| anyhow::anyhow!("the checkpoint is inconsistent: {m}"))?;
+            for (identity, banned, units) in &unconfirmed {
+                e.job.mark_unconfirmed(*identity, units);
+                if *banned {
+                    e.job.discard_from(*identity, &[]);
+                }
+            }
             if let Some(more) = spec.overrides.spp
                 && more > e.job.spp
             {

@@ -121,6 +121,14 @@ impl Farm {
         ids
     }
 
+    /// The done units of `job` that an identity returned and no other confirmed, by the
+    /// identity's name: what its checkpoint keeps, so that a ban after a restart still
+    /// throws them away.
+    pub fn unconfirmed_names(&self, job: &super::job::Job) -> Vec<(String, Vec<UnitId>)> {
+        let name = |id| self.identities.get(id).map(|i| i.name.clone());
+        job.unconfirmed().into_iter().filter_map(|(id, units)| Some((name(id)?, units))).collect()
+    }
+
     /// A result of `by` for `unit` of `job` was refused as malformed: after
     /// [`MAX_REFUSED`] of them its identity is banned, as a liar is.
     pub(super) fn refused(&mut self, by: By, job: &str, unit: UnitId) {

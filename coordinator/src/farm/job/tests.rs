@@ -161,6 +161,7 @@ fn restored_of(j: &Job) -> Restored {
         rays: j.rays,
         nonfinite: j.nonfinite,
         cancelled: false,
+        unconfirmed: Vec::new(),
     }
 }
 
@@ -546,6 +547,7 @@ fn adaptive_jobs_render_a_tile_a_batch_at_a_time_and_stop_converged_tiles() {
         rays: 0,
         nonfinite: 0,
         cancelled: false,
+        unconfirmed: Vec::new(),
     })
     .unwrap();
     assert_eq!(r.phase, JobPhase::Done);

@@ -212,3 +212,54 @@ fn a_hoarder_takes_at_most_its_share_and_never_its_own_spares() {
         }
     }
 }
+
+/// What an identity returned unconfirmed is kept by name with the job's checkpoint; an
+/// identity banned by then (its ban outlives the restart) has those units rendered again.
+#[test]
+fn units_a_banned_identity_returned_unconfirmed_are_thrown_away_after_a_restart() {
+    let (mut f, job) = farm(0.0, 0);
+    let t = Instant::now();
+    let liar = register(&mut f, "cert:liar");
+    let honest = register(&mut f, "cert:honest");
+    for (w, n) in [(liar, 3), (honest, 2)] {
+        for l in f.lease(w, n, t).unwrap() {
+            let r = result(&f, &job, l.unit, 1000 + l.unit as i128);
+            f.submit(w, &job, &r, t).unwrap();
+        }
+    }
+    let kept = f.unconfirmed_names(&f.entry(&job).unwrap().job);
+    assert_eq!(
+        kept.iter().map(|(n, u)| (n.as_str(), u.len())).collect::<Vec<_>>(),
+        [("cert:liar", 3), ("cert:honest", 2)]
+    );
+    // After a restart: the liar banned (its ban read back), the units restored done.
+    let (mut after, job2) = farm(0.0, 0);
+    let id = after.identities.named("cert:liar", t).id;
+    after.identities.ban(id, "lied".into());
+    let units: Vec<u64> = kept[0].1.clone();
+    let j = &mut after.entry_mut(&job2).unwrap().job;
+    for &u in &units {
+        let r = {
+            let unit = &j.units[u as usize];
+            let n = unit.tile.pixel_count();
+            UnitResult {
+                unit: u,
+                tile: unit.tile,
+                samples: unit.samples,
+                sums: vec![[1; 3]; n],
+                counts: vec![unit.samples.len(); n],
+                layers: Vec::new(),
+                nonfinite: 0,
+                rays: 1,
+                render_seconds: 0.0,
+            }
+        };
+        j.lease_next(1, t, t + Duration::from_secs(60), Duration::MAX);
+        j.units[u as usize].holders.push(1);
+        j.apply(1, &r).unwrap();
+    }
+    j.mark_unconfirmed(id, &units);
+    let done = j.units_done;
+    assert_eq!(j.discard_from(id, &[]), units.len() as u64);
+    assert!(j.units_done < done);
+}
