@@ -37,8 +37,9 @@ pub struct Identity {
     pub answers: u64,
     /// Results refused as malformed.
     pub refused: u32,
-    /// Units other identities finished while its workers still held them, less one for
-    /// each result it returned: a hoarder's climb, an honest but slow one's do not.
+    /// Units other identities finished while its workers still held them, and its
+    /// leases that lapsed, less one for each result it returned: a hoarder's climb, an
+    /// honest one's do not.
     pub strikes: u32,
     pub banned: Option<Ban>,
     pub last_seen: Instant,

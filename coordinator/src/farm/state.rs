@@ -11,7 +11,7 @@ use proto::domain::JobSpec;
 use tracer::scene::Scene;
 
 use super::identities::Identities;
-use super::job::{Applied, By, Job, JobPhase, Rejection, UnitId, UnitResult, UnitState, WorkerId};
+use super::job::{Applied, Job, JobPhase, Rejection, UnitId, UnitResult, UnitState, WorkerId};
 use super::status::{JobStatus, status_of};
 use super::verify::Policy;
 pub use super::workers::Worker;
@@ -26,10 +26,6 @@ pub const DEFAULT_WORKERS_PER_IDENTITY: u32 = 8;
 const HELD_PER_THREAD: usize = 8;
 /// Threads a worker is counted with at the most, whatever it claims.
 const MAX_THREADS: u32 = 1024;
-/// Units an identity may always hold, whatever its share (see `Farm::room_in_share`).
-const MIN_SHARE: usize = 8;
-/// Strikes (units others finished while it held them) that stop an identity leasing.
-const MAX_STRIKES: u32 = 8;
 
 #[derive(Clone, Debug)]
 pub struct FarmConfig {
@@ -263,62 +259,6 @@ impl Farm {
         Ok(())
     }
 
-    /// Whether `owner` may submit one more job ([`FarmConfig::max_user_jobs`]); admins
-    /// (no owner) may.
-    pub fn may_submit(&self, owner: Option<&str>) -> Result<(), FarmError> {
-        let Some(user) = owner else { return Ok(()) };
-        let most = self.config.max_user_jobs;
-        let live = self.jobs.iter().filter(|e| e.job.owner.as_deref() == Some(user) && !e.job.phase.is_final()).count();
-        if live >= most {
-            return Err(FarmError::Exhausted(format!(
-                "{user} already has {live} jobs loading, queued or running, the most a user may have \
-                 (--max-user-jobs {most}); wait for one to finish, or cancel one"
-            )));
-        }
-        Ok(())
-    }
-
-    /// Reserves `bytes` for `job` as it starts, within its user's budget and the farm's;
-    /// the error names the limit. Jobs loading, queued or running count, and finished
-    /// ones until their image is stored and their sums leave memory.
-    pub fn reserve(&mut self, job: &str, bytes: u64) -> Result<(), String> {
-        let owner = self.entry(job).map_err(|e| e.to_string())?.job.owner.clone();
-        let held = |same: &dyn Fn(&JobEntry) -> bool| -> u64 {
-            let holds = |e: &JobEntry| match e.job.phase {
-                JobPhase::Done => !e.job.is_evicted(),
-                ref p => !p.is_final(),
-            };
-            self.jobs.iter().filter(|e| e.job.id != job && holds(e) && same(e)).map(|e| e.bytes).sum()
-        };
-        let mib = |b: u64| b.div_ceil(1 << 20);
-        if let Some(user) = &owner {
-            let mine = held(&|e| e.job.owner.as_ref() == Some(user));
-            let most = self.config.max_user_bytes;
-            if mine + bytes > most {
-                return Err(format!(
-                    "this job needs {} MiB, and {user}'s other jobs hold {} MiB: more than a user's limit of {} MiB \
-                     (--max-user-memory-mb); wait for one to finish, or cancel one",
-                    mib(bytes),
-                    mib(mine),
-                    mib(most)
-                ));
-            }
-        }
-        let all = held(&|_| true);
-        let most = self.config.max_farm_bytes;
-        if all + bytes > most {
-            return Err(format!(
-                "this job needs {} MiB, and the farm's running jobs hold {} MiB: more than its limit of {} MiB \
-                 (--max-farm-memory-mb); submit it again when others have finished",
-                mib(bytes),
-                mib(all),
-                mib(most)
-            ));
-        }
-        self.entry_mut(job).map_err(|e| e.to_string())?.bytes = bytes;
-        Ok(())
-    }
-
     /// The queued frames of job groups that may start now, marked as loading
     /// ([`super::groups::due_frames`]).
     pub fn due_frames(&mut self) -> Vec<String> {
@@ -385,29 +325,6 @@ impl Farm {
             }
         }
         Ok(out)
-    }
-
-    /// How many more units the identity of `by` may hold: with several identities live,
-    /// each holds at most an even share of the running jobs' open units (queued or out;
-    /// at least [`MIN_SHARE`]), so that an identity that leases units and never returns
-    /// them (a hoarder, with all the ids it may register) cannot take a small job whole;
-    /// the others render the rest and then take spares of what it holds. An identity
-    /// with [`MAX_STRIKES`] units finished by others while it held them (less one for
-    /// each result it returned) leases nothing more until others take its work.
-    fn room_in_share(&self, by: By, now: Instant) -> usize {
-        let identities = self.live_identities(now).len();
-        if identities < 2 {
-            return usize::MAX;
-        }
-        if self.identities.get(by.identity).is_some_and(|i| i.strikes >= MAX_STRIKES) {
-            return 0;
-        }
-        let running = self.jobs.iter().filter(|e| e.job.phase == JobPhase::Running);
-        let open: usize = running.clone().map(|e| e.job.queued() + e.job.units_out()).sum();
-        let share = open.div_ceil(identities).max(MIN_SHARE);
-        let mine = |w: WorkerId| self.workers.get(&w).is_some_and(|w| w.trust == by.identity);
-        let held = running.flat_map(|e| e.job.lease_holders()).filter(|&w| mine(w)).count();
-        share.saturating_sub(held)
     }
 
     /// Which jobs may be given a unit now: those running and not paused, with units left
@@ -505,7 +422,7 @@ impl Farm {
         }
         // An identity that has stopped leasing for its strikes (a hoarder) will not answer.
         let mut live = self.live_identities(now);
-        live.retain(|&i| self.identities.get(i).is_none_or(|i| i.strikes < MAX_STRIKES));
+        live.retain(|&i| self.identities.get(i).is_none_or(|i| i.strikes < super::workers::MAX_STRIKES));
         let mut out = Vec::new();
         for e in &mut self.jobs {
             for id in e.job.disputes_nobody_can_settle(&live) {
@@ -525,18 +442,22 @@ impl Farm {
     }
 
     /// The coordinator's own render of a disputed unit arrived (or, with `None`, failed).
-    pub fn arbitrated(&mut self, job: &str, unit: UnitId, result: Option<&UnitResult>, now: Instant) {
-        let Ok(entry) = self.entry_mut(job) else { return };
+    /// Also says whether it finished the job (the lifecycle's to act on, as for
+    /// [`Farm::submit`]).
+    pub fn arbitrated(&mut self, job: &str, unit: UnitId, result: Option<&UnitResult>, now: Instant) -> bool {
+        let Ok(entry) = self.entry_mut(job) else { return false };
         let Some(r) = result else {
             entry.job.arbitration_failed(unit);
-            return;
+            return false;
         };
+        let was_running = entry.job.phase == JobPhase::Running;
         if let Err(e) = entry.job.arbitrate(r, now) {
             tracing::warn!(%job, unit, "the coordinator's render of a disputed unit was refused: {e}");
         }
         for liar in entry.job.take_caught() {
             self.ban(liar, job, unit);
         }
+        was_running && self.entry(job).is_ok_and(|e| e.job.phase == JobPhase::Done)
     }
 
     /// Returns lapsed leases of every job to its queue, and (at most once a second)
@@ -556,6 +477,13 @@ impl Farm {
             self.counters.lapsed += n as u64;
             if n > 0 {
                 tracing::warn!(job = %e.job.id, units = n, "leases lapsed; units re-queued");
+            }
+            // A lapsed lease counts against its identity, as a unit others finished does.
+            for w in e.job.take_lapsed() {
+                let trust = self.workers.get(&w).map(|w| w.trust);
+                if let Some(i) = trust.and_then(|t| self.identities.get_mut(t)) {
+                    i.strikes += 1;
+                }
             }
         }
     }

@@ -6,10 +6,16 @@ use std::time::Instant;
 
 use super::identities::MAX_REFUSED;
 use super::ids::{By, IdentityId, UnitId, WorkerId};
+use super::job::JobPhase;
 use super::state::{Farm, FarmError};
 
 /// Most warnings a job keeps (its scene's, then events such as a ban).
 const MAX_EVENTS: usize = 40;
+/// Units an identity may always hold, whatever its share (see `Farm::room_in_share`).
+const MIN_SHARE: usize = 8;
+/// Strikes (units others finished while it held them, lapsed leases) past which an
+/// identity holds at most [`MIN_SHARE`] units.
+pub(super) const MAX_STRIKES: u32 = 8;
 
 #[derive(Clone, Debug)]
 pub struct Worker {
@@ -119,6 +125,28 @@ impl Farm {
         ids.sort_unstable();
         ids.dedup();
         ids
+    }
+
+    /// How many more units the identity of `by` may hold: with several identities live,
+    /// each holds at most an even share of the running jobs' open units (queued or out;
+    /// at least [`MIN_SHARE`]), so that an identity that leases units and never returns
+    /// them (a hoarder, with all the ids it may register) cannot take a small job whole;
+    /// the others render the rest and then take spares of what it holds. An identity
+    /// with [`MAX_STRIKES`] strikes (units finished by others while it held them, and
+    /// leases that lapsed, less one for each result it returned) holds at most
+    /// [`MIN_SHARE`]: a hoarder little, an honest one that fell behind enough to catch up.
+    pub(super) fn room_in_share(&self, by: By, now: Instant) -> usize {
+        let identities = self.live_identities(now).len();
+        if identities < 2 {
+            return usize::MAX;
+        }
+        let running = self.jobs.iter().filter(|e| e.job.phase == JobPhase::Running);
+        let open: usize = running.clone().map(|e| e.job.queued() + e.job.units_out()).sum();
+        let struck = self.identities.get(by.identity).is_some_and(|i| i.strikes >= MAX_STRIKES);
+        let share = if struck { MIN_SHARE } else { open.div_ceil(identities).max(MIN_SHARE) };
+        let mine = |w: WorkerId| self.workers.get(&w).is_some_and(|w| w.trust == by.identity);
+        let held = running.flat_map(|e| e.job.lease_holders()).filter(|&w| mine(w)).count();
+        share.saturating_sub(held)
     }
 
     /// The done units of `job` that an identity returned and no other confirmed, by the

@@ -139,6 +139,26 @@ impl Job {
         self.checking.len()
     }
 
+    /// Done units each identity returned that no other identity confirmed.
+    pub fn unconfirmed(&self) -> std::collections::BTreeMap<IdentityId, Vec<UnitId>> {
+        let mut by = std::collections::BTreeMap::<IdentityId, Vec<UnitId>>::new();
+        for (id, u) in self.units.iter().enumerate() {
+            if let (UnitState::Done, Some(who)) = (&u.state, u.unchecked_from) {
+                by.entry(who).or_default().push(id as UnitId);
+            }
+        }
+        by
+    }
+
+    /// Marks restored done `units` as returned by `identity` and not confirmed.
+    pub fn mark_unconfirmed(&mut self, identity: IdentityId, units: &[UnitId]) {
+        for &id in units {
+            if let Some(u) = self.units.get_mut(id as usize).filter(|u| u.state == UnitState::Done) {
+                u.unchecked_from = Some(identity);
+            }
+        }
+    }
+
     /// Throws away everything identity `liar` (whose workers are `workers`) contributed:
     /// its answers to checks, its workers' leases, and every tile holding a result it
     /// returned that no other identity confirmed (those tiles render again, their honest

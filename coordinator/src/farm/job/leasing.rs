@@ -124,6 +124,9 @@ impl Job {
                         continue; // renewed since
                     }
                     self.clock.ended(id, since);
+                    if let UnitState::Leased { worker, .. } = unit.state {
+                        self.lapsed.push(worker);
+                    }
                     unit.state = match unit.spare.take().filter(|s| s.deadline > now) {
                         Some(s) => {
                             self.clock.leased(id, now, s.deadline);
@@ -172,6 +175,11 @@ impl Job {
                 UnitState::Pending
             }
         };
+    }
+
+    /// Workers whose primary leases lapsed since the last call, one entry a lease.
+    pub fn take_lapsed(&mut self) -> Vec<WorkerId> {
+        std::mem::take(&mut self.lapsed)
     }
 
     /// An ended job holds no leases: its workers are told to abandon its units at their
