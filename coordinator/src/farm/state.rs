@@ -11,10 +11,9 @@ use proto::domain::JobSpec;
 use tracer::scene::Scene;
 
 use super::identities::Identities;
-use super::job::{Applied, Job, JobPhase, Rejection, UnitId, UnitResult, UnitState, WorkerId};
+use super::job::{Applied, IdentityId, Job, JobPhase, Rejection, UnitId, UnitResult, UnitState, WorkerId};
 use super::status::{JobStatus, status_of};
 use super::verify::Policy;
-pub use super::workers::Worker;
 
 /// Live workers one identity may register unless `serve --max-workers-per-identity`
 /// says otherwise: a machine runs one worker with all its cores, so a few cover
@@ -74,6 +73,23 @@ impl Default for FarmConfig {
             max_farm_bytes: 32 << 30,
         }
     }
+}
+
+#[derive(Clone, Debug)]
+pub struct Worker {
+    pub id: WorkerId,
+    /// Who registered it (a certificate's fingerprint, or the token's caller): only they
+    /// may act as this worker.
+    pub identity: String,
+    /// The identity it is trusted, checked and banned as (see `identities`).
+    pub trust: IdentityId,
+    pub hostname: String,
+    pub threads: u32,
+    pub last_seen: Instant,
+    pub units_done: u64,
+    /// Its identity is banned: it gets no more work, and what the identity returned
+    /// unconfirmed was thrown away.
+    pub quarantined: bool,
 }
 
 /// A job's spec as the workers receive it, plus its loaded scene (for the in-process
@@ -420,9 +436,7 @@ impl Farm {
         if !self.config.verify.enabled() {
             return Vec::new();
         }
-        // An identity that has stopped leasing for its strikes (a hoarder) will not answer.
-        let mut live = self.live_identities(now);
-        live.retain(|&i| self.identities.get(i).is_none_or(|i| i.strikes < super::workers::MAX_STRIKES));
+        let live = self.settling_identities(now);
         let mut out = Vec::new();
         for e in &mut self.jobs {
             for id in e.job.disputes_nobody_can_settle(&live) {

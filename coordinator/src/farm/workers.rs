@@ -7,7 +7,7 @@ use std::time::Instant;
 use super::identities::MAX_REFUSED;
 use super::ids::{By, IdentityId, UnitId, WorkerId};
 use super::job::JobPhase;
-use super::state::{Farm, FarmError};
+use super::state::{Farm, FarmError, Worker};
 
 /// Most warnings a job keeps (its scene's, then events such as a ban).
 const MAX_EVENTS: usize = 40;
@@ -15,24 +15,7 @@ const MAX_EVENTS: usize = 40;
 const MIN_SHARE: usize = 8;
 /// Strikes (units others finished while it held them, lapsed leases) past which an
 /// identity holds at most [`MIN_SHARE`] units.
-pub(super) const MAX_STRIKES: u32 = 8;
-
-#[derive(Clone, Debug)]
-pub struct Worker {
-    pub id: WorkerId,
-    /// Who registered it (a certificate's fingerprint, or the token's caller): only they
-    /// may act as this worker.
-    pub identity: String,
-    /// The identity it is trusted, checked and banned as (see `identities`).
-    pub trust: IdentityId,
-    pub hostname: String,
-    pub threads: u32,
-    pub last_seen: Instant,
-    pub units_done: u64,
-    /// Its identity is banned: it gets no more work, and what the identity returned
-    /// unconfirmed was thrown away.
-    pub quarantined: bool,
-}
+const MAX_STRIKES: u32 = 8;
 
 impl Farm {
     /// Registers a worker of the farm's own (in-process, tests): an identity of its own.
@@ -109,7 +92,7 @@ impl Farm {
     }
 
     /// Workers seen within three lease periods, and not quarantined.
-    pub(super) fn live(&self, now: Instant) -> impl Iterator<Item = &super::state::Worker> {
+    pub(super) fn live(&self, now: Instant) -> impl Iterator<Item = &Worker> {
         let grace = 3 * self.config.lease;
         self.workers.values().filter(move |w| !w.quarantined && now.saturating_duration_since(w.last_seen) < grace)
     }
@@ -117,6 +100,14 @@ impl Farm {
     /// How many workers are [live](Farm::live).
     pub fn live_workers(&self, now: Instant) -> usize {
         self.live(now).count()
+    }
+
+    /// The live identities that could still settle a check: all but those past
+    /// [`MAX_STRIKES`] (a hoarder leases nothing it would answer).
+    pub(super) fn settling_identities(&self, now: Instant) -> Vec<IdentityId> {
+        let mut live = self.live_identities(now);
+        live.retain(|&i| self.identities.get(i).is_none_or(|i| i.strikes < MAX_STRIKES));
+        live
     }
 
     /// The identities of the live workers, each once.
