@@ -128,12 +128,14 @@ pub(super) async fn state(State(app): State<App>, headers: HeaderMap) -> Respons
     let farm = app.shared.farm();
     let now = Instant::now();
     let jobs = farm.statuses_of(now, |owner| who.may_touch(owner)).into_iter().map(JobRow::from).collect();
+    // Which machines render is the operator's to know, not every user's.
+    let admin = who.role == Role::Admin;
     let workers = farm
         .workers
         .values()
         .map(|w| WorkerRow {
             id: w.id,
-            host: w.hostname.clone(),
+            host: if admin { w.hostname.clone() } else { String::new() },
             threads: w.threads,
             units_held: farm.jobs.iter().map(|e| e.job.held_by(w.id)).sum(),
             units_done: w.units_done,
