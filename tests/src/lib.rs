@@ -9,6 +9,8 @@ use std::time::{Duration, Instant};
 
 use tracer::film::Image;
 
+pub mod tls;
+
 /// Says that a test cannot run here, and why, on the process's stderr itself: the test
 /// harness hides what a passing test prints with `println!` or `eprintln!`, so a skip
 /// would look like a pass.

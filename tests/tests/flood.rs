@@ -8,11 +8,11 @@ use std::io::{ErrorKind, Read, Write};
 use std::net::{SocketAddr, TcpStream};
 use std::os::unix::process::CommandExt;
 use std::path::Path;
-use std::process::Command;
 use std::time::{Duration, Instant};
 
+use tilefarm_e2e::tls::{bearer, certs_init, channel};
 use tilefarm_e2e::*;
-use tonic::transport::{Certificate, ClientTlsConfig, Endpoint};
+use tonic::transport::Endpoint;
 
 const LIMIT: Duration = Duration::from_secs(60);
 /// How fast the farm must answer while flooded.
@@ -22,11 +22,6 @@ const FLOOD: usize = 1100;
 const FILE_LIMIT: u64 = 1024;
 /// `serve`'s default --max-pending-connections.
 const MAX_PENDING: usize = 256;
-
-fn certs_init(dir: &Path) {
-    let out = run(Command::new(bin("coordinator")).args(["certs", "init"]).arg(dir).args(["--users", "alice"]), LIMIT);
-    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
-}
 
 /// Raises this process's soft limit on open files to at least `needed` (within its
 /// hard limit), for the flood's sockets.
@@ -77,12 +72,9 @@ fn list_jobs_tls(url: &str, tls: &Path, token: &str) -> Duration {
     let start = Instant::now();
     let rt = tokio::runtime::Builder::new_current_thread().enable_all().build().unwrap();
     rt.block_on(async {
-        let ca = Certificate::from_pem(std::fs::read(tls.join("ca.pem")).unwrap());
-        let tls = ClientTlsConfig::new().ca_certificate(ca).domain_name("tilefarm-coordinator");
         let call = async {
-            let ch = Endpoint::from_shared(url.to_string()).unwrap().tls_config(tls).unwrap().connect().await?;
-            let mut req = tonic::Request::new(proto::ListRequest {});
-            req.metadata_mut().insert("authorization", format!("Bearer {token}").parse().unwrap());
+            let ch = channel(url, tls, None).await?;
+            let req = bearer(tonic::Request::new(proto::ListRequest {}), token);
             let jobs = proto::jobs_client::JobsClient::new(ch).list_jobs(req).await?;
             Ok::<_, Box<dyn std::error::Error>>(jobs.into_inner().jobs)
         };
@@ -126,7 +118,7 @@ fn a_flood_of_idle_connections_locks_out_neither_probes_nor_users() {
     raise_own_file_limit(2 * FLOOD as u64 + 256);
     let dir = TempDir::new("flood");
     let tls = dir.path("tls");
-    certs_init(&tls);
+    certs_init(&tls, &["--users", "alice"]);
     let token = std::fs::read_to_string(tls.join("alice.token")).unwrap().trim().to_string();
     let http = format!("127.0.0.1:{}", free_port());
     let store = dir.path("store");
@@ -214,7 +206,7 @@ fn assert_about(took: Duration, timeout: Duration, what: &str) {
 fn connections_that_never_authenticate_or_ask_are_closed_after_the_timeouts() {
     let dir = TempDir::new("flood-timeouts");
     let tls = dir.path("tls");
-    certs_init(&tls);
+    certs_init(&tls, &["--users", "alice"]);
     let http = format!("127.0.0.1:{}", free_port());
     let store = dir.path("store");
     let timeout = Duration::from_millis(1500);

@@ -3,12 +3,13 @@
 //! coordinator, which stays up and renders the honest job bit for bit.
 
 use std::path::{Path, PathBuf};
-use std::process::{Command, Stdio};
+use std::process::Command;
 use std::time::Duration;
 
+use tilefarm_e2e::tls::{bearer, certs_init, channel, register_request, token, worker};
 use tilefarm_e2e::*;
 use tonic::Code;
-use tonic::transport::{Certificate, Channel, ClientTlsConfig, Endpoint, Identity};
+use tonic::transport::Endpoint;
 
 const LIMIT: Duration = Duration::from_secs(180);
 const JOB: [&str; 8] = ["--width", "48", "--spp", "8", "--tile", "16", "--batch-spp", "4"];
@@ -21,50 +22,8 @@ fn cornell() -> PathBuf {
     scenes().join("cornell-box/scene.toml")
 }
 
-fn certs_init(dir: &Path, extra: &[&str]) {
-    let out = run(Command::new(bin("coordinator")).args(["certs", "init"]).arg(dir).args(extra), LIMIT);
-    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
-}
-
-fn token(tls: &Path, name: &str) -> String {
-    std::fs::read_to_string(tls.join(format!("{name}.token"))).unwrap().trim().to_string()
-}
-
-/// A channel to `url` trusting `ca_dir`'s CA, presenting `identity` (`NAME` of
-/// `NAME.pem`/`NAME.key` in `ca_dir`) if given.
-async fn channel(url: &str, ca_dir: &Path, identity: Option<&str>) -> Result<Channel, tonic::transport::Error> {
-    let ca = Certificate::from_pem(std::fs::read(ca_dir.join("ca.pem")).unwrap());
-    let mut tls = ClientTlsConfig::new().ca_certificate(ca).domain_name("tilefarm-coordinator");
-    if let Some(name) = identity {
-        let cert = std::fs::read(ca_dir.join(format!("{name}.pem"))).unwrap();
-        let key = std::fs::read(ca_dir.join(format!("{name}.key"))).unwrap();
-        tls = tls.identity(Identity::from_pem(cert, key));
-    }
-    Endpoint::from_shared(url.to_string()).unwrap().tls_config(tls).unwrap().connect().await
-}
-
-fn bearer<T>(mut req: tonic::Request<T>, token: &str) -> tonic::Request<T> {
-    req.metadata_mut().insert("authorization", format!("Bearer {token}").parse().unwrap());
-    req
-}
-
 fn register() -> proto::RegisterRequest {
-    proto::RegisterRequest {
-        protocol_version: proto::PROTOCOL_VERSION,
-        threads: 1,
-        hostname: "rogue".into(),
-        version: "0".into(),
-    }
-}
-
-fn worker(coord: &Coordinator, tls: &Path, name: &str, cache: &Path) -> Proc {
-    let mut cmd = Command::new(bin("worker"));
-    cmd.args(["--coordinator", &coord.url, "--threads", "1", "--tls"])
-        .arg(tls)
-        .args(["--tls-name", name, "--cache"])
-        .arg(cache)
-        .stdin(Stdio::null());
-    Proc::spawn("worker", &mut cmd)
+    register_request("rogue")
 }
 
 /// `coordinator CMD … --coordinator URL --tls DIR` as user `who`.

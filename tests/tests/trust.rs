@@ -6,13 +6,14 @@
 //! capped.
 
 use std::path::{Path, PathBuf};
-use std::process::{Command, Stdio};
+use std::process::Command;
 use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 use std::time::Duration;
 
+use tilefarm_e2e::tls::{bearer, certs_init, channel, register_request, token, worker};
 use tilefarm_e2e::*;
-use tonic::transport::{Certificate, Channel, ClientTlsConfig, Endpoint, Identity};
+use tonic::transport::Channel;
 
 const LIMIT: Duration = Duration::from_secs(240);
 /// 64×64 in 16² tiles × 4 batches of 4 spp: 64 units.
@@ -26,17 +27,10 @@ fn cornell() -> PathBuf {
     scenes().join("cornell-box/scene.toml")
 }
 
-fn token(tls: &Path, name: &str) -> String {
-    std::fs::read_to_string(tls.join(format!("{name}.token"))).unwrap().trim().to_string()
-}
-
 /// `certs init` with four worker certificates and user alice, then `serve --tls` on it.
 fn tls_farm(dir: &TempDir) -> (Coordinator, PathBuf) {
     let tls = dir.path("tls");
-    let mut init = Command::new(bin("coordinator"));
-    init.args(["certs", "init"]).arg(&tls).args(["--workers", "4", "--users", "alice"]);
-    let out = run(&mut init, LIMIT);
-    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    certs_init(&tls, &["--workers", "4", "--users", "alice"]);
     (serve(dir, &tls), tls)
 }
 
@@ -56,48 +50,20 @@ fn serve(dir: &TempDir, tls: &Path) -> Coordinator {
     ])
 }
 
-fn worker(coord: &Coordinator, tls: &Path, name: &str, cache: &Path) -> Proc {
-    let mut cmd = Command::new(bin("worker"));
-    cmd.args(["--coordinator", &coord.url, "--threads", "1", "--tls"])
-        .arg(tls)
-        .args(["--tls-name", name, "--cache"])
-        .arg(cache)
-        .stdin(Stdio::null());
-    Proc::spawn("worker", &mut cmd)
-}
-
 /// A channel to the farm presenting worker certificate `name` (or none).
-async fn channel(url: &str, tls: &Path, name: Option<&str>) -> Channel {
-    let ca = Certificate::from_pem(std::fs::read(tls.join("ca.pem")).unwrap());
-    let mut config = ClientTlsConfig::new().ca_certificate(ca).domain_name("tilefarm-coordinator");
-    if let Some(name) = name {
-        let cert = std::fs::read(tls.join(format!("{name}.pem"))).unwrap();
-        let key = std::fs::read(tls.join(format!("{name}.key"))).unwrap();
-        config = config.identity(Identity::from_pem(cert, key));
-    }
-    Endpoint::from_shared(url.to_string()).unwrap().tls_config(config).unwrap().connect().await.unwrap()
+async fn connect(url: &str, tls: &Path, name: Option<&str>) -> Channel {
+    channel(url, tls, name).await.unwrap()
 }
 
 fn admin<T>(tls: &Path, msg: T) -> tonic::Request<T> {
-    let mut req = tonic::Request::new(msg);
-    req.metadata_mut().insert("authorization", format!("Bearer {}", token(tls, "admin")).parse().unwrap());
-    req
+    bearer(tonic::Request::new(msg), &token(tls, "admin"))
 }
 
 fn list_workers(url: &str, tls: &Path) -> proto::ListWorkersReply {
     runtime().block_on(async {
-        let mut jobs = proto::jobs_client::JobsClient::new(channel(url, tls, None).await);
+        let mut jobs = proto::jobs_client::JobsClient::new(connect(url, tls, None).await);
         jobs.list_workers(admin(tls, proto::ListRequest {})).await.unwrap().into_inner()
     })
-}
-
-fn register_request() -> proto::RegisterRequest {
-    proto::RegisterRequest {
-        protocol_version: proto::PROTOCOL_VERSION,
-        threads: 1,
-        hostname: "hostile".into(),
-        version: "0".into(),
-    }
 }
 
 /// What the hostile client does with every unit it leases.
@@ -123,10 +89,10 @@ fn hostile(
 ) -> std::thread::JoinHandle<(u64, String)> {
     std::thread::spawn(move || {
         runtime().block_on(async move {
-            let mut farm = proto::farm_client::FarmClient::new(channel(&url, &tls, Some(cert)).await);
+            let mut farm = proto::farm_client::FarmClient::new(connect(&url, &tls, Some(cert)).await);
             let mut workers = Vec::new();
             for _ in 0..ids {
-                workers.push(farm.register(register_request()).await.unwrap().into_inner().worker_id);
+                workers.push(farm.register(register_request("hostile")).await.unwrap().into_inner().worker_id);
             }
             let mut accepted = 0;
             while !stop.load(Ordering::SeqCst) {
@@ -205,12 +171,17 @@ fn one_certificate_with_three_ids_cannot_forge_an_image_and_stays_banned() {
     assert!(quarantined.iter().all(|w| w.identity == banned[0].name && w.hostname == "hostile"));
     let forger_identity = banned[0].name.clone();
 
-    // It cannot come back under a new registration, nor after a restart.
+    // It cannot come back under a new registration, nor after a restart (once the ban
+    // is on disk: serve writes bans at its next turn, within a quarter second).
+    let bans = dir.path("store").join("bans.json");
+    eventually("the ban is written", LIMIT, || {
+        std::fs::read_to_string(&bans).is_ok_and(|t| t.contains(&forger_identity))
+    });
     drop(coord);
     let coord = serve(&dir, &tls);
     let refused = runtime().block_on(async {
-        let mut farm = proto::farm_client::FarmClient::new(channel(&coord.url, &tls, Some("worker-3")).await);
-        farm.register(register_request()).await.unwrap_err()
+        let mut farm = proto::farm_client::FarmClient::new(connect(&coord.url, &tls, Some("worker-3")).await);
+        farm.register(register_request("hostile")).await.unwrap_err()
     });
     assert!(refused.message().contains("banned"), "{}", refused.message());
     let listed = admin_command(&coord, &tls, &["workers"]);
@@ -221,8 +192,8 @@ fn one_certificate_with_three_ids_cannot_forge_an_image_and_stays_banned() {
     let lifted = admin_command(&coord, &tls, &["unban", &forger_identity]);
     assert!(lifted.status.success(), "{}", String::from_utf8_lossy(&lifted.stderr));
     runtime().block_on(async {
-        let mut farm = proto::farm_client::FarmClient::new(channel(&coord.url, &tls, Some("worker-3")).await);
-        farm.register(register_request()).await.expect("registers once the ban is lifted");
+        let mut farm = proto::farm_client::FarmClient::new(connect(&coord.url, &tls, Some("worker-3")).await);
+        farm.register(register_request("hostile")).await.expect("registers once the ban is lifted");
     });
 }
 
@@ -251,11 +222,11 @@ fn malformed_results_ban_their_identity_and_registrations_are_capped() {
 
     // One certificate holds at most 8 live registrations.
     let refused = runtime().block_on(async {
-        let mut farm = proto::farm_client::FarmClient::new(channel(&coord.url, &tls, Some("worker-4")).await);
+        let mut farm = proto::farm_client::FarmClient::new(connect(&coord.url, &tls, Some("worker-4")).await);
         for _ in 0..8 {
-            farm.register(register_request()).await.unwrap();
+            farm.register(register_request("hostile")).await.unwrap();
         }
-        farm.register(register_request()).await.unwrap_err()
+        farm.register(register_request("hostile")).await.unwrap_err()
     });
     assert!(refused.message().contains("--max-workers-per-identity 8"), "{}", refused.message());
 }
@@ -272,10 +243,13 @@ fn hoarder(
 ) -> std::thread::JoinHandle<usize> {
     std::thread::spawn(move || {
         runtime().block_on(async move {
-            let mut farm = proto::farm_client::FarmClient::new(channel(&url, &tls, Some(cert)).await);
+            let mut farm = proto::farm_client::FarmClient::new(connect(&url, &tls, Some(cert)).await);
             let mut held: Vec<(u64, Vec<proto::UnitKey>)> = Vec::new();
             for _ in 0..ids {
-                held.push((farm.register(register_request()).await.unwrap().into_inner().worker_id, Vec::new()));
+                held.push((
+                    farm.register(register_request("hostile")).await.unwrap().into_inner().worker_id,
+                    Vec::new(),
+                ));
             }
             let mut most = 0;
             while !stop.load(Ordering::SeqCst) {
@@ -352,9 +326,7 @@ fn a_hoarder_with_eight_ids_does_not_stall_a_job() {
 fn a_users_third_largest_job_is_refused_and_memory_stays_in_budget() {
     let dir = TempDir::new("trust-budget");
     let tls = dir.path("tls");
-    let mut init = Command::new(bin("coordinator"));
-    init.args(["certs", "init"]).arg(&tls).args(["--users", "alice"]);
-    assert!(run(&mut init, LIMIT).status.success());
+    certs_init(&tls, &["--users", "alice"]);
     let store = dir.path("store");
     let limits = ["--max-job-memory-mb", "40", "--max-user-memory-mb", "90"];
     let coord = Coordinator::serve(
@@ -384,7 +356,7 @@ fn a_users_third_largest_job_is_refused_and_memory_stays_in_budget() {
     };
     let state_of = |job: &str| {
         runtime().block_on(async {
-            let mut jobs = proto::jobs_client::JobsClient::new(channel(&coord.url, &tls, None).await);
+            let mut jobs = proto::jobs_client::JobsClient::new(connect(&coord.url, &tls, None).await);
             let all = jobs.list_jobs(admin(&tls, proto::ListRequest {})).await.unwrap().into_inner().jobs;
             all.into_iter().find(|j| j.job_id == job).unwrap()
         })

@@ -123,25 +123,11 @@ impl Job {
                     if deadline != due {
                         continue; // renewed since
                     }
-                    self.clock.ended(id, since);
                     if let UnitState::Leased { worker, .. } = unit.state {
                         self.lapsed.push(worker);
                     }
-                    unit.state = match unit.spare.take().filter(|s| s.deadline > now) {
-                        Some(s) => {
-                            self.clock.leased(id, now, s.deadline);
-                            UnitState::Leased { worker: s.worker, deadline: s.deadline, since: now }
-                        }
-                        None => {
-                            if unit.check.is_some() {
-                                self.checking.insert(id);
-                            } else {
-                                self.pending.insert(id);
-                            }
-                            n += 1;
-                            UnitState::Pending
-                        }
-                    };
+                    let spare = unit.spare.take().filter(|s| s.deadline > now);
+                    n += usize::from(self.hand_over(id, since, spare, now));
                 }
             }
         }
@@ -160,11 +146,21 @@ impl Job {
         if w != worker {
             return;
         }
+        let spare = u.spare.take();
+        self.hand_over(unit, since, spare, now);
+    }
+
+    /// Ends the primary lease of `unit` (made at `since`): `spare`, if any, carries on as
+    /// its lease; else the unit goes back to its queue (the check queue for one under
+    /// check). Returns whether it went back.
+    fn hand_over(&mut self, unit: UnitId, since: Instant, spare: Option<Spare>, now: Instant) -> bool {
         self.clock.ended(unit, since);
-        u.state = match u.spare.take() {
+        let u = &mut self.units[unit as usize];
+        match spare {
             Some(s) => {
                 self.clock.leased(unit, now, s.deadline);
-                UnitState::Leased { worker: s.worker, deadline: s.deadline, since: now }
+                u.state = UnitState::Leased { worker: s.worker, deadline: s.deadline, since: now };
+                false
             }
             None => {
                 if u.check.is_some() {
@@ -172,9 +168,10 @@ impl Job {
                 } else {
                     self.pending.insert(unit);
                 }
-                UnitState::Pending
+                u.state = UnitState::Pending;
+                true
             }
-        };
+        }
     }
 
     /// Workers whose primary leases lapsed since the last call, one entry a lease.
