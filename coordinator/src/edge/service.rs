@@ -284,7 +284,12 @@ impl proto::jobs_server::Jobs for JobsService {
             (farm.config.max_upload_bytes, farm.config.max_store_bytes)
         };
         let room = max_store.saturating_sub(self.0.store().stored_bytes());
-        let internal = |e: anyhow::Error| Status::internal(format!("storing the upload: {e:#}"));
+        // The client learns that the farm failed, not where the farm keeps its files:
+        // the farm's log has the whole error.
+        let internal = |e: anyhow::Error| {
+            tracing::error!("storing an upload: {e:#}");
+            Status::internal("the farm could not store the upload (its log says why)")
+        };
         let mut up = self.0.store().begin_upload().map_err(internal)?;
         while let Some(chunk) = stream.message().await? {
             let total = up.written() + chunk.data.len() as u64;
