@@ -10,7 +10,7 @@ use std::os::unix::process::CommandExt;
 use std::path::Path;
 use std::time::{Duration, Instant};
 
-use tilefarm_e2e::tls::{bearer, certs_init, channel};
+use tilefarm_e2e::tls::{bearer, certs_init, channel, token};
 use tilefarm_e2e::*;
 use tonic::transport::Endpoint;
 
@@ -119,7 +119,7 @@ fn a_flood_of_idle_connections_locks_out_neither_probes_nor_users() {
     let dir = TempDir::new("flood");
     let tls = dir.path("tls");
     certs_init(&tls, &["--users", "alice"]);
-    let token = std::fs::read_to_string(tls.join("alice.token")).unwrap().trim().to_string();
+    let alice = token(&tls, "alice");
     let http = format!("127.0.0.1:{}", free_port());
     let store = dir.path("store");
     let mut coord = serve_limited(&[
@@ -140,7 +140,7 @@ fn a_flood_of_idle_connections_locks_out_neither_probes_nor_users() {
     ]);
     eventually("the HTTP side answering", LIMIT, || TcpStream::connect(&http).is_ok());
     assert_eq!(http_get(&http, "/healthz", None, ANSWER), (200, "ok\n".into()));
-    list_jobs_tls(&coord.url, &tls, &token);
+    list_jobs_tls(&coord.url, &tls, &alice);
     let before = open_files(coord.proc.pid());
 
     let start = Instant::now();
@@ -153,7 +153,7 @@ fn a_flood_of_idle_connections_locks_out_neither_probes_nor_users() {
     assert_eq!(http_get(&http, "/healthz", None, ANSWER), (200, "ok\n".into()));
     let healthz = start.elapsed();
     assert!(healthz < ANSWER, "/healthz took {healthz:?}");
-    let list = list_jobs_tls(&coord.url, &tls, &token);
+    let list = list_jobs_tls(&coord.url, &tls, &alice);
     assert!(list < ANSWER, "ListJobs took {list:?}");
 
     // The coordinator holds at most the cap of pending connections per port: the
