@@ -140,7 +140,7 @@ pub(super) async fn state(State(app): State<App>, headers: HeaderMap) -> Respons
             units_held: farm.jobs.iter().map(|e| e.job.held_by(w.id)).sum(),
             units_done: w.units_done,
             last_seen_s: now.saturating_duration_since(w.last_seen).as_secs_f64(),
-            quarantined: w.quarantined,
+            quarantined: farm.quarantined(w),
         })
         .collect();
     Json(FarmState { jobs, workers }).into_response()

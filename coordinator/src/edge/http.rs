@@ -227,7 +227,7 @@ fn exposition(shared: &Shared) -> anyhow::Result<String> {
         }
         for w in farm.workers.values() {
             let held: usize = farm.jobs.iter().map(|e| e.job.held_by(w.id)).sum();
-            let state = if w.quarantined {
+            let state = if farm.quarantined(w) {
                 "quarantined"
             } else if now.saturating_duration_since(w.last_seen) > lease {
                 "silent"

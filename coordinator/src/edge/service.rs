@@ -465,7 +465,7 @@ impl proto::jobs_server::Jobs for JobsService {
                 units_held: farm.jobs.iter().map(|e| e.job.held_by(w.id) as u32).sum(),
                 units_done: w.units_done,
                 last_seen_s: now.duration_since(w.last_seen).as_secs_f64(),
-                quarantined: w.quarantined,
+                quarantined: farm.quarantined(w),
                 identity: shown(farm.identities.get(w.trust).map_or("", |i| i.name.as_str())),
             })
             .collect();

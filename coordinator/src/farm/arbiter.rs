@@ -33,7 +33,8 @@ impl Shared {
                 scenes.retain(|job, _| disputes.iter().any(|d| &d.job == job));
                 let mut failed = false;
                 for d in disputes {
-                    tracing::info!(job = %d.job, unit = d.unit, "no other identity can check a unit: the coordinator \
+                    // Routine on a farm of one identity (every check): not worth a log line each.
+                    tracing::debug!(job = %d.job, unit = d.unit, "no other identity can check a unit: the coordinator \
                         renders it");
                     let scene = scenes.entry(d.job.clone()).or_insert_with(|| scene_for_dispute(&shared, &d));
                     let result = scene.as_ref().and_then(|scene| render_dispute(scene, &d));

@@ -87,9 +87,6 @@ pub struct Worker {
     pub threads: u32,
     pub last_seen: Instant,
     pub units_done: u64,
-    /// Its identity is banned: it gets no more work, and what the identity returned
-    /// unconfirmed was thrown away.
-    pub quarantined: bool,
 }
 
 /// A job's spec as the workers receive it, plus its loaded scene (for the in-process

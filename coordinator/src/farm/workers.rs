@@ -57,10 +57,17 @@ impl Farm {
         Ok(self.add_worker(name.to_string(), trust, hostname, threads, now))
     }
 
-    fn add_worker(&mut self, identity: String, trust: IdentityId, hostname: String, threads: u32, now: Instant) -> u64 {
+    fn add_worker(
+        &mut self,
+        identity: String,
+        trust: IdentityId,
+        hostname: String,
+        threads: u32,
+        now: Instant,
+    ) -> WorkerId {
         let id = self.next_worker;
         self.next_worker += 1;
-        let w = Worker { id, identity, trust, hostname, threads, last_seen: now, units_done: 0, quarantined: false };
+        let w = Worker { id, identity, trust, hostname, threads, last_seen: now, units_done: 0 };
         self.workers.insert(id, w);
         let workers = &self.workers;
         self.identities.forget_idle(|i| workers.values().any(|w| w.trust == i));
@@ -78,23 +85,32 @@ impl Farm {
         }
     }
 
+    /// Whether `w` is quarantined: its identity is banned, so it gets no more work (and
+    /// what the identity returned unconfirmed was thrown away).
+    pub fn quarantined(&self, w: &Worker) -> bool {
+        self.identities.is_banned(w.trust)
+    }
+
     /// Marks `worker` seen; says who it is, or why it may do nothing.
     pub(super) fn touch(&mut self, worker: WorkerId, now: Instant) -> Result<By, FarmError> {
         let w = self.workers.get_mut(&worker).ok_or(FarmError::UnknownWorker(worker))?;
         w.last_seen = now;
-        if w.quarantined {
+        let trust = w.trust;
+        if self.identities.is_banned(trust) {
             return Err(FarmError::Forbidden(format!(
                 "worker {worker} is quarantined: its identity returned a result that differed from other \
                  identities' renders of the same unit, or malformed results"
             )));
         }
-        Ok(By { worker, identity: w.trust })
+        Ok(By { worker, identity: trust })
     }
 
     /// Workers seen within three lease periods, and not quarantined.
     pub(super) fn live(&self, now: Instant) -> impl Iterator<Item = &Worker> {
         let grace = 3 * self.config.lease;
-        self.workers.values().filter(move |w| !w.quarantined && now.saturating_duration_since(w.last_seen) < grace)
+        self.workers
+            .values()
+            .filter(move |w| !self.quarantined(w) && now.saturating_duration_since(w.last_seen) < grace)
     }
 
     /// How many workers are [live](Farm::live).
@@ -172,11 +188,7 @@ impl Farm {
             return;
         }
         let name = self.identities.get(liar).map_or_else(String::new, |i| i.name.clone());
-        let mut workers = Vec::new();
-        for w in self.workers.values_mut().filter(|w| w.trust == liar) {
-            w.quarantined = true;
-            workers.push(w.id);
-        }
+        let workers: Vec<WorkerId> = self.workers.values().filter(|w| w.trust == liar).map(|w| w.id).collect();
         tracing::warn!(identity = %name, ?workers, %job, unit, "identity banned: {reason}");
         for e in &mut self.jobs {
             let n = e.job.discard_from(liar, &workers);

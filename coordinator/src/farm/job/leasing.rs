@@ -119,13 +119,11 @@ impl Job {
                     }
                 }
                 Slot::Primary => {
-                    let UnitState::Leased { deadline, since, .. } = unit.state else { continue };
+                    let UnitState::Leased { worker, deadline, since } = unit.state else { continue };
                     if deadline != due {
                         continue; // renewed since
                     }
-                    if let UnitState::Leased { worker, .. } = unit.state {
-                        self.lapsed.push(worker);
-                    }
+                    self.lapsed.push(worker);
                     let spare = unit.spare.take().filter(|s| s.deadline > now);
                     n += usize::from(self.hand_over(id, since, spare, now));
                 }

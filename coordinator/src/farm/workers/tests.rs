@@ -105,7 +105,7 @@ fn three_workers_of_one_certificate_cannot_forge_an_image() {
         assert!(image == reference, "seed {seed}: the image is the honest one");
         assert!(banned(&f, "cert:forger"), "seed {seed}");
         assert!(!banned(&f, "cert:honest-a") && !banned(&f, "cert:honest-b"), "seed {seed}: no honest identity");
-        assert!(liars.iter().all(|w| f.workers[w].quarantined));
+        assert!(liars.iter().all(|w| f.quarantined(&f.workers[w])));
         // It may not come back under another registration.
         let again = f.register_as(Some("cert:forger"), true, "host".into(), 1, Instant::now());
         assert!(matches!(again, Err(FarmError::Forbidden(m)) if m.contains("banned")));
