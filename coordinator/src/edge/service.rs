@@ -13,7 +13,9 @@ use tonic::{Request, Response, Status, Streaming};
 
 use proto::auth::{Caller, Role};
 
-use super::wire::{error_to_status, invalid, status_to_proto, stored_frame_to_proto, stored_job_to_proto};
+use super::wire::{
+    error_to_status, identities_to_proto, invalid, status_to_proto, stored_frame_to_proto, stored_job_to_proto,
+};
 use crate::farm::Shared;
 use crate::farm::job::UnitResult;
 use crate::farm::lifecycle::ImageError;
@@ -29,23 +31,6 @@ const PREPARE_EARLY: usize = 4;
 /// The worker service, and whether its callers have identities (a farm with tokens or
 /// certificates); on an open farm each registration is trusted as its own identity.
 pub struct FarmService(pub Arc<Shared>, pub Registrations);
-
-/// The farm's identities as an admin sees them.
-fn identities_to_proto(farm: &crate::farm::Farm) -> Vec<proto::IdentityInfo> {
-    let since = |t: std::time::SystemTime| t.duration_since(std::time::UNIX_EPOCH).map_or(0, |d| d.as_secs());
-    farm.identities
-        .iter()
-        .map(|i| proto::IdentityInfo {
-            name: i.name.clone(),
-            answers: i.answers,
-            refused: i.refused,
-            banned: i.banned.is_some(),
-            ban_reason: i.banned.as_ref().map_or_else(String::new, |b| b.reason.clone()),
-            banned_at_unix_s: i.banned.as_ref().map_or(0, |b| since(b.at)),
-            workers: farm.workers.values().filter(|w| w.trust == i.id).count() as u32,
-        })
-        .collect()
-}
 
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum Registrations {

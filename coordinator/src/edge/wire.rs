@@ -146,6 +146,23 @@ pub fn invalid(message: String) -> Status {
     Status::invalid_argument(proto::wire::bounded(message))
 }
 
+/// The farm's identities as an admin sees them.
+pub fn identities_to_proto(farm: &crate::farm::Farm) -> Vec<proto::IdentityInfo> {
+    let since = |t: std::time::SystemTime| t.duration_since(std::time::UNIX_EPOCH).map_or(0, |d| d.as_secs());
+    farm.identities
+        .iter()
+        .map(|i| proto::IdentityInfo {
+            name: i.name.clone(),
+            answers: i.answers,
+            refused: i.refused,
+            banned: i.banned.is_some(),
+            ban_reason: i.banned.as_ref().map_or_else(String::new, |b| b.reason.clone()),
+            banned_at_unix_s: i.banned.as_ref().map_or(0, |b| since(b.at)),
+            workers: farm.workers.values().filter(|w| w.trust == i.id).count() as u32,
+        })
+        .collect()
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
