@@ -1,21 +1,43 @@
-//! Image textures (`map_Kd`), decoded by the `image` crate and stored as linear RGB, with
-//! the MTL texture options that place them (`-s`, `-o`, `-clamp`).
+//! Image textures, decoded by the `image` crate and stored as linear RGB, with what
+//! places them on a surface: MTL's texture options (`-s`, `-o`, `-clamp`), and Blender's
+//! Mapping node (scale, rotation, offset) and Image Texture interpolation.
 
 use glam::{Vec2, Vec3};
 
-/// How texture coordinates map onto an image: `uv · scale + offset` (MTL's `-s` and
-/// `-o`), then wrapped around, or with `clamp` (MTL's `-clamp on`) held to the edge.
+/// How texture coordinates map onto an image: `R(uv · scale) + offset` (MTL's `-s` and
+/// `-o`; Blender's Mapping node of type Point, R the rotation by `rotation` (cos, sin)
+/// counter-clockwise), then wrapped around, or with `clamp` (MTL's `-clamp on`) held to
+/// the edge; looked up bilinearly, or the closest texel with `closest`.
 #[derive(Clone, Copy, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct TexMap {
     pub scale: Vec2,
     pub offset: Vec2,
+    pub rotation: Vec2,
     pub clamp: bool,
+    pub closest: bool,
 }
 
 impl Default for TexMap {
     fn default() -> Self {
-        Self { scale: Vec2::ONE, offset: Vec2::ZERO, clamp: false }
+        Self { scale: Vec2::ONE, offset: Vec2::ZERO, rotation: Vec2::X, clamp: false, closest: false }
     }
+}
+
+impl TexMap {
+    /// Texture coordinates after scale, rotation and offset.
+    #[inline]
+    pub fn apply(&self, uv: Vec2) -> Vec2 {
+        let s = uv * self.scale;
+        let (c, n) = (self.rotation.x, self.rotation.y);
+        Vec2::new(c * s.x - n * s.y, n * s.x + c * s.y) + self.offset
+    }
+}
+
+/// The luminance of linear Rec. 709 RGB: how a colour feeds a scalar input (Blender's
+/// implicit colour-to-float conversion).
+#[inline]
+pub fn luminance(c: Vec3) -> f32 {
+    c.dot(Vec3::new(0.2126, 0.7152, 0.0722))
 }
 
 #[derive(Clone, Debug, serde::Serialize, serde::Deserialize)]
@@ -35,7 +57,7 @@ impl Texture {
         if w == 0 || h == 0 {
             return Vec3::ZERO;
         }
-        let mut uv = uv * self.map.scale + self.map.offset;
+        let mut uv = self.map.apply(uv);
         if self.map.clamp {
             uv = uv.clamp(Vec2::ZERO, Vec2::ONE);
         }
@@ -44,11 +66,15 @@ impl Texture {
         if !x.is_finite() || !y.is_finite() {
             return self.texels[0];
         }
-        let (x0, y0) = (x.floor(), y.floor());
-        let (fx, fy) = (x - x0, y - y0);
         let clamp = self.map.clamp;
         let wrap = |i: i64, n: i64| if clamp { i.clamp(0, n - 1) } else { i.rem_euclid(n) };
         let texel = |ix: i64, iy: i64| self.texels[(wrap(iy, h) * w + wrap(ix, w)) as usize];
+        if self.map.closest {
+            // The texel the point lies in (x + 0.5 is the position in texels).
+            return texel((x + 0.5).floor() as i64, (y + 0.5).floor() as i64);
+        }
+        let (x0, y0) = (x.floor(), y.floor());
+        let (fx, fy) = (x - x0, y - y0);
         let (ix, iy) = (x0 as i64, y0 as i64);
         let top = texel(ix, iy) * (1.0 - fx) + texel(ix + 1, iy) * fx;
         let bottom = texel(ix, iy + 1) * (1.0 - fx) + texel(ix + 1, iy + 1) * fx;
@@ -75,6 +101,23 @@ mod tests {
         let scaled = red_green(TexMap { scale: Vec2::new(2.0, 1.0), ..Default::default() });
         assert_eq!(scaled.sample(Vec2::new(0.125, 0.5)), Vec3::X);
         assert_eq!(scaled.sample(Vec2::new(0.375, 0.5)), Vec3::Y);
+    }
+
+    #[test]
+    fn rotation_turns_the_coordinates_counter_clockwise_after_scaling() {
+        let quarter = TexMap { scale: Vec2::new(2.0, 1.0), rotation: Vec2::new(0.0, 1.0), ..Default::default() };
+        let p = quarter.apply(Vec2::new(0.25, 0.1));
+        assert!((p - Vec2::new(-0.1, 0.5)).length() < 1e-6, "{p}");
+    }
+
+    #[test]
+    fn closest_takes_one_texel_without_blending() {
+        let linear = red_green(TexMap::default());
+        let closest = red_green(TexMap { closest: true, ..Default::default() });
+        // Near the middle of the image bilinear blends; the closest texel does not.
+        assert_eq!(closest.sample(Vec2::new(0.45, 0.5)), Vec3::X);
+        assert_eq!(closest.sample(Vec2::new(0.55, 0.5)), Vec3::Y);
+        assert!(linear.sample(Vec2::new(0.45, 0.5)).y > 0.3);
     }
 
     #[test]

@@ -1,5 +1,6 @@
 //! BSDFs in the local shading frame (z = shading normal): Lambertian, diffuse plus
-//! Blinn-Phong, mirror and smooth dielectric.
+//! Blinn-Phong, mirror, smooth dielectric, and Blender's Principled BSDF (GGX microfacet
+//! lobes over a Lambertian base).
 //!
 //! Conventions (pbrt's): `wo` points away from the surface towards where the light goes
 //! (the camera side), `wi` towards where it comes from; both unit vectors in local
@@ -14,11 +15,18 @@
 
 pub mod blinn_phong;
 pub mod dielectric;
+pub mod energy;
+pub mod fresnel;
+pub mod ggx_lobe;
 pub mod lambert;
+pub mod microfacet;
 pub mod mirror;
+pub mod principled;
 
 #[cfg(test)]
 pub(crate) mod chi2;
+#[cfg(test)]
+mod principled_tests;
 #[cfg(test)]
 mod tests;
 
@@ -27,6 +35,7 @@ use dielectric::Dielectric;
 use glam::{Vec2, Vec3};
 use lambert::Lambert;
 use mirror::SpecularReflection;
+pub use principled::Principled;
 
 use crate::simd::V3w;
 
@@ -43,6 +52,9 @@ pub enum Bsdf {
     /// Smooth dielectric: `eta` is the interior IOR over the exterior one (the normal
     /// points outside); transmission tinted by `tint`.
     Glass { eta: f32, tint: Vec3 },
+    /// Blender's Principled BSDF ([`principled`]): two-sided unless it transmits, then
+    /// oriented as glass is.
+    Principled(Principled),
 }
 
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -67,6 +79,7 @@ impl Bsdf {
             Bsdf::Diffuse { kd } => Lambert { kd }.eval(wo, wi),
             Bsdf::Glossy { kd, ks, exponent } => BlinnPhong::new(kd, ks, exponent).eval(wo, wi),
             Bsdf::Mirror { .. } | Bsdf::Glass { .. } => Vec3::ZERO,
+            Bsdf::Principled(p) => p.at(wo).eval_pdf(wo, wi).0,
         }
     }
 
@@ -81,6 +94,7 @@ impl Bsdf {
             }
             Bsdf::Glossy { kd, ks, exponent } => BlinnPhong::new(kd, ks, exponent).eval_pdf(wo, wi),
             Bsdf::Mirror { .. } | Bsdf::Glass { .. } => (Vec3::ZERO, 0.0),
+            Bsdf::Principled(p) => p.at(wo).eval_pdf(wo, wi),
         }
     }
 
@@ -91,6 +105,7 @@ impl Bsdf {
             Bsdf::Diffuse { kd } => Lambert { kd }.pdf(wo, wi),
             Bsdf::Glossy { kd, ks, exponent } => BlinnPhong::new(kd, ks, exponent).pdf(wo, wi),
             Bsdf::Mirror { .. } | Bsdf::Glass { .. } => 0.0,
+            Bsdf::Principled(p) => p.at(wo).eval_pdf(wo, wi).1,
         }
     }
 
@@ -104,12 +119,28 @@ impl Bsdf {
             Bsdf::Glossy { kd, ks, exponent } => BlinnPhong::new(kd, ks, exponent).sample(wo, u_lobe, u),
             Bsdf::Mirror { ks } => SpecularReflection { ks }.sample(wo),
             Bsdf::Glass { eta, tint } => Dielectric { eta, tint }.sample(wo, u_lobe),
+            Bsdf::Principled(p) => p.at(wo).sample(wo, u_lobe, u),
         }
     }
 
     /// True when every lobe is a delta (no point sampling lights).
     pub fn is_delta(&self) -> bool {
-        matches!(self, Bsdf::Mirror { .. } | Bsdf::Glass { .. })
+        match self {
+            Bsdf::Mirror { .. } | Bsdf::Glass { .. } => true,
+            Bsdf::Principled(p) => p.is_delta(),
+            Bsdf::Diffuse { .. } | Bsdf::Glossy { .. } => false,
+        }
+    }
+
+    /// Whether the surface is oriented (knows inside from outside: it refracts) rather
+    /// than two-sided.
+    #[inline]
+    pub fn is_oriented(&self) -> bool {
+        match self {
+            Bsdf::Glass { .. } => true,
+            Bsdf::Principled(p) => p.transmits(),
+            _ => false,
+        }
     }
 
     /// The reflectance for the albedo AOV and light-selection heuristics: kd, the
@@ -123,6 +154,7 @@ impl Bsdf {
             }
             Bsdf::Mirror { ks } => ks,
             Bsdf::Glass { tint, .. } => tint,
+            Bsdf::Principled(p) => p.albedo(),
         }
     }
 }

@@ -61,7 +61,8 @@ fn albedo_quadrature(bsdf: &Bsdf, wo: Vec3) -> Vec3 {
 fn bsdf_is_small_and_copy() {
     fn is_copy<T: Copy>() {}
     is_copy::<Bsdf>();
-    assert!(std::mem::size_of::<Bsdf>() <= 32);
+    // The Principled BSDF's inputs make up the largest variant; the others stay at 32.
+    assert!(std::mem::size_of::<Bsdf>() <= 96, "{}", std::mem::size_of::<Bsdf>());
 }
 
 #[test]

@@ -19,8 +19,10 @@ use crate::accel::Hit;
 use crate::bsdf::Bsdf;
 use crate::film::FirstHit;
 use crate::geometry::{Frame, Ray, offset_origin};
+use crate::material::Slot;
 use crate::sampler::Sampler;
 use crate::sampling::{power_heuristic, uniform_sphere_pdf};
+use crate::scene::MAX_MIX_DEPTH;
 use crate::scene::Scene;
 
 /// Which estimators to combine. The default (MIS) is the renderer; the one-sided
@@ -173,7 +175,15 @@ impl PathState {
             return (None, false);
         };
         let si = scene.interaction(&ray, &hit);
-        let material = &scene.materials[si.material as usize];
+        let mut material = &scene.materials[si.material as usize];
+        // A Mix Shader: continue with one of its two materials, chosen by its factor
+        // (mixes of mixes, as deep as the loader allows).
+        for _ in 0..MAX_MIX_DEPTH {
+            let Some(mix) = material.mix else { break };
+            let factor = material.maps.scale(Slot::MixFactor, mix.factor, si.uv, &scene.textures);
+            let pick = if sampler.next_1d() < factor { mix.second } else { mix.first };
+            material = &scene.materials[pick as usize];
+        }
         // The first hit's layers, for the paths that end before their BSDF is known.
         let record_first = |first: Option<&mut FirstHit>| {
             if let Some(f) = first {
@@ -183,7 +193,7 @@ impl PathState {
 
         // Stochastic opacity (`d < 1`, `Ni = 1`): pass straight through with probability
         // 1 - d. Not a scattering event, so depth and the MIS state are unchanged.
-        if material.opacity < 1.0 && sampler.next_1d() >= material.opacity {
+        if material.has_cutout() && sampler.next_1d() >= material.opacity_at(si.uv, &scene.textures) {
             record_first(first);
             self.ray.origin = offset_origin(si.p, si.ng, ray.dir);
             return (None, true);
@@ -199,7 +209,7 @@ impl PathState {
                     scene.lights.pmf_at(prev_p, li) * scene.lights.lights[li].pdf_li(prev_p, ray.dir, si.p)
                 })
             });
-            self.l += self.beta * material.emission * w;
+            self.l += self.beta * material.emission_at(si.uv, &scene.textures) * w;
         }
 
         self.depth += 1;
@@ -213,8 +223,9 @@ impl PathState {
             *f = aov::surface(&bsdf, si.ns, hit.t * ray.dir.length());
         }
         // Reflection-only surfaces are two-sided: shade the side the ray arrives from.
-        // Glass keeps its outward normal so it knows whether the ray is inside.
-        let two_sided = !matches!(bsdf, Bsdf::Glass { .. });
+        // Glass (and a Principled surface that transmits) keeps its outward normal so it
+        // knows whether the ray is inside.
+        let two_sided = !bsdf.is_oriented();
         let (ng, ns) = if two_sided && si.ng.dot(wo) < 0.0 { (-si.ng, -si.ns) } else { (si.ng, si.ns) };
         let frame = Frame::from_normal(ns);
         let wo_local = frame.to_local(wo);
@@ -265,7 +276,7 @@ impl PathState {
         // are drawn (Lambert: a direction; mirror: none; glass: a lobe choice).
         let (u_lobe, u) = match bsdf {
             Bsdf::Diffuse { .. } => (0.0, sampler.next_2d()),
-            Bsdf::Glossy { .. } => (sampler.next_1d(), sampler.next_2d()),
+            Bsdf::Glossy { .. } | Bsdf::Principled(_) => (sampler.next_1d(), sampler.next_2d()),
             Bsdf::Mirror { .. } => (0.0, Vec2::ZERO),
             Bsdf::Glass { .. } => (sampler.next_1d(), Vec2::ZERO),
         };
@@ -319,6 +330,24 @@ pub(crate) fn emitter_weight(
     }
 }
 
+/// The probability that a shadow ray is blocked by material `m` at `uv` (a mix: its
+/// materials' in proportion).
+fn opacity_of(scene: &Scene, m: u32, uv: Vec2) -> f32 {
+    mixed_opacity(scene, m, uv, MAX_MIX_DEPTH)
+}
+
+fn mixed_opacity(scene: &Scene, m: u32, uv: Vec2, depth: usize) -> f32 {
+    let material = &scene.materials[m as usize];
+    match material.mix {
+        Some(mix) if depth > 0 => {
+            let t = material.maps.scale(Slot::MixFactor, mix.factor, uv, &scene.textures).clamp(0.0, 1.0);
+            (1.0 - t) * mixed_opacity(scene, mix.first, uv, depth - 1)
+                + t * mixed_opacity(scene, mix.second, uv, depth - 1)
+        }
+        _ => material.opacity_at(uv, &scene.textures),
+    }
+}
+
 /// Visibility of a light sample: 1 if unblocked, 0 if blocked; with stochastic-opacity
 /// materials in the scene, the product of (1 - d) over the surfaces crossed (the
 /// expected value of the opacity coin flips, so the estimate stays unbiased).
@@ -341,7 +370,7 @@ pub fn transmittance(scene: &Scene, q: &ShadowQuery, count: &mut RayCount) -> f3
             return tr;
         };
         let h = scene.interaction(&ray, &hit);
-        let opacity = scene.materials[h.material as usize].opacity;
+        let opacity = opacity_of(scene, h.material, h.uv);
         if opacity >= 1.0 {
             return 0.0;
         }

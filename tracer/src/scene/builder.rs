@@ -33,6 +33,9 @@ pub(super) struct Builder {
     /// its files are only checked (the meshes above are then empty).
     pub(super) flat_triangles: u64,
     pub(super) copy_triangles: u64,
+    /// The scene's `[materials]` table by name (indices into `materials`): they replace
+    /// MTL materials of the same name.
+    pub(super) named_materials: std::collections::HashMap<String, u32>,
 }
 
 impl Builder {
@@ -46,14 +49,33 @@ impl Builder {
     ) -> u32 {
         let (mat_base, tex_base) = (self.materials.len() as u32, self.textures.len() as u32);
         self.material_names.extend(materials.iter().map(|m| m.name.clone()));
-        self.materials.extend(materials.iter().map(|m| {
-            let mut m = m.clone();
-            m.map_kd = m.map_kd.map(|t| t + tex_base);
-            Material::from_desc(&m)
-        }));
+        for m in materials {
+            let material = match self.named(&m.name) {
+                Some(i) => self.materials[i as usize],
+                None => {
+                    let mut m = m.clone();
+                    m.map_kd = m.map_kd.map(|t| t + tex_base);
+                    m.maps = m.maps.shifted(tex_base);
+                    Material::from_desc(&m)
+                }
+            };
+            self.materials.push(material);
+        }
         self.textures.extend(textures);
         self.warnings.extend(warnings);
         mat_base
+    }
+
+    /// Adds a material of the scene's table under its name.
+    pub(super) fn add_named(&mut self, name: String, material: Material) {
+        self.named_materials.insert(name.clone(), self.materials.len() as u32);
+        self.materials.push(material);
+        self.material_names.push(name);
+    }
+
+    /// The index of the table's material `name`.
+    pub(super) fn named(&self, name: &str) -> Option<u32> {
+        self.named_materials.get(name).copied()
     }
 
     /// Stores a model once, in its own coordinates, for copies to place; returns its

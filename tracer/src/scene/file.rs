@@ -17,6 +17,95 @@ pub struct SceneFile {
     pub light: Vec<LightDesc>,
     #[serde(default)]
     pub background: BackgroundDesc,
+    /// Materials by name: Principled materials and mixes (README.md, "Principled
+    /// materials"); they override an MTL material of the same name.
+    #[serde(default)]
+    pub materials: std::collections::BTreeMap<String, MaterialTable>,
+}
+
+/// One `[materials.NAME]` table: Blender's Principled BSDF inputs, or a mix of two
+/// other materials of the table.
+#[derive(Clone, Debug, Default, Deserialize, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct MaterialTable {
+    pub base_color: Option<[f32; 3]>,
+    pub base_color_map: Option<TextureRef>,
+    pub metallic: Option<f32>,
+    pub metallic_map: Option<TextureRef>,
+    pub roughness: Option<f32>,
+    pub roughness_map: Option<TextureRef>,
+    pub ior: Option<f32>,
+    pub specular_ior_level: Option<f32>,
+    pub specular_tint: Option<[f32; 3]>,
+    pub transmission: Option<f32>,
+    pub transmission_map: Option<TextureRef>,
+    pub coat: Option<f32>,
+    pub coat_map: Option<TextureRef>,
+    pub coat_roughness: Option<f32>,
+    pub coat_ior: Option<f32>,
+    pub coat_tint: Option<[f32; 3]>,
+    pub sheen: Option<f32>,
+    pub sheen_map: Option<TextureRef>,
+    pub sheen_roughness: Option<f32>,
+    pub sheen_tint: Option<[f32; 3]>,
+    pub anisotropic: Option<f32>,
+    pub anisotropic_rotation: Option<f32>,
+    pub alpha: Option<f32>,
+    pub alpha_map: Option<TextureRef>,
+    pub emission_color: Option<[f32; 3]>,
+    pub emission_strength: Option<f32>,
+    pub emission_map: Option<TextureRef>,
+    /// `"multiscatter_ggx"` (the default) or `"ggx"`.
+    pub distribution: Option<String>,
+    pub normal_map: Option<TextureRef>,
+    pub bump_map: Option<TextureRef>,
+    /// A mix: `(1 − factor) · first + factor · second`.
+    pub mix: Option<[String; 2]>,
+    pub factor: Option<f32>,
+    pub factor_map: Option<TextureRef>,
+}
+
+impl MaterialTable {
+    /// Every texture the table refers to.
+    pub fn textures(&self) -> impl Iterator<Item = &TextureRef> {
+        [
+            &self.base_color_map,
+            &self.metallic_map,
+            &self.roughness_map,
+            &self.transmission_map,
+            &self.coat_map,
+            &self.sheen_map,
+            &self.alpha_map,
+            &self.emission_map,
+            &self.normal_map,
+            &self.bump_map,
+            &self.factor_map,
+        ]
+        .into_iter()
+        .flatten()
+    }
+}
+
+/// A texture on a material input: the image and how it is placed and read.
+#[derive(Clone, Debug, Default, Deserialize, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct TextureRef {
+    pub file: String,
+    pub scale: Option<[f32; 2]>,
+    pub offset: Option<[f32; 2]>,
+    /// Degrees, counter-clockwise, after scaling and before the offset.
+    pub rotation: Option<f32>,
+    /// `"srgb"` or `"non-color"`.
+    pub colorspace: Option<String>,
+    /// `"linear"` or `"closest"`.
+    pub interpolation: Option<String>,
+    /// `"rgb"`, `"luminance"` or `"alpha"`.
+    pub channel: Option<String>,
+    pub clamp: Option<bool>,
+    /// Normal and bump maps only.
+    pub strength: Option<f32>,
+    /// Bump maps only.
+    pub distance: Option<f32>,
 }
 
 #[derive(Clone, Debug, Deserialize, PartialEq)]
@@ -195,6 +284,14 @@ pub struct SphereDesc {
     pub d: Option<f32>,
     pub tf: Option<[f32; 3]>,
     pub illum: Option<u32>,
+    /// MTL's PBR keys in lower case (README.md, "Principled materials").
+    pub pr: Option<f32>,
+    pub pm: Option<f32>,
+    pub ps: Option<f32>,
+    pub pc: Option<f32>,
+    pub pcr: Option<f32>,
+    /// A material of the scene's `[materials]` table, instead of the keys above.
+    pub material: Option<String>,
 }
 
 #[derive(Clone, Debug, Deserialize, PartialEq)]
@@ -221,10 +318,23 @@ pub struct BackgroundDesc {
 /// `camera`) in a scene file's text: the key's own line, else its table's header line.
 /// A plain line scan: keys written as inline tables or dotted keys find their table.
 pub fn line_of(text: &str, field: &str) -> Option<usize> {
+    // A named table (`materials.Gold.roughness`: table `materials.Gold`, key
+    // `roughness`) when its header is written so, else the first part is the table.
+    if let Some((table, key)) = field.rsplit_once('.')
+        && table.contains('.')
+        && let Some(line) = line_in_table(text, table, Some(key))
+    {
+        return Some(line);
+    }
     let (table, key) = match field.split_once('.') {
         Some((t, k)) => (t, Some(k)),
         None => (field, None),
     };
+    line_in_table(text, table, key)
+}
+
+/// The line of `key` in the table `table` (`name` or `name[index]`), else its header's.
+fn line_in_table(text: &str, table: &str, key: Option<&str>) -> Option<usize> {
     let (name, index) = match table.split_once('[') {
         Some((n, i)) => (n, i.trim_end_matches(']').parse::<usize>().ok()?),
         None => (table, 0),
@@ -237,7 +347,7 @@ pub fn line_of(text: &str, field: &str) -> Option<usize> {
             if header.is_some() {
                 break; // the next table: the key is not written in this one
             }
-            let inner = line.trim_start_matches('[').trim_end_matches(']').trim();
+            let inner = line.trim_start_matches('[').trim_end_matches(']').trim().replace('"', "");
             if inner == name {
                 if seen == index {
                     header = Some(i + 1);

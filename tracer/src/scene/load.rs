@@ -16,7 +16,7 @@ use crate::accel::instances::Instances;
 use crate::accel::triangle_blocks::PackedTriangles;
 use crate::camera::Camera;
 use crate::light::{Light, LightSet};
-use crate::material::{Material, MaterialDesc};
+use crate::material::{Material, MaterialDesc, Slot};
 use crate::math;
 
 #[derive(Debug, thiserror::Error)]
@@ -250,6 +250,8 @@ pub(super) fn assemble_parts(
 
     // Meshes, each OBJ read once (see `place_meshes`).
     let mut b = Builder::default();
+    // The material table first: meshes and spheres use its materials by name.
+    super::materials::add_table(&mut b, &file.materials, base, &invalid)?;
     super::placement::place_meshes(&mut b, &file.mesh, name, base, depth, &invalid)?;
     // Spheres, each with its inline material.
     for (i, s) in file.sphere.iter().enumerate() {
@@ -258,10 +260,25 @@ pub(super) fn assemble_parts(
         if !(s.radius > 0.0 && s.radius.is_finite()) {
             return Err(invalid(field("radius"), format!("must be > 0, got {}", s.radius)));
         }
-        let desc = sphere_material(s, &field, &invalid)?;
-        b.spheres.push(Sphere { center, radius: s.radius, material: b.materials.len() as u32 });
-        b.materials.push(Material::from_desc(&desc));
-        b.material_names.push(format!("sphere[{i}]"));
+        let material = match &s.material {
+            Some(m) => {
+                if sphere_has_keys(s) {
+                    return Err(invalid(
+                        field("material"),
+                        "a sphere takes `material` or inline keys, not both".into(),
+                    ));
+                }
+                b.named(m)
+                    .ok_or_else(|| invalid(field("material"), format!("'{m}' is not in the [materials] table")))?
+            }
+            None => {
+                let desc = sphere_material(s, &field, &invalid)?;
+                b.materials.push(Material::from_desc(&desc));
+                b.material_names.push(format!("sphere[{i}]"));
+                b.materials.len() as u32 - 1
+            }
+        };
+        b.spheres.push(Sphere { center, radius: s.radius, material });
     }
 
     // Point, spot and directional lights.
@@ -320,18 +337,10 @@ fn sphere_material(
         Some(x) if x.is_finite() && ok(x) => Ok(x),
         Some(x) => Err(invalid(field(k), format!("out of range: {x}"))),
     };
-    let any_field = s.kd.is_some()
-        || s.ks.is_some()
-        || s.ns.is_some()
-        || s.ke.is_some()
-        || s.ni.is_some()
-        || s.d.is_some()
-        || s.tf.is_some()
-        || s.illum.is_some();
-    if !any_field {
+    if !sphere_has_keys(s) {
         return Ok(MaterialDesc::default_grey("sphere"));
     }
-    Ok(MaterialDesc {
+    let mut desc = MaterialDesc {
         name: "sphere".into(),
         kd: colour("kd", s.kd)?,
         ks: colour("ks", s.ks)?,
@@ -342,7 +351,31 @@ fn sphere_material(
         d: scalar("d", s.d, 1.0, &|x| (0.0..=1.0).contains(&x))?,
         illum: s.illum,
         ..MaterialDesc::default()
-    })
+    };
+    let keys = [("pr", s.pr), ("pm", s.pm), ("ps", s.ps), ("pc", s.pc), ("pcr", s.pcr)];
+    let mut pbr = crate::scene::obj::PbrKeys::default();
+    for (k, v) in keys {
+        if let Some(x) = v {
+            pbr.set(k, scalar(k, Some(x), 0.0, &|x| (0.0..=1.0).contains(&x))?);
+        }
+    }
+    if pbr.principled() {
+        desc.pbr = Some(pbr.to_pbr(&desc, s.ni, std::iter::empty()));
+    }
+    Ok(desc)
+}
+
+/// Whether a sphere has inline material keys.
+fn sphere_has_keys(s: &SphereDesc) -> bool {
+    s.kd.is_some()
+        || s.ks.is_some()
+        || s.ns.is_some()
+        || s.ke.is_some()
+        || s.ni.is_some()
+        || s.d.is_some()
+        || s.tf.is_some()
+        || s.illum.is_some()
+        || [s.pr, s.pm, s.ps, s.pc, s.pcr].iter().any(Option::is_some)
 }
 
 /// Collects area lights and builds the hierarchy.
@@ -386,7 +419,9 @@ fn finish(
     for &i in &new_index {
         let i = i as usize;
         let m = &materials[geometry.material(i) as usize];
-        if !m.is_emissive() {
+        // A textured emitter is found by its surfaces' BSDF samples only: a light's
+        // radiance is one value over its triangle.
+        if !m.is_emissive() || m.maps.get(Slot::Emission).is_some() {
             continue;
         }
         let [p0, p1, p2] = *geometry.triangle(i);
@@ -408,7 +443,7 @@ fn finish(
     let ntri = geometry.triangle_count();
     for (i, s) in geometry.spheres.iter().enumerate() {
         let m = &materials[s.material as usize];
-        if m.is_emissive() {
+        if m.is_emissive() && m.maps.get(Slot::Emission).is_none() {
             lights.push(Light::Sphere {
                 prim: (ntri + i) as u32,
                 center: s.center,
@@ -421,7 +456,7 @@ fn finish(
         lights.push(Light::Environment { radiance: background });
     }
     let lights = LightSet::new(lights, geometry.len(), radius);
-    let has_cutouts = materials.iter().any(|m| m.opacity < 1.0);
+    let has_cutouts = materials.iter().any(|m| m.has_cutout());
     Scene {
         camera,
         settings,

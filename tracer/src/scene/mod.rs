@@ -8,10 +8,13 @@ pub mod file;
 pub mod files;
 pub mod generate;
 pub mod load;
+mod materials;
+pub use materials::MAX_MIX_DEPTH;
 pub mod obj;
 pub mod overrides;
 pub mod placement;
 pub mod prepared;
+pub mod textures;
 
 pub use crate::shapes::{Geometry, GeometryBytes, NONE, PrimRef, Sphere, Tri, TriangleMesh};
 pub use check::{SceneCheck, check_scene_as};

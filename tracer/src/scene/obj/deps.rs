@@ -7,7 +7,7 @@ use super::ObjError;
 use super::check::{BLOCK_BYTES, scan_blocks};
 use super::mtl::{decode_utf8, parse_mtl_str, resolve_path};
 
-/// The MTL files and `map_Kd` textures `obj_path` refers to, whether or not they exist
+/// The MTL files and textures (`map_Kd`, `map_Pr`, `norm`, ...) `obj_path` refers to, whether or not they exist
 /// (a missing one is the loader's warning to give, not an error here). Errors are those
 /// of a malformed OBJ or MTL.
 pub fn obj_dependencies(obj_path: &Path) -> Result<Vec<PathBuf>, ObjError> {
@@ -46,6 +46,9 @@ pub fn obj_dependencies_where(obj_path: &Path, readable: &dyn Fn(&Path) -> bool)
             for raw in parse_mtl_str(&mtl_text, &mtl_display, &dir, &mut warnings)? {
                 if let Some(tex) = &raw.map_kd {
                     out.push(resolve_path(&raw.dir, tex));
+                }
+                for (_, arg) in &raw.maps {
+                    out.push(resolve_path(&raw.dir, &arg.name));
                 }
             }
         }

@@ -10,6 +10,7 @@ mod check;
 mod deps;
 mod mtl;
 mod parallel;
+mod pbr;
 mod scan;
 mod smoothing;
 #[cfg(test)]
@@ -24,6 +25,7 @@ pub use self::check::{ObjCheck, check_obj_as};
 pub use self::deps::{obj_dependencies, obj_dependencies_where};
 pub use self::mtl::{MtlLibrary, load_mtl};
 use self::mtl::{RawMaterial, TextureCache};
+pub(crate) use self::pbr::PbrKeys;
 use self::scan::{Corner, FaceInfo, ObjScan};
 use self::smoothing::SmoothNormals;
 use super::{NONE, Tri, TriangleMesh};
@@ -136,7 +138,7 @@ fn load_libraries(
                     warnings.push(format!(
                         "{display}:{line}: material library '{file}' could not be read ({}); its materials will be \
                          grey diffuse",
-                        mtl::io_reason(&e)
+                        crate::scene::textures::io_reason(&e)
                     ));
                     continue;
                 }

@@ -10,9 +10,11 @@ use std::path::{Path, PathBuf};
 use glam::{Vec2, Vec3};
 
 use super::ObjError;
+use super::pbr::{PbrKeys, pbr_key_name};
 use super::scan::shorten;
-use crate::material::MaterialDesc;
-use crate::math;
+use crate::material::{MaterialDesc, Slot};
+use crate::scene::textures::Decode;
+pub(super) use crate::scene::textures::TextureCache;
 use crate::texture::{TexMap, Texture};
 
 /// A material as read from an MTL file, its texture not yet loaded.
@@ -24,6 +26,8 @@ pub(super) struct RawMaterial {
     pub map_kd: Option<String>,
     /// Where `map_Kd`'s options place the image.
     pub map_kd_placement: TexMap,
+    /// Textures on the other inputs (file names relative to `dir`), in file order.
+    pub maps: Vec<(Slot, MapArg)>,
     /// Folder of the MTL file.
     pub dir: PathBuf,
     /// The MTL file, for messages.
@@ -52,17 +56,7 @@ pub fn load_mtl(path: &Path) -> Result<MtlLibrary, ObjError> {
     Ok(MtlLibrary { materials, textures: cache.textures, warnings })
 }
 
-/// An I/O error in plain words, without the OS's error number.
-pub(super) fn io_reason(e: &std::io::Error) -> String {
-    match e.kind() {
-        std::io::ErrorKind::NotFound => "no such file".into(),
-        std::io::ErrorKind::PermissionDenied => "permission denied".into(),
-        _ => {
-            let s = e.to_string();
-            s.split(" (os error").next().unwrap_or(&s).to_string()
-        }
-    }
-}
+pub(super) use crate::scene::textures::io_reason;
 
 /// Reads a text file, errors naming it (with the line of invalid UTF-8).
 pub(super) fn read_text(path: &Path, display: &str, limit: u64) -> Result<String, ObjError> {
@@ -129,9 +123,12 @@ pub(super) fn parse_mtl_str(
 ) -> Result<Vec<RawMaterial>, ObjError> {
     let mut clean = String::with_capacity(text.len());
     let mut ignored: Vec<String> = Vec::new();
-    // The material being defined, and the placement of each material's map_Kd.
+    // The material being defined, the placement of each material's map_Kd, its PBR
+    // keys and the textures on its other inputs.
     let mut current: Option<String> = None;
     let mut placements: HashMap<String, TexMap> = HashMap::new();
+    let mut pbr_keys: HashMap<String, PbrKeys> = HashMap::new();
+    let mut maps: HashMap<String, Vec<(Slot, MapArg)>> = HashMap::new();
     for (i, raw) in text.split('\n').enumerate() {
         let line_no = i + 1;
         let err = |message: String| ObjError::Parse { path: display.to_string(), line: line_no, message };
@@ -192,13 +189,54 @@ pub(super) fn parse_mtl_str(
                     tok.parse().map_err(|_| err(format!("illum needs an integer 0-255, found '{}'", shorten(tok))))?;
                 clean.push_str(&format!("illum {model}"));
             }
+            "pr" | "pm" | "ps" | "pc" | "pcr" | "aniso" | "anisor" | "pt" => {
+                let key = pbr_key_name(&lower);
+                let tok = strip_comment(rest)
+                    .split_whitespace()
+                    .next()
+                    .ok_or_else(|| err(format!("{key} needs a number")))?;
+                let x = parse_number(tok, key).map_err(&err)?;
+                if let Some(material) = &current {
+                    pbr_keys.entry(material.clone()).or_default().set(&lower, x);
+                }
+            }
+            "map_pr" | "map_pm" | "map_ps" | "map_pc" | "map_pt" | "map_d" | "map_ke" | "norm" | "map_bump"
+            | "bump" => {
+                let slot = match lower.as_str() {
+                    "map_pr" => Slot::Roughness,
+                    "map_pm" => Slot::Metallic,
+                    "map_ps" => Slot::Sheen,
+                    "map_pc" => Slot::Coat,
+                    "map_pt" => Slot::Transmission,
+                    "map_d" => Slot::Alpha,
+                    "map_ke" => Slot::Emission,
+                    "norm" => Slot::Normal,
+                    _ => Slot::Bump,
+                };
+                match parse_map_arg(rest) {
+                    None => warnings.push(format!("{display}:{line_no}: {keyword} without a file name, ignored")),
+                    Some(arg) => {
+                        let skipped = skipped_options(&arg, matches!(slot, Slot::Normal | Slot::Bump));
+                        if !skipped.is_empty() {
+                            warnings.push(format!(
+                                "{display}:{line_no}: {keyword} options {} are not supported and were skipped",
+                                skipped.join(", ")
+                            ));
+                        }
+                        if let Some(material) = &current {
+                            maps.entry(material.clone()).or_default().push((slot, arg));
+                        }
+                    }
+                }
+            }
             "map_kd" => match parse_map_arg(rest) {
                 None => warnings.push(format!("{display}:{line_no}: map_Kd without a file name, ignored")),
                 Some(arg) => {
-                    if !arg.skipped.is_empty() {
+                    let skipped = skipped_options(&arg, false);
+                    if !skipped.is_empty() {
                         warnings.push(format!(
                             "{display}:{line_no}: map_Kd options {} are not supported and were skipped",
-                            arg.skipped.join(", ")
+                            skipped.join(", ")
                         ));
                     }
                     clean.push_str("map_Kd ");
@@ -228,7 +266,9 @@ pub(super) fn parse_mtl_str(
         .map(|m| {
             let param = |k: &str| m.unknown_param.get(k).and_then(|s| parse_rgb(s));
             let d = m.dissolve.or_else(|| param("Tr").map(|tr| 1.0 - tr.x));
-            let desc = MaterialDesc {
+            let keys = pbr_keys.get(&m.name).copied().unwrap_or_default();
+            let maps = maps.get(&m.name).cloned().unwrap_or_default();
+            let mut desc = MaterialDesc {
                 name: m.name.clone(),
                 ka: to_vec3(m.ambient).unwrap_or(Vec3::ZERO),
                 kd: to_vec3(m.diffuse).unwrap_or(Vec3::ZERO),
@@ -239,13 +279,26 @@ pub(super) fn parse_mtl_str(
                 ni: m.optical_density.unwrap_or(1.0),
                 d: d.unwrap_or(1.0),
                 illum: m.illumination_model.map(u32::from),
-                map_kd: None,
+                ..MaterialDesc::default()
             };
+            if keys.principled() {
+                desc.pbr = Some(keys.to_pbr(&desc, m.optical_density, maps.iter().map(|(s, a)| (*s, a.bm))));
+            }
             let map_kd = m.diffuse_texture.as_deref().map(|t| t.trim().to_string()).filter(|t| !t.is_empty());
             let map_kd_placement = placements.get(&m.name).copied().unwrap_or_default();
-            RawMaterial { desc, map_kd, map_kd_placement, dir: dir.to_path_buf(), mtl: display.to_string() }
+            RawMaterial { desc, map_kd, map_kd_placement, maps, dir: dir.to_path_buf(), mtl: display.to_string() }
         })
         .collect())
+}
+
+/// The options of `arg` that have no effect: those [`parse_map_arg`] skipped, and `-bm`
+/// unless the map is a normal or bump map.
+fn skipped_options(arg: &MapArg, bumps: bool) -> Vec<String> {
+    let mut skipped = arg.skipped.clone();
+    if let (Some(bm), false) = (arg.bm, bumps) {
+        skipped.push(format!("-bm {bm}"));
+    }
+    skipped
 }
 
 /// A `map_Kd` argument: the file name, the options that place the image, and the options
@@ -254,6 +307,8 @@ pub(super) fn parse_mtl_str(
 pub(super) struct MapArg {
     pub name: String,
     pub map: TexMap,
+    /// `-bm`: a bump or normal map's strength.
+    pub bm: Option<f32>,
     pub skipped: Vec<String>,
 }
 
@@ -264,6 +319,7 @@ pub(super) fn parse_map_arg(arg: &str) -> Option<MapArg> {
     let mut rest = arg.trim();
     let mut map = TexMap::default();
     let mut skipped = Vec::new();
+    let mut bm = None;
     loop {
         let opt = rest.split_whitespace().next()?;
         let (min, max) = match opt {
@@ -293,52 +349,12 @@ pub(super) fn parse_map_arg(arg: &str) -> Option<MapArg> {
             "-o" if numbers.len() == values.len() => map.offset = uv(0.0),
             "-clamp" if values.first().is_some_and(|v| v.eq_ignore_ascii_case("on")) => map.clamp = true,
             "-clamp" if values.first().is_some_and(|v| v.eq_ignore_ascii_case("off")) => {}
+            "-bm" if numbers.len() == 1 => bm = numbers.first().copied(),
             _ => skipped.push(format!("{opt} {}", values.join(" ")).trim().to_string()),
         }
     }
     let name = rest.trim();
-    (!name.is_empty()).then(|| MapArg { name: name.to_string(), map, skipped })
-}
-
-/// Decoded textures, one per distinct path and placement (an image is decoded once).
-#[derive(Default)]
-pub(super) struct TextureCache {
-    pub textures: Vec<Texture>,
-    by_path: HashMap<PathBuf, Result<Vec<u32>, String>>,
-}
-
-impl TextureCache {
-    fn get(&mut self, path: &Path, map: TexMap) -> Result<u32, String> {
-        let key = std::fs::canonicalize(path).unwrap_or_else(|_| path.to_path_buf());
-        let known = match self.by_path.get(&key) {
-            Some(Err(e)) => return Err(e.clone()),
-            Some(Ok(known)) => known.clone(),
-            None => match decode_texture(path) {
-                Ok(tex) => {
-                    self.textures.push(tex);
-                    vec![self.textures.len() as u32 - 1]
-                }
-                Err(e) => {
-                    self.by_path.insert(key, Err(e.clone()));
-                    return Err(e);
-                }
-            },
-        };
-        let index = match known.iter().find(|&&i| self.textures[i as usize].map == map) {
-            Some(&i) => i,
-            None => {
-                let placed = Texture { map, ..self.textures[known[0] as usize].clone() };
-                self.textures.push(placed);
-                self.textures.len() as u32 - 1
-            }
-        };
-        let mut known = known;
-        if !known.contains(&index) {
-            known.push(index);
-        }
-        self.by_path.insert(key, Ok(known));
-        Ok(index)
-    }
+    (!name.is_empty()).then(|| MapArg { name: name.to_string(), map, bm, skipped })
 }
 
 /// `dir/name`, tolerating Windows separators in `name` when the file is not found as written.
@@ -363,7 +379,7 @@ pub(super) fn resolve_material(
     let mut desc = raw.desc.clone();
     if let Some(name) = &raw.map_kd {
         let path = resolve_path(&raw.dir, name);
-        match cache.get(&path, raw.map_kd_placement) {
+        match cache.get(&path, raw.map_kd_placement, Decode { srgb: true, alpha: false }) {
             Ok(i) => desc.map_kd = Some(i),
             Err(e) => {
                 warnings.push(format!(
@@ -376,54 +392,18 @@ pub(super) fn resolve_material(
             }
         }
     }
-    desc
-}
-
-fn srgb_to_linear(c: f32) -> f32 {
-    if c <= 0.04045 { c / 12.92 } else { math::powf((c + 0.055) / 1.055, 2.4) }
-}
-
-fn clean_texel(c: Vec3) -> Vec3 {
-    Vec3::new(
-        if c.x.is_finite() { c.x.max(0.0) } else { 0.0 },
-        if c.y.is_finite() { c.y.max(0.0) } else { 0.0 },
-        if c.z.is_finite() { c.z.max(0.0) } else { 0.0 },
-    )
-}
-
-/// Decodes an image into linear RGB (8/16-bit images are sRGB-encoded; float images such
-/// as `.hdr` are already linear). Alpha is ignored.
-pub(super) fn decode_texture(path: &Path) -> Result<Texture, String> {
-    use crate::scene::files::{MAX_TEXTURE_BYTES, check_regular};
-    use image::DynamicImage;
-    check_regular(path, MAX_TEXTURE_BYTES).map_err(|e| io_reason(&e))?;
-    let mut reader =
-        image::ImageReader::open(path).map_err(|e| io_reason(&e))?.with_guessed_format().map_err(|e| e.to_string())?;
-    let mut limits = image::Limits::default();
-    limits.max_alloc = Some(MAX_TEXTURE_BYTES);
-    reader.limits(limits);
-    let img = reader.decode().map_err(|e| e.to_string())?;
-    let (width, height) = (img.width(), img.height());
-    let texels: Vec<Vec3> = match &img {
-        DynamicImage::ImageRgb32F(_) | DynamicImage::ImageRgba32F(_) => {
-            img.to_rgb32f().pixels().map(|p| clean_texel(Vec3::new(p[0], p[1], p[2]))).collect()
+    for (slot, arg) in &raw.maps {
+        let path = resolve_path(&raw.dir, &arg.name);
+        match cache.get(&path, arg.map, Decode { srgb: slot.is_colour(), alpha: false }) {
+            Ok(i) => desc.maps.set(*slot, Some(i)),
+            Err(e) => warnings.push(format!(
+                "{}: material '{}': {} texture '{}' could not be loaded ({e}); using the value without a texture",
+                raw.mtl,
+                desc.name,
+                slot.names().0,
+                super::shown_beside(&raw.mtl, &arg.name)
+            )),
         }
-        DynamicImage::ImageLuma8(_)
-        | DynamicImage::ImageLumaA8(_)
-        | DynamicImage::ImageRgb8(_)
-        | DynamicImage::ImageRgba8(_) => {
-            let lut: Vec<f32> = (0..=255u8).map(|b| srgb_to_linear(f32::from(b) / 255.0)).collect();
-            let f = |b: u8| lut[usize::from(b)];
-            img.to_rgb8().pixels().map(|p| Vec3::new(f(p[0]), f(p[1]), f(p[2]))).collect()
-        }
-        _ => img
-            .to_rgb32f()
-            .pixels()
-            .map(|p| clean_texel(Vec3::new(srgb_to_linear(p[0]), srgb_to_linear(p[1]), srgb_to_linear(p[2]))))
-            .collect(),
-    };
-    if width == 0 || height == 0 || texels.len() != width as usize * height as usize {
-        return Err("empty image".into());
     }
-    Ok(Texture { width, height, texels, map: TexMap::default() })
+    desc
 }

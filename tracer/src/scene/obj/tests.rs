@@ -283,7 +283,10 @@ fn mtl_statements() {
     let tr = &m.materials[2];
     assert!((tr.d - 0.75).abs() < 1e-6, "Tr is 1 - d");
     assert_eq!(tr.tf, Vec3::ONE);
-    assert!(m.warnings.iter().any(|w| w.contains("Pr")), "unsupported statement reported: {:?}", m.warnings);
+    // `Pr` (MTL's PBR extension) makes `full` a Principled material; `illum 7` makes it glass.
+    let pbr = full.pbr.as_ref().expect("Pr makes a Principled material");
+    assert_eq!((pbr.inputs.roughness, pbr.inputs.ior, pbr.inputs.transmission, pbr.alpha), (0.5, 1.5, 1.0, 1.0));
+    assert!(m.warnings.iter().all(|w| !w.contains("Pr")), "Pr is supported: {:?}", m.warnings);
 
     let lib = load_mtl(&fixtures().join("textured.mtl")).expect("mtl loads");
     assert_eq!(lib.materials.len(), 3);
@@ -428,7 +431,8 @@ fn map_kd_options_place_the_image_or_are_skipped_by_name() {
     assert_eq!(a.map.scale, Vec2::new(2.0, 3.0));
     assert_eq!(a.map.offset, Vec2::new(0.5, 0.25));
     assert!(a.map.clamp);
-    assert_eq!(a.skipped, ["-bm 0.3", "-mm 0 1"]);
+    assert_eq!(a.skipped, ["-mm 0 1"]);
+    assert_eq!(a.bm, Some(0.3), "-bm is kept for bump and normal maps");
     // As the MTL specification says, an omitted v scale is 1 (and an omitted offset 0).
     let b = mtl::parse_map_arg("-s 4 -o 0.5 tex.png").unwrap();
     assert_eq!((b.name.as_str(), b.map.scale, b.map.offset), ("tex.png", Vec2::new(4.0, 1.0), Vec2::new(0.5, 0.0)));
