@@ -143,8 +143,8 @@ CASES = {
         },
     },
     # A point light's highlight on metal this smooth is a spot far smaller than a pixel
-    # and very bright: the image mean's noise with Mitsuba's independent sampler was
-    # 1.5 % at 512 spp (a third of the image's light). The panel's reflection tests the
+    # holding a third of the image's light: with Mitsuba's independent sampler the image
+    # mean's standard error was over 1 % at 512 spp. The panel's reflection tests the
     # sharp lobe instead, through both light sampling and BSDF sampling.
     "b": metal(0.1, point_light=False),
     "c": metal(0.3, point_light=True),
@@ -275,8 +275,8 @@ def mitsuba_scene(case, spp, folder, objs):
 # --------------------------------------------------------------------------------------
 
 
-class TilefarmRejected(Exception):
-    pass
+class TilefarmFailed(Exception):
+    """`coordinator render` exited non-zero (the message has its command and stderr)."""
 
 
 def exr_channels(path, names):
@@ -299,7 +299,7 @@ def render_tilefarm(exe, scene_path, spp, out):
     run = subprocess.run(cmd, capture_output=True, text=True, timeout=600)
     seconds = time.perf_counter() - t
     if run.returncode != 0:
-        raise TilefarmRejected(f"`{' '.join(cmd)}` exited {run.returncode}: {run.stderr.strip()}")
+        raise TilefarmFailed(f"`{' '.join(cmd)}` exited {run.returncode}: {run.stderr.strip()}")
     px = exr_channels(out, ["R", "G", "B", "variance.R", "variance.G", "variance.B"])
     return px[..., :3], px[..., 3:], seconds
 
@@ -376,8 +376,8 @@ def run_case(key, exe, work, spp, pending, print_scenes):
         f.write(tilefarm_scene(case, spp, objs))
     scene_dict = mitsuba_scene(case, spp, folder, objs)
     if print_scenes:
-        print(f"===== case {key}: {case['title']} =====\n--- {scene_path}")
-        print(open(scene_path).read())
+        with open(scene_path) as f:
+            print(f"===== case {key}: {case['title']} =====\n--- {scene_path}\n{f.read()}")
         with open(os.path.join(folder, "stage.mtl")) as f:
             print(f"--- {folder}/stage.mtl\n{f.read()}")
         for obj in objs.values():
@@ -394,7 +394,7 @@ def run_case(key, exe, work, spp, pending, print_scenes):
     if key in pending:
         try:
             render_tilefarm(exe, scene_path, 1, os.path.join(folder, "tilefarm-probe.exr"))
-        except TilefarmRejected as e:
+        except TilefarmFailed as e:
             # Only the missing Principled materials keep a case pending: a scene rejected
             # for anything else (a key renamed, a value out of range) is a failure to see.
             if not re.search(r"unknown field `materials?`", str(e)):
@@ -403,19 +403,20 @@ def run_case(key, exe, work, spp, pending, print_scenes):
             stack, mi_s = render_mitsuba(scene_dict, PENDING_SPP, 1)
             figures.update({
                 "pending": str(e).splitlines()[-1][:300],
-                "mitsuba_means_at_16spp": stack[0].reshape(-1, 3).mean(0).round(4).tolist(),
+                "mitsuba_spp": PENDING_SPP,
+                "mitsuba_means": stack[0].reshape(-1, 3).mean(0).round(4).tolist(),
                 "mitsuba_s": round(mi_s, 2),
             })
             mi.util.write_bitmap(os.path.join(folder, "mitsuba.exr"), stack[0].astype(np.float32))
             return figures, failed
+        # Compared all the same below, so that the figures show how it fares.
         failed.append(f"case {key} ({case['title']}): tilefarm renders it now; take it off --pending "
                       "(PENDING in tests/tests/mitsuba.rs)")
-        return figures, failed
 
     try:
         tf, tf_var, tf_s = render_tilefarm(exe, scene_path, spp, os.path.join(folder, "tilefarm.exr"))
-    except TilefarmRejected as e:
-        return figures, [f"case {key} ({case['title']}): {e}"]
+    except TilefarmFailed as e:
+        return figures, failed + [f"case {key} ({case['title']}): {e}"]
     stack, mi_s = render_mitsuba(scene_dict, spp, PASSES)
     mi_img, mi_var = passes_estimate(stack)
     mi.util.write_bitmap(os.path.join(folder, "mitsuba.exr"), mi_img.astype(np.float32))
