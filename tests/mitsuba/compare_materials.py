@@ -125,7 +125,7 @@ def metal(r, point_light):
             "type": "roughconductor",
             "material": "none",
             "distribution": "ggx",
-            "alpha": r * r,
+            "alpha": round(r * r, 6),
             "sample_visible": True,
         },
     }
