@@ -24,6 +24,20 @@ def expect(what, got, want, tol=1e-5):
     assert close(got, want, tol), f"{what}: {got!r}, expected {want!r}"
 
 
+def save_image(work, name, px, colorspace="sRGB", float_buffer=False, on_disk=True):
+    """A bpy image of `px` (rows bottom to top, RGBA), saved into `work` as PNG (or
+    OpenEXR if `float_buffer`) unless not `on_disk`, with its colour space set."""
+    h, w = px.shape[:2]
+    img = bpy.data.images.new(name, w, h, alpha=True, float_buffer=float_buffer)
+    img.pixels[:] = np.asarray(px, np.float32).ravel()
+    if on_disk:
+        img.filepath_raw = os.path.join(work, name + (".exr" if float_buffer else ".png"))
+        img.file_format = "OPEN_EXR" if float_buffer else "PNG"
+        img.save()
+    img.colorspace_settings.name = colorspace
+    return img
+
+
 class Build:
     """The scene under construction: images on disk in WORK, one plane per material."""
 
@@ -35,19 +49,10 @@ class Build:
     def image(self, name, colorspace="sRGB", alpha=False, float_buffer=False, on_disk=True):
         if name in self.images:
             return self.images[name]
-        n = 8
-        img = bpy.data.images.new(name, n, n, alpha=alpha, float_buffer=float_buffer)
-        y, x = np.mgrid[0:n, 0:n] / (n - 1)
+        y, x = np.mgrid[0:8, 0:8] / 7.0
         px = np.stack([x, y, 0.5 + 0.4 * np.sin(6 * x) * y, 1.0 - 0.8 * x * y if alpha else np.ones_like(x)], -1)
-        img.pixels[:] = px.astype(np.float32).ravel()
-        if on_disk:
-            ext = ".exr" if float_buffer else ".png"
-            img.filepath_raw = os.path.join(self.work, name + ext)
-            img.file_format = "OPEN_EXR" if float_buffer else "PNG"
-            img.save()
-        img.colorspace_settings.name = colorspace
-        self.images[name] = img
-        return img
+        self.images[name] = save_image(self.work, name, px, colorspace, float_buffer, on_disk)
+        return self.images[name]
 
     def material(self, name):
         """A new material with its default Principled BSDF on a plane of its own."""
