@@ -27,7 +27,7 @@ import mathutils
 import numpy as np
 
 from . import materials as mats
-from . import textures
+from . import textures as tex
 
 MESH_TYPES = {"MESH", "CURVE", "SURFACE", "META", "FONT"}
 
@@ -98,10 +98,11 @@ class _Exporter:
             image = ref.image
             if image.name not in self.textures:
                 try:
-                    self.textures[image.name] = textures.write_texture(image, self.folder, self.texture_names,
+                    self.textures[image.name] = tex.write_texture(image, self.folder, self.texture_names,
                                                                        mats.safe_name)
                 except Exception as e:  # a texture that cannot be saved is reported, not fatal
-                    self.report.warn(f"material {label}: texture {image.name} not written ({e}; the input's "
+                    why = " ".join(str(e).split()) or type(e).__name__
+                    self.report.warn(f"material {label}: texture {image.name} not written ({why}; the input's "
                                      "own value used)")
                     self.textures[image.name] = None
             ref.file = self.textures[image.name]

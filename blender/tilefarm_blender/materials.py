@@ -53,7 +53,7 @@ class Mapped:
             for key in [k for k, v in table.items() if isinstance(v, tex.TextureRef) and v.file is None]:
                 ref = table.pop(key)
                 base = key[: -len("_map")]
-                if base in table and hasattr(ref, "fallback"):
+                if base in table and ref.fallback is not None:
                     table[base] = ref.fallback
 
     def mtl(self):

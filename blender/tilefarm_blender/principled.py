@@ -111,7 +111,7 @@ class Reader:
             ref = tex.image_ref(node, out, kind, self.where + name, self.problems)
             if ref is not None:
                 table[key] = [1.0, 1.0, 1.0] if kind == COLOR else 1.0
-                ref.fallback = own  # if its file cannot be written
+                ref.fallback = own
                 table[key + "_map"] = ref
         elif node.type in {"RGB", "VALUE"}:
             table[key] = constant(out.default_value, kind)

@@ -56,6 +56,7 @@ class TextureRef:
         self.rotation = 0.0  # degrees, counter-clockwise
         self.clamp = False
         self.extra = {}  # strength (normal and bump maps), distance (bump maps)
+        self.fallback = None  # the input's own value, if the image cannot be written
         self.file = None  # its file in the scene folder, once written
 
     def fields(self):
