@@ -488,6 +488,29 @@ def rgb_and_value_nodes_are_constants(b):
 
 
 @case
+def unwritable_texture_gives_the_inputs_own_value(b):
+    """An image whose file has gone (and has no pixels in Blender): one warning line,
+    and the input's own value instead of the map."""
+    path = os.path.join(b.work, "gone.png")
+    b.image("gone")  # written, then loaded as a file image and deleted
+    image = bpy.data.images.load(os.path.join(b.work, "gone.png"))
+    image.name = "gone-file"
+    os.remove(path)
+    _, nt, p = b.material("Gone")
+    p.inputs["Base Color"].default_value = (0.3, 0.2, 0.1, 1.0)
+    nt.links.new(b.texture(nt, image).outputs["Color"], p.inputs["Base Color"])
+
+    def check(x):
+        t = x.table("Gone")
+        assert "base_color_map" not in t, t
+        expect("base_color: the socket's own value", t["base_color"], [0.3, 0.2, 0.1])
+        got = x.warned("Gone")
+        assert len(got) == 1 and got[0].startswith("texture gone-file not written (") and \
+            got[0].endswith("; the input's own value used)"), got
+    return check
+
+
+@case
 def unmapped_things_are_listed(b):
     _, nt, p = b.material("Unmapped")
     p.inputs["Subsurface Weight"].default_value = 0.5
