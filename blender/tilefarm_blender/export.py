@@ -99,7 +99,7 @@ class _Exporter:
             if image.name not in self.textures:
                 try:
                     self.textures[image.name] = tex.write_texture(image, self.folder, self.texture_names,
-                                                                       mats.safe_name)
+                                                                  mats.safe_name)
                 except Exception as e:  # a texture that cannot be saved is reported, not fatal
                     why = " ".join(str(e).split()) or type(e).__name__
                     self.report.warn(f"material {label}: texture {image.name} not written ({why}; the input's "

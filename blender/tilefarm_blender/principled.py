@@ -147,7 +147,10 @@ class Reader:
         strength = inner.fixed("Strength")
         src = tex.source(node.inputs["Color"])
         if src is None:
-            return  # its own colour: a flat normal map, or a constant tilt (not worth a texture)
+            color = inner.value("Color", COLOR)
+            if max(abs(c - f) for c, f in zip(color, (0.5, 0.5, 1.0))) > 1e-6:
+                inner.note(f"a constant Color {show(color)} (a tilted normal) not mapped")
+            return
         if src[0].type != "TEX_IMAGE":
             inner.note(f"Color from a {tex.describe(src[0])}: not mapped (the surface's own normal used)")
             return
