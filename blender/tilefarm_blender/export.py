@@ -1,7 +1,9 @@
 """A Blender scene as a tilefarm scene folder: `scene.toml`, one OBJ per distinct mesh
 (modifiers applied, in its object's space, placed by its world matrix) with an MTL of
 its materials, both named by the digest of their content (meshes that are the same, in
-one frame or across an animation's frames, share one file), and the textures.
+one frame or across an animation's frames, share one file), and the textures. Each
+material is also a `[materials.NAME]` table at the end of scene.toml (materials.py),
+which overrides its MTL namesake with everything MTL cannot say.
 
 Blender's world coordinates are kept as they are (Z up): the camera's `up` says which
 way is up, and both are right-handed, so nothing is mirrored. The camera looks down its
@@ -25,6 +27,7 @@ import mathutils
 import numpy as np
 
 from . import materials as mats
+from . import textures as tex
 
 MESH_TYPES = {"MESH", "CURVE", "SURFACE", "META", "FONT"}
 
@@ -88,23 +91,35 @@ class _Exporter:
         key = material.original if material is not None else None
         if key in self.materials:
             return self.materials[key].name
-        name = mats.safe_name(material.name if material is not None else "default", self.names)
-        mapped = mats.map_material(material, name)
-        if mapped.texture is not None:
-            image = mapped.texture
+        label = material.name if material is not None else "default"
+        name = mats.safe_name(label, self.names)
+        mapped = mats.map_material(material, name, self.names)
+        for ref in mapped.refs():
+            image = ref.image
             if image.name not in self.textures:
                 try:
-                    self.textures[image.name] = mats.write_texture(image, self.folder, self.texture_names)
+                    self.textures[image.name] = tex.write_texture(image, self.folder, self.texture_names,
+                                                                  mats.safe_name)
                 except Exception as e:  # a texture that cannot be saved is reported, not fatal
-                    self.report.warn(f"material {material.name}: texture {image.name} not written ({e})")
+                    why = " ".join(str(e).split()) or type(e).__name__
+                    self.report.warn(f"material {label}: texture {image.name} not written ({why}; the input's "
+                                     "own value used)")
                     self.textures[image.name] = None
-            if self.textures[image.name]:
-                mapped.lines.append(mats.texture_line(self.textures[image.name]))
+            ref.file = self.textures[image.name]
+        mapped.resolve()
         for p in mapped.problems:
-            self.report.warn(f"material {material.name if material else 'default'}: {p}")
+            self.report.warn(f"material {label}: {p}")
         self.materials[key] = mapped
         self.by_name[name] = mapped
         return name
+
+    def material_tables(self):
+        """scene.toml's `[materials]` tables of the materials written (they override the
+        MTL materials of the same names)."""
+        out = []
+        for mapped in self.materials.values():
+            out += mapped.toml()
+        return out
 
     # Meshes --------------------------------------------------------------------------
 
@@ -363,7 +378,7 @@ def export_scene(folder, scene=None, frame=None, toml="scene.toml"):
     if any(c > 0 for c in bg):
         head += ["", "[background]", f"radiance = {_vec(bg)}"]
     with open(os.path.join(folder, toml), "w", encoding="utf-8") as f:
-        f.write("\n".join(head + ex.toml) + "\n")
+        f.write("\n".join(head + ex.toml + ex.material_tables()) + "\n")
     report.seconds = time.perf_counter() - started
     return report
 

@@ -1,21 +1,15 @@
-"""Blender materials as MTL materials: the Principled BSDF (and the plain Diffuse,
-Emission and Glass shaders) mapped onto the keys tilefarm shades (see README.md,
-"From Blender"). What cannot be mapped is reported, never silently dropped."""
+"""Blender materials as tilefarm Principled materials (README.md, "Principled
+materials"): each one a `[materials.NAME]` table in scene.toml, full and explicit, and
+an MTL material of the same name with the PBR keys (`Kd`, `Pr`, `Pm`, …) for other
+programs, which the table overrides. A Mix Shader is a table mixing two tables of
+derived names. `principled.py` reads the shader nodes, `textures.py` the images and
+their mapping; what cannot be mapped is reported, never silently dropped."""
 
-import os
+import json
 import re
-import shutil
 
-# Principled inputs that change the look and have no MTL counterpart: reported when
-# used (a weight above zero, or any link into them).
-UNMAPPED_INPUTS = {
-    "Subsurface Weight": "subsurface",
-    "Sheen Weight": "sheen",
-    "Coat Weight": "coat",
-    "Anisotropic": "anisotropy",
-    "Thin Film Thickness": "thin film",
-}
-
+from . import principled as pr
+from . import textures as tex
 
 ONE_SIDED = "emits from its front faces only (Blender: both sides)"
 
@@ -31,195 +25,201 @@ def safe_name(name, taken):
     return out
 
 
-def _value(node, name, default):
-    sock = node.inputs.get(name)
-    if sock is None:
-        return default
-    v = sock.default_value
-    try:
-        return tuple(v)
-    except TypeError:
-        return v
-
-
-def _linked(node, name):
-    sock = node.inputs.get(name)
-    return sock is not None and sock.is_linked
-
-
-def _linked_node(node, name):
-    sock = node.inputs.get(name)
-    if sock is None or not sock.is_linked:
-        return None
-    return sock.links[0].from_node
-
-
-def _rgb(v):
-    return tuple(float(c) for c in v[:3])
-
-
-def _fmt(v):
-    return " ".join(f"{c:.6g}" for c in v)
-
-
-def ns_from_roughness(roughness):
-    """A Blinn-Phong exponent with about the highlight of a GGX lobe of this roughness
-    (alpha = roughness², Ns = 2 / alpha² − 2), within tilefarm's 0–1000."""
-    alpha = max(float(roughness), 1e-3) ** 2
-    return min(max(2.0 / (alpha * alpha) - 2.0, 0.0), 1000.0)
-
-
 class Mapped:
-    """One material as MTL lines, with what could not be mapped."""
+    """One material: its tables for scene.toml (the first its own, then a Mix Shader's
+    parts), the table its MTL describes, and what could not be mapped. An area light's
+    material is raw MTL `lines` instead."""
 
     def __init__(self, name):
         self.name = name
-        self.lines = []
+        self.tables = []  # [(name, {key: value})]
+        self.mtl_table = None
+        self.lines = None
         self.problems = []
-        self.texture = None  # (source path or image, file name in the scene folder)
+
+    def refs(self):
+        """The texture references of its tables (each once)."""
+        seen = {}
+        for _, table in self.tables:
+            for v in table.values():
+                if isinstance(v, tex.TextureRef):
+                    seen[id(v)] = v
+        return list(seen.values())
+
+    def resolve(self):
+        """Once the textures are written: a reference whose image could not be written
+        gives way to the input's own value."""
+        for _, table in self.tables:
+            for key in [k for k, v in table.items() if isinstance(v, tex.TextureRef) and v.file is None]:
+                ref = table.pop(key)
+                base = key[: -len("_map")]
+                if base in table and ref.fallback is not None:
+                    table[base] = ref.fallback
 
     def mtl(self):
-        return "\n".join([f"newmtl {self.name}"] + self.lines) + "\n"
+        lines = self.lines if self.lines is not None else mtl_lines(self.mtl_table)
+        return "\n".join([f"newmtl {self.name}"] + lines) + "\n"
+
+    def toml(self):
+        out = []
+        for name, table in self.tables:
+            out += ["", f"[materials.{toml_key(name)}]"]
+            out += [f"{k} = {toml_value(v)}" for k, v in table.items()]
+        return out
 
 
-def _surface_node(material):
-    if not material.use_nodes or material.node_tree is None:
-        return None
-    out = None
-    for n in material.node_tree.nodes:
-        if n.type == "OUTPUT_MATERIAL" and (out is None or n.is_active_output):
-            out = n
-    if out is None:
-        return None
-    return _linked_node(out, "Surface")
-
-
-def _texture_of(node, name, m):
-    """The image texture linked straight into input `name`, if any (else reported)."""
-    src = _linked_node(node, name)
-    if src is None:
-        return None
-    if src.type == "TEX_IMAGE" and src.image is not None:
-        return src.image
-    m.problems.append(f"{name.lower()} from a {src.bl_idname} node (only an image texture maps)")
-    return None
-
-
-def map_material(material, name):
-    """`material` (a bpy Material) as MTL, named `name`."""
+def map_material(material, name, taken):
+    """`material` (a bpy Material, or None: Cycles' default surface) as a Mapped named
+    `name`; names of a Mix Shader's parts are derived from it, unique among `taken`."""
     m = Mapped(name)
     if material is None:
-        m.lines += ["Kd 0.8 0.8 0.8"]
-        return m
-    node = _surface_node(material)
-    if node is None:
-        m.lines.append("Kd " + _fmt(_rgb(material.diffuse_color)))
-        if material.use_nodes:
-            m.problems.append("no shader connected to the material output")
-        return m
-    kind = node.type
-    if kind == "BSDF_PRINCIPLED":
-        _principled(node, m)
-    elif kind == "BSDF_DIFFUSE":
-        m.lines.append("Kd " + _fmt(_rgb(_value(node, "Color", (0.8, 0.8, 0.8)))))
-        m.texture = _texture_of(node, "Color", m)
-        if float(_value(node, "Roughness", 0.0)) > 0.0:
-            m.problems.append("diffuse roughness (Oren-Nayar): rendered Lambertian")
-    elif kind == "EMISSION":
-        strength = float(_value(node, "Strength", 1.0))
-        m.lines += ["Kd 0 0 0", "Ke " + _fmt([c * strength for c in _rgb(_value(node, "Color", (1, 1, 1)))])]
-        m.problems.append(ONE_SIDED)
-    elif kind == "BSDF_GLASS":
-        tint = _rgb(_value(node, "Color", (1, 1, 1)))
-        m.lines += ["Kd 0 0 0", "Ks 1 1 1", "Tf " + _fmt(tint), f"Ni {float(_value(node, 'IOR', 1.45)):.6g}", "illum 7"]
-        if float(_value(node, "Roughness", 0.0)) > 0.0:
-            m.problems.append("rough glass: rendered smooth")
-    elif kind == "BSDF_GLOSSY":
-        color = _rgb(_value(node, "Color", (0.8, 0.8, 0.8)))
-        rough = float(_value(node, "Roughness", 0.5))
-        if rough < 0.05:
-            m.lines += ["Kd 0 0 0", "Ks " + _fmt(color), "illum 3"]
-        else:
-            m.lines += ["Kd 0 0 0", "Ks " + _fmt(color), f"Ns {ns_from_roughness(rough):.6g}"]
+        m.tables.append((name, pr.defaults(specular_ior_level=0.0, roughness=1.0)))
+    elif not material.use_nodes or material.node_tree is None:
+        # Cycles renders a material without nodes as a diffuse of its viewport colour.
+        color = [float(c) for c in material.diffuse_color[:3]]
+        m.tables.append((name, pr.defaults(base_color=color, specular_ior_level=0.0, roughness=1.0)))
     else:
-        m.lines.append("Kd 0.8 0.8 0.8")
-        m.problems.append(f"a {node.bl_idname} shader (not mapped): grey diffuse")
+        out = _output(material)
+        src = tex.source(out.inputs["Surface"]) if out is not None else None
+        if out is not None:
+            for other in ("Volume", "Displacement"):
+                if other in out.inputs and tex.source(out.inputs[other]) is not None:
+                    m.problems.append(f"{other.lower()} not mapped")
+        if src is None:
+            m.problems.append("no shader connected to the material output (black, as in Cycles)")
+            m.tables.append((name, pr.defaults(base_color=[0.0, 0.0, 0.0], specular_ior_level=0.0)))
+        else:
+            _shader(m, src[0], name, taken, "")
+    m.mtl_table = _mtl_part(m, name)
+    for _, table in m.tables:
+        if _emits(table):
+            m.problems.append(ONE_SIDED)
+            break
     return m
 
 
-def _principled(node, m):
-    base = _rgb(_value(node, "Base Color", (0.8, 0.8, 0.8)))
-    metallic = float(_value(node, "Metallic", 0.0))
-    rough = float(_value(node, "Roughness", 0.5))
-    transmission = float(_value(node, "Transmission Weight", 0.0))
-    ior = float(_value(node, "IOR", 1.5))
-    spec_level = float(_value(node, "Specular IOR Level", 0.5))
-    alpha = float(_value(node, "Alpha", 1.0))
-    emission = _rgb(_value(node, "Emission Color", (1, 1, 1)))
-    strength = float(_value(node, "Emission Strength", 0.0))
-    m.texture = _texture_of(node, "Base Color", m)
-    for sock, what in UNMAPPED_INPUTS.items():
-        if _linked(node, sock) or (sock in node.inputs and float(_value(node, sock, 0.0)) > 0.0):
-            m.problems.append(what)
-    for sock in ("Normal", "Metallic", "Roughness", "Alpha", "Transmission Weight", "Emission Color"):
-        if _linked(node, sock):
-            m.problems.append(f"a texture on {sock.lower()} (its default value is used)")
-    if transmission >= 0.5:
-        m.lines += ["Kd 0 0 0", "Ks 1 1 1", "Tf " + _fmt(base), f"Ni {ior:.6g}", "illum 7"]
-        if rough > 0.05:
-            m.problems.append("rough transmission: rendered as smooth glass")
-        m.texture = None
-    elif metallic >= 0.5:
-        if rough < 0.05:
-            m.lines += ["Kd 0 0 0", "Ks " + _fmt(base), "illum 3"]
-        else:
-            m.lines += ["Kd 0 0 0", "Ks " + _fmt(base), f"Ns {ns_from_roughness(rough):.6g}"]
-            m.problems.append("rough metal: a Blinn-Phong lobe")
-        m.texture = None
+def _output(material):
+    """The Material Output node Cycles uses: the active one among those for Cycles."""
+    outs = [n for n in material.node_tree.nodes if n.type == "OUTPUT_MATERIAL" and n.target in {"ALL", "CYCLES"}]
+    active = [n for n in outs if n.is_active_output]
+    return (active or outs or [None])[0]
+
+
+def _shader(m, node, name, taken, where):
+    """Adds the table(s) of shader `node` to `m`, the first named `name`."""
+    if node.type != "MIX_SHADER":
+        table = pr.table_of(node, m.problems, where)
+        if table is None:
+            table = pr.defaults(specular_ior_level=0.0, roughness=1.0)
+        m.tables.append((name, table))
+        return
+    mix = {}
+    reader = pr.Reader(node, m.problems, where + "Mix Shader ")
+    reader.read(mix, "factor", "Fac", pr.SCALAR)
+    mix["factor"] = min(1.0, max(0.0, mix["factor"]))
+    parts = [tex.source(node.inputs[1]), tex.source(node.inputs[2])]
+    if "factor_map" not in mix and mix["factor"] in (0.0, 1.0):
+        # All of one side: that side alone (the other is not even evaluated in Cycles).
+        _part(m, parts[int(mix["factor"])], name, taken, where)
+        return
+    at = len(m.tables)
+    m.tables.append((name, mix))
+    names = []
+    for k, part in enumerate(parts):
+        names.append(safe_name(f"{name}.{'ab'[k]}", taken))
+        _part(m, part, names[-1], taken, f"{where}{names[-1]}: ")
+    m.tables[at] = (name, {"mix": names, **mix})
+
+
+def _part(m, src, name, taken, where):
+    if src is None:
+        # An empty shader socket: no closure, which absorbs everything (black).
+        m.tables.append((name, pr.defaults(base_color=[0.0, 0.0, 0.0], specular_ior_level=0.0)))
     else:
-        if 0.0 < metallic or 0.0 < transmission:
-            m.problems.append("partly metallic or transmissive: rendered as a dielectric")
-        # The dielectric coat's reflectance at normal incidence: F0 of the IOR, scaled
-        # as the Principled BSDF scales it (level 0.5 = as the IOR says).
-        f0 = ((ior - 1.0) / (ior + 1.0)) ** 2 * 2.0 * spec_level
-        m.lines.append("Kd " + _fmt(base))
-        if f0 > 0.0:
-            m.lines += [f"Ks {f0:.6g} {f0:.6g} {f0:.6g}", f"Ns {ns_from_roughness(rough):.6g}"]
-        if alpha < 1.0:
-            m.lines += [f"d {alpha:.6g}"]
-    if strength > 0.0 and any(c > 0.0 for c in emission):
-        m.lines.append("Ke " + _fmt([c * strength for c in emission]))
-        m.problems.append(ONE_SIDED)
+        _shader(m, src[0], name, taken, where)
 
 
-def write_texture(image, folder, taken):
-    """Writes `image` (a bpy Image) into `folder`; its file name there."""
-    src = image.filepath_raw and os.path.abspath(_bpy_abspath(image.filepath_raw))
-    ext = os.path.splitext(src)[1].lower() if src else ""
-    name = safe_name(os.path.splitext(os.path.basename(src))[0] if src else image.name, taken)
-    if src and os.path.isfile(src) and not image.packed_file and ext in (".png", ".jpg", ".jpeg", ".tga", ".bmp",
-                                                                        ".tif", ".tiff", ".hdr", ".exr"):
-        out = name + ext
-        shutil.copyfile(src, os.path.join(folder, out))
-        return out
-    # Packed, generated or edited in Blender: saved as PNG.
-    out = name + ".png"
-    copy = image.copy()
-    try:
-        copy.filepath_raw = os.path.join(folder, out)
-        copy.file_format = "PNG"
-        copy.save()
-    finally:
-        import bpy
-        bpy.data.images.remove(copy)
-    return out
+def _mtl_part(m, name):
+    """The table the MTL describes: a mix's larger part (its first with a map), down to
+    a table that is not a mix."""
+    tables = dict(m.tables)
+    table = tables[name]
+    while "mix" in table:
+        table = tables[table["mix"][1 if "factor_map" not in table and table["factor"] > 0.5 else 0]]
+    return table
 
 
-def _bpy_abspath(path):
-    import bpy
-    return bpy.path.abspath(path)
+def _emits(t):
+    if "emission_strength" not in t:
+        return False
+    strength = "emission_strength_map" in t or t["emission_strength"] > 0.0
+    color = "emission_color_map" in t or max(t["emission_color"]) > 0.0
+    return strength and color
 
 
-def texture_line(file_name):
-    return f"map_Kd {file_name}"
+# MTL ------------------------------------------------------------------------------------
 
+
+def _fmt(v):
+    if isinstance(v, list):
+        return " ".join(f"{c:.6g}" for c in v)
+    return f"{v:.6g}"
+
+
+def mtl_lines(t):
+    """A Principled table in MTL's PBR keys (README.md: what tilefarm reads them as,
+    which is also what Blender's OBJ importer and tinyobjloader make of them)."""
+    lines = []
+
+    def put(key, value, table_key):
+        lines.append(f"{key} {_fmt(value)}")
+        ref = t.get(table_key + "_map")
+        if ref is not None:
+            lines.append(f"map_{key} {ref.mtl_options()}{ref.file}")
+
+    put("Kd", t["base_color"], "base_color")
+    put("Pr", t["roughness"], "roughness")
+    put("Pm", t["metallic"], "metallic")
+    if t["sheen"] > 0.0 or "sheen_map" in t:
+        put("Ps", t["sheen"], "sheen")
+    if t["coat"] > 0.0 or "coat_map" in t:
+        lines += [f"Pc {_fmt(t['coat'])}", f"Pcr {_fmt(t['coat_roughness'])}"]
+    if t["anisotropic"] > 0.0:
+        lines += [f"aniso {_fmt(t['anisotropic'])}", f"anisor {_fmt(t['anisotropic_rotation'])}"]
+    lines.append(f"Ni {_fmt(t['ior'])}")
+    if t["alpha"] < 1.0 or "alpha_map" in t:
+        put("d", t["alpha"], "alpha")
+    if _emits(t):
+        put("Ke", [c * t["emission_strength"] for c in t["emission_color"]], "emission_color")
+    lines.append("illum 7" if t["transmission"] >= 0.5 else "illum 2")
+    if "normal_map" in t:
+        ref = t["normal_map"]
+        lines.append(f"norm {ref.mtl_options()}{ref.file}")
+    if "bump_map" in t:
+        ref = t["bump_map"]
+        lines.append(f"map_Bump -bm {ref.extra['strength']:.6g} {ref.mtl_options()}{ref.file}")
+    return lines
+
+
+# TOML -----------------------------------------------------------------------------------
+
+
+def toml_key(name):
+    return name if re.fullmatch(r"[A-Za-z0-9_-]+", name) else json.dumps(name, ensure_ascii=False)
+
+
+def toml_value(v):
+    if isinstance(v, bool):
+        return "true" if v else "false"
+    if isinstance(v, (int, float)):
+        s = f"{float(v):.7g}"
+        if s in ("nan", "inf", "-inf"):
+            raise ValueError(f"not a finite number: {s}")
+        return s if any(c in s for c in ".e") else s + ".0"
+    if isinstance(v, str):
+        return json.dumps(v, ensure_ascii=False)
+    if isinstance(v, (list, tuple)):
+        return "[" + ", ".join(toml_value(x) for x in v) + "]"
+    if isinstance(v, tex.TextureRef):
+        v = v.fields()
+    return "{ " + ", ".join(f"{toml_key(k)} = {toml_value(x)}" for k, x in v.items()) + " }"

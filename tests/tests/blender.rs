@@ -4,7 +4,8 @@
 //! `blender/tests/compare_cycles.py` builds the scenes in `bpy`, exports them, renders
 //! them with tilefarm and Cycles and compares them; here it also gets a farm (a
 //! coordinator and a worker), for the add-on's render operator and its progress and
-//! cancel as the status bar uses them.
+//! cancel as the status bar uses them. `blender/tests/principled_export.py` checks the
+//! Principled materials' `[materials]` tables as written, without rendering.
 
 use std::path::Path;
 use std::process::Command;
@@ -59,6 +60,29 @@ fn blender_scenes_export_and_render_like_cycles() {
     assert!(figures.contains("\"farm\": \"same bits as a local render\""), "the farm check ran: {figures}");
     assert!(figures.contains("\"cancelled_on_the_farm\""), "the progress and cancel check ran: {figures}");
     assert!(figures.contains("\"extension\": \"bl_ext.user_default.tilefarm\""), "the extension installed: {figures}");
+}
+
+/// Blender's Principled BSDF (and the other BSDFs, Mix Shaders, Image Textures through
+/// Mapping nodes, Normal Map and Bump nodes) as `[materials.NAME]` tables: materials
+/// built in `bpy`, exported, and the written scene.toml read back with `tomllib`
+/// (`blender/tests/principled_export.py`; its cases are its functions). No rendering.
+#[test]
+fn blender_principled_materials_export_as_tables() {
+    let Some(python) = python_or_skip() else { return };
+    let here = Path::new(env!("CARGO_MANIFEST_DIR"));
+    let dir = TempDir::new("blender-principled");
+    let mut cmd = Command::new(&python);
+    cmd.arg(here.join("../blender/tests/principled_export.py")).arg(dir.path("work")).env("HOME", dir.path("home"));
+    let out = run(&mut cmd, LIMIT);
+    let said = String::from_utf8_lossy(&out.stdout);
+    let figures = said.lines().rev().find(|l| l.starts_with('{')).unwrap_or("");
+    println!("figures: {figures}");
+    assert!(
+        out.status.success() && figures.contains("\"failed\": {}"),
+        "the Principled export checks failed:\n{figures}\n{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    assert!(figures.contains("\"textured_metal_exports_its_texture\""), "the cases ran: {figures}");
 }
 
 /// A 10-frame animation exported from `bpy` (`blender/tests/animation.py`: a moving
