@@ -24,14 +24,12 @@ Cases (`--cases`, default all):
   c  white GGX metal, roughness 0.3    Mitsuba roughconductor, material none, alpha = r²)
   d  rough glass, IOR 1.5, roughness 0.5 (Principled transmission 1 / roughdielectric)
 
-A case named in `--pending` is one whose tilefarm material is not implemented yet: the
-case passes while tilefarm rejects its scene for not knowing `[materials]` or a sphere's
-`material` (its Mitsuba scene is still loaded and rendered at a few spp, to prove it),
-and fails as soon as tilefarm accepts it, so that it gets switched on, or rejects it for
-another reason. Prints one JSON line of figures; exits non-zero naming the failed cases.
+Mitsuba writes its images synchronously: its default asynchronous EXR writer was seen to
+hang the next EXR read in the same process (3.9.1).
+Prints one JSON line of figures; exits non-zero naming the failed cases.
 
     python tests/mitsuba/compare_materials.py COORDINATOR_EXE WORK_DIR [--cases a,b] [--spp N]
-        [--pending b,c,d] [--print-scenes]
+        [--print-scenes]
 """
 
 import argparse
@@ -39,7 +37,6 @@ import json
 import math
 import os
 import pprint
-import re
 import subprocess
 import sys
 import time
@@ -58,7 +55,6 @@ PASSES = 8  # Mitsuba renders spp / PASSES samples PASSES times, with different 
 BLOCK = 8
 MEAN_TOLERANCE = 0.01
 ALPHA = 1e-3  # family-wise false-alarm rate of each case's block test
-PENDING_SPP = 16  # Mitsuba's render of a pending case: only proves the scene loads
 
 # --------------------------------------------------------------------------------------
 # The stage, Y up. Numbers only; both renderers' scenes are written from them.
@@ -367,7 +363,8 @@ def compare(img_a, var_a, img_b, var_b):
 # --------------------------------------------------------------------------------------
 
 
-def run_case(key, exe, work, spp, pending, print_scenes):
+def prepare_case(key, work, spp, print_scenes):
+    """Writes the case's two scenes and renders Mitsuba's: (scene path, Mitsuba passes, seconds)."""
     case = CASES[key]
     folder = os.path.join(work, f"case-{key}")
     objs = write_stage(folder)
@@ -389,37 +386,23 @@ def run_case(key, exe, work, spp, pending, print_scenes):
             f"up={CAMERA['up']})")))
         pprint.pprint(shown, width=110, sort_dicts=False)
         sys.stdout.flush()
+    stack, mi_s = render_mitsuba(scene_dict, spp, PASSES)
+    return scene_path, stack, mi_s
+
+
+def run_case(key, exe, work, spp, prepared):
+    """tilefarm's render of a prepared case, compared with Mitsuba's: (figures, failures)."""
+    case = CASES[key]
+    folder = os.path.join(work, f"case-{key}")
+    scene_path, stack, mi_s = prepared
     figures = {"title": case["title"]}
     failed = []
-    if key in pending:
-        try:
-            render_tilefarm(exe, scene_path, 1, os.path.join(folder, "tilefarm-probe.exr"))
-        except TilefarmFailed as e:
-            # Only the missing Principled materials keep a case pending: a scene rejected
-            # for anything else (a key renamed, a value out of range) is a failure to see.
-            if not re.search(r"unknown field `materials?`", str(e)):
-                return figures, [f"case {key} ({case['title']}) is pending, but tilefarm rejects its scene for "
-                                 f"another reason than the missing Principled materials: {e}"]
-            stack, mi_s = render_mitsuba(scene_dict, PENDING_SPP, 1)
-            figures.update({
-                "pending": str(e).splitlines()[-1][:300],
-                "mitsuba_spp": PENDING_SPP,
-                "mitsuba_means": stack[0].reshape(-1, 3).mean(0).round(4).tolist(),
-                "mitsuba_s": round(mi_s, 2),
-            })
-            mi.util.write_bitmap(os.path.join(folder, "mitsuba.exr"), stack[0].astype(np.float32))
-            return figures, failed
-        # Compared all the same below, so that the figures show how it fares.
-        failed.append(f"case {key} ({case['title']}): tilefarm renders it now; take it off --pending "
-                      "(PENDING in tests/tests/mitsuba.rs)")
-
     try:
         tf, tf_var, tf_s = render_tilefarm(exe, scene_path, spp, os.path.join(folder, "tilefarm.exr"))
     except TilefarmFailed as e:
         return figures, failed + [f"case {key} ({case['title']}): {e}"]
-    stack, mi_s = render_mitsuba(scene_dict, spp, PASSES)
     mi_img, mi_var = passes_estimate(stack)
-    mi.util.write_bitmap(os.path.join(folder, "mitsuba.exr"), mi_img.astype(np.float32))
+    mi.util.write_bitmap(os.path.join(folder, "mitsuba.exr"), mi_img.astype(np.float32), write_async=False)
 
     cmp = compare(tf, tf_var, mi_img, mi_var)
     half = PASSES // 2
@@ -460,13 +443,11 @@ def main():
     ap.add_argument("coordinator", help="the coordinator executable")
     ap.add_argument("work", help="a folder for the scenes and images")
     ap.add_argument("--cases", default=",".join(CASES), help="comma-separated, of " + ",".join(CASES))
-    ap.add_argument("--pending", default="", help="cases whose tilefarm material is not implemented yet")
     ap.add_argument("--spp", type=int, default=SPP, help=f"samples per pixel (a multiple of {PASSES})")
     ap.add_argument("--print-scenes", action="store_true", help="print each case's two scenes")
     args = ap.parse_args()
     cases = [c for c in args.cases.split(",") if c]
-    pending = {c for c in args.pending.split(",") if c}
-    unknown = [c for c in cases + sorted(pending) if c not in CASES]
+    unknown = [c for c in cases if c not in CASES]
     if unknown or not cases:
         ap.error(f"unknown cases {unknown}: the cases are {', '.join(CASES)}")
     if args.spp % PASSES or args.spp < 2 * PASSES:
@@ -477,10 +458,11 @@ def main():
     start = time.perf_counter()
     figures = {"mitsuba": mi.__version__, "variant": mi.variant(), "size": [W, H], "max_depth": MAX_DEPTH}
     failed = []
+    prepared = {key: prepare_case(key, args.work, args.spp, args.print_scenes) for key in cases}
     for key in cases:
         t = time.perf_counter()
-        figures[key], problems = run_case(key, args.coordinator, args.work, args.spp, pending, args.print_scenes)
-        figures[key]["case_s"] = round(time.perf_counter() - t, 2)
+        figures[key], problems = run_case(key, args.coordinator, args.work, args.spp, prepared[key])
+        figures[key]["case_s"] = round(time.perf_counter() - t + prepared[key][2], 2)
         failed += problems
     figures["seconds"] = round(time.perf_counter() - start, 2)
     print(json.dumps(figures))

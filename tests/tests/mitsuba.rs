@@ -17,11 +17,6 @@ const LIMIT: Duration = Duration::from_secs(600);
 /// 0.3, rough glass.
 const CASES: &str = "a,b,c,d";
 
-/// The cases whose tilefarm material is not written yet (the Principled BSDF, issue 49):
-/// the script passes them while tilefarm rejects their scene, and fails as soon as it
-/// renders them. Take a case off this list when its material lands.
-const PENDING: &str = "b,c,d";
-
 #[test]
 fn spheres_of_diffuse_metal_and_glass_render_like_mitsuba() {
     let Some(python) = std::env::var_os("TILEFARM_MITSUBA_PYTHON") else {
@@ -41,7 +36,7 @@ fn spheres_of_diffuse_metal_and_glass_render_like_mitsuba() {
     let dir = TempDir::new("mitsuba");
     let mut cmd = Command::new(&python);
     cmd.arg(here.join("mitsuba/compare_materials.py")).arg(bin("coordinator")).arg(dir.path("work"));
-    cmd.args(["--cases", CASES, "--pending", PENDING]);
+    cmd.args(["--cases", CASES]);
     let out = run(&mut cmd, LIMIT);
     let said = String::from_utf8_lossy(&out.stdout);
     let figures = said.lines().rev().find(|l| l.starts_with('{')).unwrap_or("");

@@ -10,7 +10,6 @@
 use std::sync::OnceLock;
 
 use glam::{Vec2, Vec3};
-use rayon::prelude::*;
 
 use super::fresnel::{f0_from_ior, fresnel_dielectric, ior_from_f0};
 use super::ggx_lobe::{Fresnel, GgxLobe};
@@ -25,12 +24,13 @@ struct Table {
 }
 
 impl Table {
-    /// Entry (x, y, z) is `f(r, μ, η)` at the grid's node, computed in parallel.
-    fn build(n: [usize; 3], f: impl Fn(f32, f32, f32) -> f32 + Sync) -> Self {
+    /// Entry (x, y, z) is `f(r, μ, η)` at the grid's node. On the calling thread: a table
+    /// is built inside a `OnceLock`, and work-stealing there could run another render
+    /// task that waits on the same lock (a deadlock).
+    fn build(n: [usize; 3], f: impl Fn(f32, f32, f32) -> f32) -> Self {
         let node =
             |i: usize, n: usize, lo: f32, hi: f32| if n == 1 { 0.0 } else { (i as f32 / (n - 1) as f32).clamp(lo, hi) };
         let values = (0..n[0] * n[1] * n[2])
-            .into_par_iter()
             .map(|k| {
                 let (x, y, z) = (k % n[0], (k / n[0]) % n[1], k / (n[0] * n[1]));
                 let r = node(x, n[0], 1e-4, 1.0);
@@ -141,6 +141,17 @@ fn schlick_s() -> &'static Table {
     })
 }
 
+/// Builds every table now (the scene loader calls this for scenes with Principled
+/// materials, so that no render thread waits for a table).
+pub fn prepare() {
+    reflection_e();
+    reflection_albedo_average(0.5);
+    glass_e_avg(false);
+    glass_e_avg(true);
+    dielectric_s();
+    schlick_s();
+}
+
 fn z_of(eta: f32) -> f32 {
     ((eta - 1.0) / (eta + 1.0)).abs().sqrt()
 }
@@ -162,9 +173,22 @@ pub fn glass_albedo(roughness: f32, mu: f32, eta: f32) -> f32 {
     glass_e(eta < 1.0).lookup(roughness, mu, z_of(eta.max(1.0 / eta)))
 }
 
-/// E_avg(r, η) of a rough dielectric interface.
+/// E_avg(r, η) of a rough dielectric interface (tabulated from [`glass_albedo`] on its
+/// own grid of r and z).
 pub fn glass_albedo_average(roughness: f32, eta: f32) -> f32 {
-    glass_e(eta < 1.0).average_over_mu(roughness, z_of(eta.max(1.0 / eta)))
+    glass_e_avg(eta < 1.0).lookup(roughness, 0.0, z_of(eta.max(1.0 / eta)))
+}
+
+fn glass_e_avg(inverse: bool) -> &'static Table {
+    static T: [OnceLock<Table>; 2] = [OnceLock::new(), OnceLock::new()];
+    T[usize::from(inverse)].get_or_init(|| {
+        let e = glass_e(inverse);
+        let (nx, nz) = (e.n[0], e.n[2]);
+        let values = (0..nx * nz)
+            .map(|k| e.average_over_mu((k % nx) as f32 / (nx - 1) as f32, (k / nx) as f32 / (nz - 1) as f32))
+            .collect();
+        Table { n: [nx, 1, nz], values }
+    })
 }
 
 /// s(r, μ, η): a rough dielectric reflection reflects f0 + (1 − f0) s of the light
@@ -201,6 +225,17 @@ pub fn compensation(e: f32, e_avg: f32, fss: Vec3) -> (f32, Vec3) {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use rayon::prelude::*;
+
+    #[test]
+    fn tables_build_on_the_calling_thread() {
+        let t = std::time::Instant::now();
+        prepare();
+        println!("tables built in {:.3} s", t.elapsed().as_secs_f64());
+        // Inside rayon's pool, as a render's tiles would first touch them.
+        let sum: f32 = (0..64).into_par_iter().map(|i| reflection_albedo(i as f32 / 63.0, 0.5)).sum();
+        assert!(sum > 0.0);
+    }
 
     #[test]
     fn smooth_lobes_lose_nothing_and_rough_ones_match_a_quadrature() {

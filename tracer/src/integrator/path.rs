@@ -229,6 +229,11 @@ impl PathState {
         let (ng, ns) = if two_sided && si.ng.dot(wo) < 0.0 { (-si.ng, -si.ns) } else { (si.ng, si.ns) };
         let frame = Frame::from_normal(ns);
         let wo_local = frame.to_local(wo);
+        // A Principled BSDF's lobes at wo, set up once for light and BSDF sampling.
+        let lobes = match bsdf {
+            Bsdf::Principled(p) => Some(p.at(wo_local)),
+            _ => None,
+        };
 
         // Next-event estimation. One 2D sample both picks the light (x, then rescaled
         // within the light's interval) and the point on it, so the points stay
@@ -242,7 +247,10 @@ impl PathState {
                     let reflects_above = !two_sided || ng.dot(ls.wi) > 0.0;
                     if ls.pdf > 0.0 && ls.li.max_element() > 0.0 && reflects_above {
                         let wi_local = frame.to_local(ls.wi);
-                        let (f, bsdf_pdf) = bsdf.eval_pdf(wo_local, wi_local);
+                        let (f, bsdf_pdf) = match &lobes {
+                            Some(l) => l.eval_pdf(wo_local, wi_local),
+                            None => bsdf.eval_pdf(wo_local, wi_local),
+                        };
                         if f.max_element() > 0.0 {
                             let (weight, pdf) = if ls.delta {
                                 (1.0, pmf)
@@ -280,7 +288,11 @@ impl PathState {
             Bsdf::Mirror { .. } => (0.0, Vec2::ZERO),
             Bsdf::Glass { .. } => (sampler.next_1d(), Vec2::ZERO),
         };
-        let Some(bs) = bsdf.sample(wo_local, u_lobe, u) else {
+        let sampled = match &lobes {
+            Some(l) => l.sample(wo_local, u_lobe, u),
+            None => bsdf.sample(wo_local, u_lobe, u),
+        };
+        let Some(bs) = sampled else {
             return (shadow, false);
         };
         let wi = frame.to_world(bs.wi);

@@ -39,6 +39,21 @@ impl Default for PbrDesc {
     }
 }
 
+impl PbrDesc {
+    /// What the renderer does not shade yet, in plain words (one line each), so that
+    /// nothing is dropped silently.
+    pub fn unshaded(&self, maps: &Maps) -> Vec<&'static str> {
+        let mut out = Vec::new();
+        if self.sheen > 0.0 || maps.get(Slot::Sheen).is_some() {
+            out.push("sheen is not shaded yet (rendered without)");
+        }
+        if self.anisotropic > 0.0 {
+            out.push("anisotropy is not shaded yet (rendered isotropic)");
+        }
+        out
+    }
+}
+
 /// Blender's Mix Shader: `(1 − factor) · first + factor · second`, by material name.
 #[derive(Clone, Debug, PartialEq)]
 pub struct MixDesc {

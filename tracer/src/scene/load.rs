@@ -457,6 +457,9 @@ fn finish(
     }
     let lights = LightSet::new(lights, geometry.len(), radius);
     let has_cutouts = materials.iter().any(|m| m.has_cutout());
+    if materials.iter().any(|m| matches!(m.bsdf, crate::bsdf::Bsdf::Principled(_))) {
+        crate::bsdf::energy::prepare();
+    }
     Scene {
         camera,
         settings,
