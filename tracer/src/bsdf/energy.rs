@@ -223,6 +223,8 @@ pub fn compensation(e: f32, e_avg: f32, fss: Vec3) -> (f32, Vec3) {
 }
 
 #[cfg(test)]
+// Tests may use the C library's functions: they check values, not platform-free bits.
+#[allow(clippy::disallowed_methods)]
 mod tests {
     use super::*;
     use rayon::prelude::*;

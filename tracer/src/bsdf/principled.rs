@@ -33,6 +33,7 @@ use super::fresnel::{dielectric_average, f0_from_ior, f82_average, f82_b, ior_fr
 use super::ggx_lobe::{Fresnel, GgxLobe};
 use super::lambert::Lambert;
 use super::microfacet::Ggx;
+use crate::math::powf;
 
 /// Below this, a layer's weight counts as zero (Cycles' CLOSURE_WEIGHT_CUTOFF).
 const CUTOFF: f32 = 1e-5;
@@ -204,7 +205,7 @@ impl Principled {
                 let cos_t = (1.0 - inv * inv * (1.0 - mu * mu)).max(0.0).sqrt();
                 let depth = 1.0 / cos_t.max(1e-4);
                 let through =
-                    Vec3::new(p.coat_tint.x.powf(depth), p.coat_tint.y.powf(depth), p.coat_tint.z.powf(depth));
+                    Vec3::new(powf(p.coat_tint.x, depth), powf(p.coat_tint.y, depth), powf(p.coat_tint.z, depth));
                 w *= Vec3::ONE.lerp(through, p.coat.min(1.0));
             }
         }

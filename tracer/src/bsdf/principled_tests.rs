@@ -100,8 +100,11 @@ fn the_default_material_reflects_no_more_than_it_receives() {
     }
 }
 
-/// Every configuration the χ² test runs over, with a zoom for narrow lobes.
-fn chi2_cases() -> Vec<(Bsdf, Vec3, Option<(Vec3, f64)>)> {
+/// A BSDF, a wo, and a zoom (axis, cos of its half-angle) for narrow lobes.
+type Case = (Bsdf, Vec3, Option<(Vec3, f64)>);
+
+/// Every configuration the χ² test runs over.
+fn chi2_cases() -> Vec<Case> {
     let mut cases = Vec::new();
     for roughness in [0.3, 0.6, 1.0] {
         for (theta, side) in [(0.0, 1.0), (45.0, -1.0), (80.0, 1.0)] {

@@ -159,6 +159,8 @@ impl WideMaterial {
             && matches!(m.bsdf, Bsdf::Diffuse { .. } | Bsdf::Glossy { .. })
             && m.opacity >= 1.0
             && m.kd_texture.is_none()
+            && m.maps.is_empty()
+            && m.mix.is_none()
     }
 }
 

@@ -360,7 +360,7 @@ fn sphere_material(
         }
     }
     if pbr.principled() {
-        desc.pbr = Some(pbr.to_pbr(&desc, s.ni, std::iter::empty()));
+        desc.pbr = Some(pbr.pbr_desc(&desc, s.ni, std::iter::empty()));
     }
     Ok(desc)
 }

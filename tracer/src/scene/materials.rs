@@ -351,3 +351,35 @@ mod tests {
         assert!(m.kd_texture.is_none());
     }
 }
+
+#[cfg(test)]
+mod render_tests {
+    use crate::film::SampleRange;
+    use crate::integrator::Integrator;
+    use crate::render::render_image;
+    use crate::scene::scene_from_toml;
+
+    /// The image mean of a sphere of `material` filling the view under a white sky.
+    fn mean_of(materials: &str, material: &str) -> f32 {
+        let text = format!(
+            "[camera]\nposition = [0, 0, 3]\nlook_at = [0, 0, 0]\nfov = 20\nwidth = 16\nheight = 16\n\
+             [render]\nspp = 64\nmax_depth = 3\n[background]\nradiance = [1, 1, 1]\n\
+             [[sphere]]\ncenter = [0, 0, 0]\nradius = 1\nmaterial = \"{material}\"\n{materials}"
+        );
+        let scene = scene_from_toml(&text, "mix.toml", &std::env::temp_dir()).expect("loads");
+        let (image, _) = render_image(&scene, Integrator::Path, SampleRange::new(0, 64), 8, &|_| {});
+        let n = image.pixels.len() as f32;
+        image.pixels.iter().map(|p| p.x).sum::<f32>() / n
+    }
+
+    #[test]
+    fn a_mix_renders_between_its_parts() {
+        let table = "[materials.Dark]\nbase_color = [0.1, 0.1, 0.1]\nspecular_ior_level = 0\n\
+                     [materials.Light]\nbase_color = [0.9, 0.9, 0.9]\nspecular_ior_level = 0\n\
+                     [materials.Half]\nmix = [\"Dark\", \"Light\"]\nfactor = 0.5\n";
+        let (dark, light, half) = (mean_of(table, "Dark"), mean_of(table, "Light"), mean_of(table, "Half"));
+        // A diffuse sphere under a white sky: the mix's mean is the parts' mean, up to noise.
+        let expected = 0.5 * (dark + light);
+        assert!((half - expected).abs() < 0.05 * expected, "dark {dark} light {light} half {half}");
+    }
+}

@@ -282,7 +282,7 @@ pub(super) fn parse_mtl_str(
                 ..MaterialDesc::default()
             };
             if keys.principled() {
-                desc.pbr = Some(keys.to_pbr(&desc, m.optical_density, maps.iter().map(|(s, a)| (*s, a.bm))));
+                desc.pbr = Some(keys.pbr_desc(&desc, m.optical_density, maps.iter().map(|(s, a)| (*s, a.bm))));
             }
             let map_kd = m.diffuse_texture.as_deref().map(|t| t.trim().to_string()).filter(|t| !t.is_empty());
             let map_kd_placement = placements.get(&m.name).copied().unwrap_or_default();

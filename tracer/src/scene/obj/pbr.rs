@@ -54,8 +54,8 @@ impl PbrKeys {
     /// `ni` is `Ni` as written). Glass (`illum 4/6/7`, or `d < 1` with `Ni ≠ 1`) becomes
     /// transmission 1 with alpha 1, else alpha is `d`; `bump` gives each normal or bump
     /// map's `-bm`.
-    pub fn to_pbr(
-        &self,
+    pub fn pbr_desc(
+        self,
         desc: &MaterialDesc,
         ni: Option<f32>,
         bump: impl Iterator<Item = (Slot, Option<f32>)>,
