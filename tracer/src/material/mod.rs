@@ -50,6 +50,9 @@ impl PbrDesc {
         if self.anisotropic > 0.0 {
             out.push("anisotropy is not shaded yet (rendered isotropic)");
         }
+        if maps.get(Slot::Normal).is_some() || maps.get(Slot::Bump).is_some() {
+            out.push("normal and bump maps are not shaded yet (rendered with the surface's own normals)");
+        }
         out
     }
 }
