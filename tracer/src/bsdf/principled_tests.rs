@@ -4,7 +4,7 @@
 
 #![allow(clippy::disallowed_methods)]
 
-use super::chi2::{Rng, chi2_sphere, sidak_alpha};
+use super::chi2::Rng;
 use super::*;
 
 fn dir(theta_deg: f32, phi: f32, side: f32) -> Vec3 {
@@ -100,11 +100,8 @@ fn the_default_material_reflects_no_more_than_it_receives() {
     }
 }
 
-/// A BSDF, a wo, and a zoom (axis, cos of its half-angle) for narrow lobes.
-type Case = (Bsdf, Vec3, Option<(Vec3, f64)>);
-
 /// Every configuration the χ² test runs over.
-fn chi2_cases() -> Vec<Case> {
+fn chi2_cases() -> Vec<super::tests::Chi2Case> {
     let mut cases = Vec::new();
     for roughness in [0.3, 0.6, 1.0] {
         for (theta, side) in [(0.0, 1.0), (45.0, -1.0), (80.0, 1.0)] {
@@ -146,26 +143,7 @@ fn chi2_cases() -> Vec<Case> {
 
 #[test]
 fn principled_sampling_matches_its_pdf_chi2() {
-    let cases = chi2_cases();
-    let alpha = sidak_alpha(cases.len());
-    for (k, (bsdf, wo, cap)) in cases.into_iter().enumerate() {
-        let r = chi2_sphere(
-            |rng| bsdf.sample(wo, rng.f32(), rng.vec2()).map(|s| s.wi),
-            |wi| bsdf.pdf(wo, wi) as f64,
-            32,
-            64,
-            400_000,
-            500 + k as u64,
-            cap,
-        );
-        assert!(
-            r.p_value > alpha,
-            "{bsdf:?} wo={wo} cap={cap:?}: χ² = {:.1} with {} dof, p = {:.2e} < {alpha:.2e}",
-            r.statistic,
-            r.dof,
-            r.p_value
-        );
-    }
+    super::tests::assert_sampling_matches_pdf(chi2_cases(), 400_000, 500);
 }
 
 #[test]

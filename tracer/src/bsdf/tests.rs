@@ -336,6 +336,15 @@ fn chi2_zoom_cases() -> Vec<(Bsdf, Vec3, (Vec3, f64))> {
 fn sampling_matches_pdf_chi2() {
     let zoomed = chi2_zoom_cases().into_iter().map(|(bsdf, wo, cap)| (bsdf, wo, Some(cap)));
     let cases: Vec<_> = chi2_cases().into_iter().map(|(bsdf, wo)| (bsdf, wo, None)).chain(zoomed).collect();
+    assert_sampling_matches_pdf(cases, 500_000, 1000);
+}
+
+/// A BSDF, a wo, and a zoom (axis, cos of its half-angle) for narrow lobes.
+pub(super) type Chi2Case = (Bsdf, Vec3, Option<(Vec3, f64)>);
+
+/// The χ² test of every case's sampling against its pdf (32 × 64 cells, `samples` draws,
+/// case k seeded `seed + k`), at a Šidák-corrected level for all cases together.
+pub(super) fn assert_sampling_matches_pdf(cases: Vec<Chi2Case>, samples: usize, seed: u64) {
     let alpha = sidak_alpha(cases.len());
     for (k, (bsdf, wo, cap)) in cases.into_iter().enumerate() {
         let r = chi2_sphere(
@@ -343,8 +352,8 @@ fn sampling_matches_pdf_chi2() {
             |wi| bsdf.pdf(wo, wi) as f64,
             32,
             64,
-            500_000,
-            1000 + k as u64,
+            samples,
+            seed + k as u64,
             cap,
         );
         assert!(
