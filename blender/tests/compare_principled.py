@@ -11,7 +11,9 @@ JSON line of figures; exits non-zero on a failure.
 Not in CI yet: the tracer's `[materials]` tables are being written; until then every
 case reports tilefarm's error.
 
-    python blender/tests/compare_principled.py COORDINATOR_EXE WORK_DIR [SPP]
+    python blender/tests/compare_principled.py COORDINATOR_EXE WORK_DIR [SPP [SCENE,...]]
+
+(SCENE: some of the scenes by name, e.g. `maps`; all of them without.)
 """
 
 import json
@@ -283,7 +285,8 @@ def main():
     cc.fresh()
     files = {k: bpy.path.abspath(i.filepath_raw) for k, i in images(work).items()}
     results, warnings = {}, {}
-    for name in SCENES:
+    only = sys.argv[4].split(",") if len(sys.argv) > 4 else list(SCENES)
+    for name in only:
         r, warnings[name] = run_scene(coordinator, work, spp, name, files)
         results.update(r)
     failed = {k: f["error"] for k, f in results.items() if "error" in f}

@@ -80,6 +80,19 @@ impl Texture {
         let bottom = texel(ix, iy + 1) * (1.0 - fx) + texel(ix + 1, iy + 1) * fx;
         top * (1.0 - fy) + bottom * fy
     }
+
+    /// The gradient of the luminance over `uv` (a height map's slope, for bump mapping):
+    /// central differences over half a texel of the mapped image on each side.
+    pub fn luminance_gradient(&self, uv: Vec2) -> Vec2 {
+        let texels = self.width.max(self.height).max(1) as f32 * self.map.scale.abs().max_element();
+        if !(texels > 0.0) || !texels.is_finite() {
+            return Vec2::ZERO;
+        }
+        let d = 0.5 / texels;
+        let h = |du: f32, dv: f32| luminance(self.sample(uv + Vec2::new(du, dv)));
+        let g = Vec2::new(h(d, 0.0) - h(-d, 0.0), h(0.0, d) - h(0.0, -d)) / (2.0 * d);
+        if g.is_finite() { g } else { Vec2::ZERO }
+    }
 }
 
 #[cfg(test)]
@@ -108,6 +121,19 @@ mod tests {
         let quarter = TexMap { scale: Vec2::new(2.0, 1.0), rotation: Vec2::new(0.0, 1.0), ..Default::default() };
         let p = quarter.apply(Vec2::new(0.25, 0.1));
         assert!((p - Vec2::new(-0.1, 0.5)).length() < 1e-6, "{p}");
+    }
+
+    #[test]
+    fn the_luminance_gradient_is_the_slope_of_a_ramp() {
+        // A horizontal ramp 0, 1/8, ..., 7/8 over 8 texels: slope 1 per unit of u (inside
+        // the image; the wrap at the edges is a jump).
+        let texels = (0..8).map(|i| Vec3::splat(i as f32 / 8.0)).collect();
+        let ramp = Texture { width: 8, height: 1, texels, map: TexMap::default() };
+        let g = ramp.luminance_gradient(Vec2::new(0.5, 0.5));
+        assert!((g - Vec2::new(1.0, 0.0)).length() < 1e-4, "{g}");
+        let scaled = Texture { map: TexMap { scale: Vec2::splat(2.0), ..Default::default() }, ..ramp };
+        let g2 = scaled.luminance_gradient(Vec2::new(0.25, 0.5));
+        assert!((g2 - Vec2::new(2.0, 0.0)).length() < 1e-3, "chain rule through the mapping: {g2}");
     }
 
     #[test]

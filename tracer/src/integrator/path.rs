@@ -20,6 +20,7 @@ use crate::bsdf::Bsdf;
 use crate::film::FirstHit;
 use crate::geometry::{Frame, Ray, offset_origin};
 use crate::material::Slot;
+use crate::material::normals::ensure_valid_specular_reflection;
 use crate::sampler::Sampler;
 use crate::sampling::{power_heuristic, uniform_sphere_pdf};
 use crate::scene::MAX_MIX_DEPTH;
@@ -174,7 +175,7 @@ impl PathState {
             }
             return (None, false);
         };
-        let si = scene.interaction(&ray, &hit);
+        let mut si = scene.interaction(&ray, &hit);
         let mut material = &scene.materials[si.material as usize];
         // A Mix Shader: continue with one of its two materials, chosen by its factor
         // (mixes of mixes, as deep as the loader allows).
@@ -183,6 +184,11 @@ impl PathState {
             let factor = material.maps.scale(Slot::MixFactor, mix.factor, si.uv, &scene.textures);
             let pick = if sampler.next_1d() < factor { mix.second } else { mix.first };
             material = &scene.materials[pick as usize];
+        }
+        // Normal and bump maps tilt the shading normal (on the front side, as `si.ns` is).
+        let perturbed = material.perturbs_normal();
+        if perturbed {
+            si.ns = material.shading_normal(si.ns, si.uv, &scene.uv_frame(&hit, &si), &scene.textures);
         }
         // The first hit's layers, for the paths that end before their BSDF is known.
         let record_first = |first: Option<&mut FirstHit>| {
@@ -226,7 +232,13 @@ impl PathState {
         // Glass (and a Principled surface that transmits) keeps its outward normal so it
         // knows whether the ray is inside.
         let two_sided = !bsdf.is_oriented();
-        let (ng, ns) = if two_sided && si.ng.dot(wo) < 0.0 { (-si.ng, -si.ns) } else { (si.ng, si.ns) };
+        let (ng, mut ns) = if two_sided && si.ng.dot(wo) < 0.0 { (-si.ng, -si.ns) } else { (si.ng, si.ns) };
+        if perturbed {
+            // As Cycles does for a tilted normal: keep its mirror reflection of wo above the
+            // surface (seen from wo's side).
+            let s = if ng.dot(wo) < 0.0 { -1.0 } else { 1.0 };
+            ns = s * ensure_valid_specular_reflection(s * ng, wo, s * ns);
+        }
         let frame = Frame::from_normal(ns);
         let wo_local = frame.to_local(wo);
         // A Principled BSDF's lobes at wo, set up once for light and BSDF sampling.

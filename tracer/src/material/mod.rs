@@ -1,12 +1,14 @@
 //! Materials: the MTL description as read (or the scene's material table), and its
 //! interpretation as a BSDF + emission, with the textures on its inputs.
 
+pub mod normals;
 pub mod slots;
 
 use glam::{Vec2, Vec3};
 
 use crate::bsdf::{Bsdf, Principled};
 use crate::texture::Texture;
+use normals::{Bumps, UvFrame};
 pub use slots::{Maps, Slot};
 
 /// The Principled inputs a material has beyond MTL's classic keys (MTL's PBR extension,
@@ -19,23 +21,11 @@ pub struct PbrDesc {
     pub alpha: f32,
     pub sheen: f32,
     pub anisotropic: f32,
-    /// Normal map strength, bump strength and distance (Blender's).
-    pub normal_strength: f32,
-    pub bump_strength: f32,
-    pub bump_distance: f32,
 }
 
 impl Default for PbrDesc {
     fn default() -> Self {
-        Self {
-            inputs: Principled::default(),
-            alpha: 1.0,
-            sheen: 0.0,
-            anisotropic: 0.0,
-            normal_strength: 1.0,
-            bump_strength: 1.0,
-            bump_distance: 1.0,
-        }
+        Self { inputs: Principled::default(), alpha: 1.0, sheen: 0.0, anisotropic: 0.0 }
     }
 }
 
@@ -49,9 +39,6 @@ impl PbrDesc {
         }
         if self.anisotropic > 0.0 {
             out.push("anisotropy is not shaded yet (rendered isotropic)");
-        }
-        if maps.get(Slot::Normal).is_some() || maps.get(Slot::Bump).is_some() {
-            out.push("normal and bump maps are not shaded yet (rendered with the surface's own normals)");
         }
         out
     }
@@ -83,6 +70,8 @@ pub struct MaterialDesc {
     pub map_kd: Option<u32>,
     /// Textures on the other inputs (indices into the same list).
     pub maps: Maps,
+    /// The strengths of the normal and bump maps in `maps`.
+    pub bumps: Bumps,
     /// `Some`: a Principled material.
     pub pbr: Option<PbrDesc>,
     /// `Some`: a mix of two other materials (the fields above are unused).
@@ -104,6 +93,7 @@ impl Default for MaterialDesc {
             illum: None,
             map_kd: None,
             maps: Maps::default(),
+            bumps: Bumps::default(),
             pbr: None,
             mix: None,
         }
@@ -143,6 +133,8 @@ pub struct Material {
     /// A mix of two materials: a path meeting it continues with one of them, chosen with
     /// the factor's probability (the mixture's unbiased one-sample estimate).
     pub mix: Option<Mix>,
+    /// The strengths of the normal and bump maps in `maps`.
+    pub bumps: Bumps,
 }
 
 impl Material {
@@ -171,7 +163,7 @@ impl Material {
             }
         };
         let emission = desc.ke.max(Vec3::ZERO);
-        Self { bsdf, emission, opacity, kd_texture: desc.map_kd, maps: desc.maps, mix: None }
+        Self { bsdf, emission, opacity, kd_texture: desc.map_kd, maps: desc.maps, mix: None, bumps: desc.bumps }
     }
 
     #[inline]
@@ -210,6 +202,28 @@ impl Material {
             }
             other => other,
         }
+    }
+
+    /// Whether a normal or bump map tilts the shading normal.
+    #[inline]
+    pub fn perturbs_normal(&self) -> bool {
+        self.maps.get(Slot::Normal).is_some() || self.maps.get(Slot::Bump).is_some()
+    }
+
+    /// The shading normal `ns` (front side) tilted by the normal map, then by the bump map
+    /// (Blender's usual chain: the Normal Map node into the Bump node's Normal).
+    pub fn shading_normal(&self, ns: Vec3, uv: Vec2, frame: &UvFrame, textures: &[Texture]) -> Vec3 {
+        let mut n = ns;
+        if let Some(rgb) = self.maps.colour(Slot::Normal, uv, textures)
+            && let Some(mapped) = normals::normal_map(rgb, self.bumps.normal_strength, frame)
+        {
+            n = mapped;
+        }
+        if let Some(t) = self.maps.get(Slot::Bump).and_then(|t| textures.get(t as usize)) {
+            let b = &self.bumps;
+            n = normals::bump(n, t.luminance_gradient(uv), b.bump_distance, b.bump_strength, frame);
+        }
+        if n == Vec3::ZERO || !n.is_finite() { ns } else { n }
     }
 
     /// The probability that a ray is blocked at `uv`.

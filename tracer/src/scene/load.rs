@@ -158,7 +158,10 @@ fn assemble(file: &SceneFile, text: &str, name: &str, base: &Path) -> Result<Sce
         copies if copies.is_empty() => None,
         copies => {
             let first = u32::try_from(b.mesh.tris.len() + b.spheres.len()).unwrap_or(u32::MAX);
-            let meshes = std::mem::take(&mut b.instanced);
+            let mut meshes = std::mem::take(&mut b.instanced);
+            if has_normal_maps(&b.materials) {
+                meshes.iter_mut().for_each(|m| m.geometry.add_tangents());
+            }
             let made = Instances::new(meshes, copies, first);
             Some(made.map_err(|e| invalid_in(text, name)("mesh".into(), e.to_string()))?)
         }
@@ -360,7 +363,7 @@ fn sphere_material(
         }
     }
     if pbr.principled() {
-        desc.pbr = Some(pbr.pbr_desc(&desc, s.ni, std::iter::empty()));
+        desc.pbr = Some(pbr.pbr_desc(&desc, s.ni));
     }
     Ok(desc)
 }
@@ -378,6 +381,12 @@ fn sphere_has_keys(s: &SphereDesc) -> bool {
         || [s.pr, s.pm, s.ps, s.pc, s.pcr].iter().any(Option::is_some)
 }
 
+/// Whether some material has a tangent-space normal map (its triangles then need
+/// MikkTSpace tangents, 48 bytes each).
+fn has_normal_maps(materials: &[Material]) -> bool {
+    materials.iter().any(|m| m.maps.get(Slot::Normal).is_some())
+}
+
 /// Collects area lights and builds the hierarchy.
 // Long on purpose: The scene's last steps in order (store, accelerator, lights, checks), sharing its parts.
 fn finish(
@@ -392,6 +401,9 @@ fn finish(
     // From here on the scene keeps only the compact runtime form of the mesh.
     let t = std::time::Instant::now();
     let mut geometry = Geometry::new(mesh, spheres);
+    if has_normal_maps(&materials) {
+        geometry.add_tangents();
+    }
     let mut accel = Bvh8::build(&geometry, &Bvh8Params::default());
     tracing::debug!("BVH of {} primitives built in {:.2?}", geometry.len(), t.elapsed());
     // The eight-ray packets trace the scene's own primitives only.

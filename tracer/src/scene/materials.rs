@@ -186,11 +186,11 @@ fn describe(
     let emission = if emission_map { Vec3::ONE } else { colour("emission_color", t.emission_color, Vec3::ONE)? };
     desc.ke = emission * positive("emission_strength", t.emission_strength, 0.0)?;
     if let (true, Some(n)) = (normal, &t.normal_map) {
-        pbr.normal_strength = n.strength.unwrap_or(1.0);
+        desc.bumps.normal_strength = n.strength.unwrap_or(1.0);
     }
     if let (true, Some(m)) = (bump, &t.bump_map) {
-        pbr.bump_strength = m.strength.unwrap_or(1.0);
-        pbr.bump_distance = m.distance.unwrap_or(1.0);
+        desc.bumps.bump_strength = m.strength.unwrap_or(1.0);
+        desc.bumps.bump_distance = m.distance.unwrap_or(1.0);
     }
     desc.pbr = Some(pbr);
     Ok(desc)

@@ -15,6 +15,7 @@ pub mod overrides;
 pub mod placement;
 pub mod prepared;
 pub mod textures;
+mod uv_frame;
 
 pub use crate::shapes::{Geometry, GeometryBytes, NONE, PrimRef, Sphere, Tri, TriangleMesh};
 pub use check::{SceneCheck, check_scene_as};

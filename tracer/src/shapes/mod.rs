@@ -4,6 +4,7 @@
 
 pub mod mesh;
 mod store;
+mod tangents;
 
 pub use mesh::{NONE, Tri, TriangleMesh};
 pub use store::{Geometry, GeometryBytes, PrimRef, Sphere};

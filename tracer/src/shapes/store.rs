@@ -1,7 +1,7 @@
 //! The scene's primitives — triangles then spheres in one index space — as the
 //! aggregates (`accel`) see them: their ray tests are in `accel/store.rs`.
 
-use glam::{Vec2, Vec3};
+use glam::{Vec2, Vec3, Vec4};
 
 use super::{NONE, TriangleMesh};
 use crate::geometry::Aabb;
@@ -44,6 +44,9 @@ pub struct Geometry {
     uv_idx: Vec<[u32; 3]>,
     normals: Vec<Vec3>,
     uvs: Vec<Vec2>,
+    /// Per triangle, MikkTSpace tangents at its corners (xyz, bitangent sign in w; zero
+    /// where it has none): only when the scene has normal maps ([`Geometry::add_tangents`]).
+    tangents: Vec<[Vec4; 3]>,
 }
 
 /// Bytes held by a [`Geometry`], by kind (allocated capacity, not just length).
@@ -51,7 +54,8 @@ pub struct Geometry {
 pub struct GeometryBytes {
     /// Triangle corners (36 per triangle).
     pub corners: usize,
-    /// Material indices, shading-normal and uv index arrays, and the normals and uvs.
+    /// Material indices, shading-normal and uv index arrays, the normals and uvs, and the
+    /// tangents (48 per triangle, with normal maps only).
     pub mesh: usize,
     pub spheres: usize,
 }
@@ -90,7 +94,7 @@ impl Geometry {
         uvs.shrink_to_fit();
         let mut spheres = spheres;
         spheres.shrink_to_fit();
-        Self { spheres, corners, materials, normal_idx, uv_idx, normals, uvs }
+        Self { spheres, corners, materials, normal_idx, uv_idx, normals, uvs, tangents: Vec::new() }
     }
 
     pub fn triangle_count(&self) -> usize {
@@ -139,6 +143,30 @@ impl Geometry {
         b.x * self.uvs[idx[0] as usize] + b.y * self.uvs[idx[1] as usize] + b.z * self.uvs[idx[2] as usize]
     }
 
+    /// The texture coordinates at the corners of triangle `i`, if it has them.
+    #[inline]
+    pub fn corner_uvs(&self, i: usize) -> Option<[Vec2; 3]> {
+        let idx = self.uv_indices(i);
+        (idx[0] != NONE && idx[1] != NONE && idx[2] != NONE).then(|| idx.map(|k| self.uvs[k as usize]))
+    }
+
+    /// Computes the MikkTSpace tangents that normal maps need (see `shapes/tangents.rs`).
+    pub fn add_tangents(&mut self) {
+        self.tangents = super::tangents::mikk_tangents(self);
+        self.tangents.shrink_to_fit();
+    }
+
+    /// The interpolated tangent of triangle `i` at barycentrics `b` and its bitangent
+    /// sign, if the triangle has one (unnormalized, as MikkTSpace intends).
+    #[inline]
+    pub fn tangent(&self, i: usize, b: Vec3) -> Option<(Vec3, f32)> {
+        let [t0, t1, t2] = self.tangents.get(i)?;
+        if t0.w == 0.0 {
+            return None;
+        }
+        Some(((b.x * *t0 + b.y * *t1 + b.z * *t2).truncate(), t0.w))
+    }
+
     /// Memory held, by kind.
     pub fn bytes(&self) -> GeometryBytes {
         GeometryBytes {
@@ -146,7 +174,8 @@ impl Geometry {
             mesh: self.materials.capacity() * size_of::<u32>()
                 + (self.normal_idx.capacity() + self.uv_idx.capacity()) * size_of::<[u32; 3]>()
                 + self.normals.capacity() * size_of::<Vec3>()
-                + self.uvs.capacity() * size_of::<Vec2>(),
+                + self.uvs.capacity() * size_of::<Vec2>()
+                + self.tangents.capacity() * size_of::<[Vec4; 3]>(),
             spheres: self.spheres.capacity() * size_of::<Sphere>(),
         }
     }
@@ -165,6 +194,7 @@ impl Geometry {
         permute(&mut self.materials, order);
         permute(&mut self.normal_idx, order);
         permute(&mut self.uv_idx, order);
+        permute(&mut self.tangents, order);
         self.advise_huge_pages();
     }
 

@@ -282,7 +282,15 @@ pub(super) fn parse_mtl_str(
                 ..MaterialDesc::default()
             };
             if keys.principled() {
-                desc.pbr = Some(keys.pbr_desc(&desc, m.optical_density, maps.iter().map(|(s, a)| (*s, a.bm))));
+                desc.pbr = Some(keys.pbr_desc(&desc, m.optical_density));
+            }
+            // `-bm` on a normal or bump map is its strength.
+            for (slot, arg) in &maps {
+                match slot {
+                    Slot::Normal => desc.bumps.normal_strength = arg.bm.unwrap_or(1.0),
+                    Slot::Bump => desc.bumps.bump_strength = arg.bm.unwrap_or(1.0),
+                    _ => {}
+                }
             }
             let map_kd = m.diffuse_texture.as_deref().map(|t| t.trim().to_string()).filter(|t| !t.is_empty());
             let map_kd_placement = placements.get(&m.name).copied().unwrap_or_default();

@@ -1,7 +1,7 @@
 //! MTL's PBR extension (as Blender's OBJ exporter and tinyobjloader write it): the keys
 //! that make a material a Principled one (README.md, "Principled materials").
 
-use crate::material::{MaterialDesc, PbrDesc, Slot};
+use crate::material::{MaterialDesc, PbrDesc};
 
 /// The PBR keys of one material as written (absent: None).
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
@@ -52,14 +52,8 @@ impl PbrKeys {
 
     /// The Principled inputs of `desc` (its `Kd`, `Ke`, `d` and `illum` already read;
     /// `ni` is `Ni` as written). Glass (`illum 4/6/7`, or `d < 1` with `Ni ≠ 1`) becomes
-    /// transmission 1 with alpha 1, else alpha is `d`; `bump` gives each normal or bump
-    /// map's `-bm`.
-    pub fn pbr_desc(
-        self,
-        desc: &MaterialDesc,
-        ni: Option<f32>,
-        bump: impl Iterator<Item = (Slot, Option<f32>)>,
-    ) -> PbrDesc {
+    /// transmission 1 with alpha 1, else alpha is `d`.
+    pub fn pbr_desc(self, desc: &MaterialDesc, ni: Option<f32>) -> PbrDesc {
         let mut pbr = PbrDesc::default();
         let p = &mut pbr.inputs;
         p.roughness = self.pr.unwrap_or(p.roughness);
@@ -72,13 +66,6 @@ impl PbrKeys {
         pbr.alpha = if glass { 1.0 } else { desc.d };
         pbr.sheen = self.ps.unwrap_or(0.0);
         pbr.anisotropic = self.aniso.unwrap_or(0.0);
-        for (slot, bm) in bump {
-            match slot {
-                Slot::Normal => pbr.normal_strength = bm.unwrap_or(1.0),
-                Slot::Bump => pbr.bump_strength = bm.unwrap_or(1.0),
-                _ => {}
-            }
-        }
         pbr
     }
 }
