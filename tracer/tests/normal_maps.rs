@@ -1,6 +1,8 @@
 //! Normal and bump maps against analytic answers: a Lambertian quad lit by a directional
-//! light (no other surface, two path segments) has radiance `kd/π · E · max(0, n·l)` for
-//! its shading normal n. A normal map or a height map that tilts n by a known amount must
+//! light (no other surface, two path segments) has radiance `kd/π · E · max(0, n·l) · s`
+//! for its shading normal n, with s Cycles' shadowing of a tilted diffuse normal (Chiang
+//! et al. 2019: g = (y·l) / ((n·l)(y·n)) for the quad's own normal y; s = 1 for g ≥ 1,
+//! else −g³ + g² + g). A normal map or a height map that tilts n by a known amount must
 //! give exactly that, through the MikkTSpace tangents, mirrored texture coordinates and
 //! placed (rotated, mirrored) copies of the mesh.
 
@@ -61,9 +63,12 @@ fn centre_radiance(dir: &TempDir, mesh: &str, light_dir: Vec3) -> f32 {
     sum / n as f32
 }
 
-/// `kd/π · E · max(0, n·l)` for a light travelling along `light_dir`.
+/// `kd/π · E · max(0, n·l) · s` for a light travelling along `light_dir` (see the top).
 fn lambert(n: Vec3, light_dir: Vec3) -> f32 {
-    KD / std::f32::consts::PI * n.normalize().dot(-light_dir.normalize()).max(0.0)
+    let (n, l) = (n.normalize(), -light_dir.normalize());
+    let g = Vec3::Y.dot(l) / (n.dot(l) * Vec3::Y.dot(n));
+    let s = if g >= 1.0 { 1.0 } else { -g * g * g + g * g + g };
+    KD / std::f32::consts::PI * n.dot(l).max(0.0) * s
 }
 
 fn assert_close(got: f32, want: f32, what: &str) {

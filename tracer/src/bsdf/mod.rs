@@ -22,6 +22,8 @@ pub mod lambert;
 pub mod microfacet;
 pub mod mirror;
 pub mod principled;
+pub mod sheen;
+mod sheen_ltc;
 
 #[cfg(test)]
 pub(crate) mod chi2;

@@ -3,6 +3,9 @@
 //! Seen from wo, the layers are set up top to bottom, each taking its share of a running
 //! weight w (starting at 1) and leaving the rest to those below:
 //!
+//! 0. **sheen** (weight `sheen` · `sheen_tint`): the microfiber sheen lobe (see
+//!    [`super::sheen`]) scaled by its albedo at wo; below it w shrinks by
+//!    1 − max(sheen · sheen_tint · albedo);
 //! 1. **coat** (weight `coat`): a GGX reflection with exact Fresnel of `coat_ior`, always
 //!    energy-compensated; below it w shrinks by the coat's albedo at wo, and by
 //!    `coat_tint` raised to the optical depth of the refracted view ray;
@@ -33,7 +36,11 @@ use super::fresnel::{dielectric_average, f0_from_ior, f82_average, f82_b, ior_fr
 use super::ggx_lobe::{Fresnel, GgxLobe};
 use super::lambert::Lambert;
 use super::microfacet::Ggx;
+use super::sheen::SheenLobe;
+use crate::geometry::Frame;
+use crate::material::normals::bump_shadowing;
 use crate::math::powf;
+use crate::sampling::sample_cosine_hemisphere;
 
 /// Below this, a layer's weight counts as zero (Cycles' CLOSURE_WEIGHT_CUTOFF).
 const CUTOFF: f32 = 1e-5;
@@ -52,6 +59,9 @@ pub struct Principled {
     pub coat_roughness: f32,
     pub coat_ior: f32,
     pub coat_tint: Vec3,
+    pub sheen: f32,
+    pub sheen_roughness: f32,
+    pub sheen_tint: Vec3,
     pub multiscatter: bool,
 }
 
@@ -70,6 +80,9 @@ impl Default for Principled {
             coat_roughness: 0.03,
             coat_ior: 1.5,
             coat_tint: Vec3::ONE,
+            sheen: 0.0,
+            sheen_roughness: 0.5,
+            sheen_tint: Vec3::ONE,
             multiscatter: true,
         }
     }
@@ -79,7 +92,11 @@ impl Default for Principled {
 enum Kind {
     Diffuse,
     Ggx(GgxLobe),
+    Sheen(SheenLobe),
 }
+
+/// Sheen, coat, metal, glass, specular, diffuse.
+const MAX_LOBES: usize = 6;
 
 #[derive(Clone, Copy, Debug)]
 struct Lobe {
@@ -95,11 +112,21 @@ struct Lobe {
 /// The lobes of a Principled BSDF seen from one wo (in a frame where wo.z > 0).
 #[derive(Clone, Copy, Debug)]
 pub struct Lobes {
-    lobes: [Lobe; 4],
+    lobes: [Lobe; MAX_LOBES],
     n: usize,
     total: f32,
     /// wo was below the surface: both directions are mirrored (see [`Principled::at`]).
     flipped: bool,
+    /// With normal or bump maps: the tilted normal the diffuse lobe keeps (Cycles turns
+    /// it for the glossy lobes only; the lobe is then Cycles' diffuse about it, front
+    /// side only) and the surface's own shading normal, in the lobes' frame.
+    tilted: Option<Tilted>,
+}
+
+#[derive(Clone, Copy, Debug)]
+struct Tilted {
+    diffuse: Vec3,
+    smooth: Vec3,
 }
 
 #[inline]
@@ -135,6 +162,9 @@ impl Principled {
         self.coat_roughness = clean(self.coat_roughness, 0.0, 1.0, d.coat_roughness);
         self.coat_ior = clean(self.coat_ior, 1.0, 1e5, d.coat_ior);
         self.coat_tint = clean3(self.coat_tint);
+        self.sheen = clean(self.sheen, 0.0, 1e5, 0.0);
+        self.sheen_roughness = clean(self.sheen_roughness, 0.0, 1.0, d.sheen_roughness);
+        self.sheen_tint = clean3(self.sheen_tint);
         self
     }
 
@@ -149,7 +179,7 @@ impl Principled {
         let smooth = Ggx::is_delta(self.roughness * self.roughness);
         let no_diffuse = self.metallic >= 1.0 || self.transmission >= 1.0;
         let coat_smooth = self.coat <= CUTOFF || Ggx::is_delta(self.coat_roughness * self.coat_roughness);
-        smooth && no_diffuse && coat_smooth
+        smooth && no_diffuse && coat_smooth && self.sheen <= CUTOFF
     }
 
     /// The albedo layer's colour.
@@ -167,14 +197,15 @@ impl Principled {
         let flipped = wo.z < 0.0;
         let mu = wo.z.abs().min(1.0);
         let mut lobes = Lobes {
-            lobes: [Lobe { kind: Kind::Diffuse, weight: Vec3::ZERO, scale: 1.0, sample_weight: 0.0 }; 4],
+            lobes: [Lobe { kind: Kind::Diffuse, weight: Vec3::ZERO, scale: 1.0, sample_weight: 0.0 }; MAX_LOBES],
             n: 0,
             total: 0.0,
             flipped,
+            tilted: None,
         };
         let push = |lobes: &mut Lobes, kind: Kind, weight: Vec3, scale: f32, albedo: f32| {
             let sample_weight = average(weight) * albedo;
-            if lobes.n < 4 && sample_weight > 0.0 && sample_weight.is_finite() {
+            if lobes.n < MAX_LOBES && sample_weight > 0.0 && sample_weight.is_finite() {
                 lobes.lobes[lobes.n] = Lobe { kind, weight, scale, sample_weight };
                 lobes.n += 1;
                 lobes.total += sample_weight;
@@ -185,6 +216,15 @@ impl Principled {
             GgxLobe { ggx: Ggx::new(alpha), fresnel, eta, transmits, delta: Ggx::is_delta(alpha) }
         };
         let mut w = Vec3::ONE;
+
+        // 0. Sheen, on top.
+        if p.sheen > CUTOFF
+            && let Some((lobe, albedo)) = SheenLobe::at(p.sheen_roughness, Vec3::new(wo.x, wo.y, mu))
+        {
+            let layer = p.sheen * p.sheen_tint * albedo;
+            push(&mut lobes, Kind::Sheen(lobe), w * layer, 1.0, 1.0);
+            w *= (1.0 - layer.max_element()).clamp(0.0, 1.0);
+        }
 
         // 1. Coat.
         if p.coat > CUTOFF {
@@ -280,17 +320,43 @@ impl Lobes {
         if self.flipped { Vec3::new(v.x, v.y, -v.z) } else { v }
     }
 
+    /// The lobes of a surface whose normal maps tilted its shading normal `smooth` to
+    /// `diffuse` (both unit, in the frame the lobes were set up in): the diffuse lobe is
+    /// about `diffuse`, and diffuse and sheen lobes are shadowed as Cycles shadows them
+    /// ([`bump_shadowing`]).
+    pub fn with_tilted_normal(mut self, diffuse: Vec3, smooth: Vec3) -> Self {
+        self.tilted = Some(Tilted { diffuse: self.local(diffuse), smooth: self.local(smooth) });
+        self
+    }
+
+    /// The diffuse lobe's f cos θi and its pdf at `wi`.
+    #[inline]
+    fn diffuse(&self, wo: Vec3, wi: Vec3) -> (Vec3, f32) {
+        match self.tilted {
+            Some(t) => {
+                let c = (wi.dot(t.diffuse) * std::f32::consts::FRAC_1_PI).max(0.0);
+                (Vec3::splat(c * bump_shadowing(t.smooth, t.diffuse, wi)), c)
+            }
+            None => {
+                let l = Lambert { kd: Vec3::ONE };
+                (l.eval(wo, wi), l.pdf(wo, wi))
+            }
+        }
+    }
+
     /// f cos θi and the pdf of [`Self::sample`] (the non-delta lobes').
     pub fn eval_pdf(&self, wo: Vec3, wi: Vec3) -> (Vec3, f32) {
         let (wo, wi) = (self.local(wo), self.local(wi));
         let (mut f, mut pdf) = (Vec3::ZERO, 0.0);
         for lobe in &self.lobes[..self.n] {
             let (lf, lp) = match lobe.kind {
-                Kind::Diffuse => {
-                    let l = Lambert { kd: Vec3::ONE };
-                    (l.eval(wo, wi), l.pdf(wo, wi))
-                }
+                Kind::Diffuse => self.diffuse(wo, wi),
                 Kind::Ggx(g) => g.eval_pdf(wo, wi),
+                Kind::Sheen(s) => {
+                    let d = s.density(wi);
+                    let shadow = self.tilted.map_or(1.0, |t| bump_shadowing(t.smooth, t.diffuse, wi));
+                    (Vec3::splat(d * shadow), d)
+                }
             };
             f += lobe.weight * lobe.scale * lf;
             pdf += lobe.sample_weight * lp;
@@ -319,7 +385,11 @@ impl Lobes {
         let u_choice = ((target - start) / lobe.sample_weight).clamp(0.0, 1.0 - f32::EPSILON);
         let wo_l = self.local(wo);
         let wi_l = match lobe.kind {
-            Kind::Diffuse => Lambert { kd: Vec3::ONE }.sample(wo_l, u)?.wi,
+            Kind::Diffuse => match self.tilted {
+                Some(t) => Frame::from_normal(t.diffuse).to_world(sample_cosine_hemisphere(u)),
+                None => Lambert { kd: Vec3::ONE }.sample(wo_l, u)?.wi,
+            },
+            Kind::Sheen(s) => s.sample(u)?,
             Kind::Ggx(g) => {
                 let s = g.sample(wo_l, u_choice, u)?;
                 if g.delta {

@@ -36,6 +36,15 @@ fn white_glass(roughness: f32, multiscatter: bool) -> Bsdf {
     })
 }
 
+fn sheen_only(roughness: f32) -> Bsdf {
+    principled(|p| {
+        p.base_color = Vec3::ZERO;
+        p.specular_ior_level = 0.0;
+        p.sheen = 1.0;
+        p.sheen_roughness = roughness;
+    })
+}
+
 /// The mean sample weight and its standard error (channel 0), with transmitted samples
 /// multiplied by η'² (undoing radiance's compression: energy, not radiance).
 fn energy(bsdf: &Bsdf, wo: Vec3, samples: usize, seed: u64) -> (f64, f64) {
@@ -126,6 +135,20 @@ fn chi2_cases() -> Vec<super::tests::Chi2Case> {
             ));
         }
     }
+    // Sheen: alone (black base, no specular layer) and over the default material.
+    for (roughness, theta, side) in [(0.2, 70.0, 1.0), (0.5, 30.0, 1.0), (1.0, 60.0, -1.0), (0.8, 0.0, 1.0)] {
+        let wo = dir(theta, 2.1, side);
+        cases.push((sheen_only(roughness), wo, None));
+        cases.push((
+            principled(|p| {
+                p.sheen = 1.0;
+                p.sheen_roughness = roughness;
+                p.sheen_tint = Vec3::new(1.0, 0.5, 0.2);
+            }),
+            wo,
+            None,
+        ));
+    }
     // Narrow lobes, seen through a zoom: a metal about the mirror direction, glass about
     // the refracted one (entering, and leaving below the critical angle).
     for theta in [20.0, 60.0] {
@@ -139,6 +162,33 @@ fn chi2_cases() -> Vec<super::tests::Chi2Case> {
         cases.push((white_glass(0.3, true), wo, Some((through, 0.3f64.cos()))));
     }
     cases
+}
+
+/// A white sheen over nothing reflects its tabulated albedo (the lobe's density
+/// integrates to one), and over a white diffuse base the two together stay within 1:
+/// the base receives only what the sheen lets through. Where the fit has no lobe (smooth
+/// fibres seen from above), there is no sheen.
+#[test]
+fn sheen_reflects_its_albedo_and_dims_the_layers_below() {
+    for roughness in [0.1, 0.4, 1.0] {
+        for theta in [10.0, 50.0, 80.0] {
+            let wo = dir(theta, 0.4, 1.0);
+            let albedo = super::sheen::SheenLobe::at(roughness, wo).map_or(0.0, |(_, a)| a);
+            let (e, se) = energy(&sheen_only(roughness), wo, 100_000, 11);
+            assert!(
+                (e - albedo as f64).abs() < 5.0 * se + 1e-4,
+                "roughness {roughness} θ {theta}: {e} ± {se}, table {albedo}"
+            );
+            let over_white = principled(|p| {
+                p.base_color = Vec3::ONE;
+                p.specular_ior_level = 0.0;
+                p.sheen = 1.0;
+                p.sheen_roughness = roughness;
+            });
+            let (e, se) = energy(&over_white, wo, 100_000, 12);
+            assert!(e <= 1.0 + 5.0 * se && e > 0.9, "sheen over white, roughness {roughness} θ {theta}: {e} ± {se}");
+        }
+    }
 }
 
 #[test]

@@ -20,7 +20,7 @@ use crate::bsdf::Bsdf;
 use crate::film::FirstHit;
 use crate::geometry::{Frame, Ray, offset_origin};
 use crate::material::Slot;
-use crate::material::normals::ensure_valid_specular_reflection;
+use crate::material::normals::{bump_shadowing, ensure_valid_specular_reflection};
 use crate::sampler::Sampler;
 use crate::sampling::{power_heuristic, uniform_sphere_pdf};
 use crate::scene::MAX_MIX_DEPTH;
@@ -187,6 +187,7 @@ impl PathState {
         }
         // Normal and bump maps tilt the shading normal (on the front side, as `si.ns` is).
         let perturbed = material.perturbs_normal();
+        let smooth_ns = si.ns;
         if perturbed {
             si.ns = material.shading_normal(si.ns, si.uv, &scene.uv_frame(&hit, &si), &scene.textures);
         }
@@ -232,17 +233,27 @@ impl PathState {
         // Glass (and a Principled surface that transmits) keeps its outward normal so it
         // knows whether the ray is inside.
         let two_sided = !bsdf.is_oriented();
-        let (ng, mut ns) = if two_sided && si.ng.dot(wo) < 0.0 { (-si.ng, -si.ns) } else { (si.ng, si.ns) };
-        if perturbed {
-            // As Cycles does for a tilted normal: keep its mirror reflection of wo above the
-            // surface (seen from wo's side).
+        let back = two_sided && si.ng.dot(wo) < 0.0;
+        let (ng, tilted) = if back { (-si.ng, -si.ns) } else { (si.ng, si.ns) };
+        // The surface's own shading normal, for the shadowing of tilted diffuse lobes.
+        let smooth = if back { -smooth_ns } else { smooth_ns };
+        // As Cycles does for a tilted normal: glossy lobes turn it just enough that the
+        // mirror reflection of wo stays above the surface (seen from wo's side); diffuse
+        // lobes keep it as the maps made it.
+        let mut ns = tilted;
+        if perturbed && !matches!(bsdf, Bsdf::Diffuse { .. }) {
             let s = if ng.dot(wo) < 0.0 { -1.0 } else { 1.0 };
-            ns = s * ensure_valid_specular_reflection(s * ng, wo, s * ns);
+            ns = s * ensure_valid_specular_reflection(s * ng, wo, s * tilted);
         }
         let frame = Frame::from_normal(ns);
         let wo_local = frame.to_local(wo);
+        // A Lambertian surface with maps: Cycles' shadowing of its tilted normal.
+        let diffuse_tilted = perturbed && matches!(bsdf, Bsdf::Diffuse { .. });
         // A Principled BSDF's lobes at wo, set up once for light and BSDF sampling.
         let lobes = match bsdf {
+            Bsdf::Principled(p) if perturbed => {
+                Some(p.at(wo_local).with_tilted_normal(frame.to_local(tilted), frame.to_local(smooth)))
+            }
             Bsdf::Principled(p) => Some(p.at(wo_local)),
             _ => None,
         };
@@ -259,10 +270,13 @@ impl PathState {
                     let reflects_above = !two_sided || ng.dot(ls.wi) > 0.0;
                     if ls.pdf > 0.0 && ls.li.max_element() > 0.0 && reflects_above {
                         let wi_local = frame.to_local(ls.wi);
-                        let (f, bsdf_pdf) = match &lobes {
+                        let (mut f, bsdf_pdf) = match &lobes {
                             Some(l) => l.eval_pdf(wo_local, wi_local),
                             None => bsdf.eval_pdf(wo_local, wi_local),
                         };
+                        if diffuse_tilted {
+                            f *= bump_shadowing(smooth, ns, ls.wi);
+                        }
                         if f.max_element() > 0.0 {
                             let (weight, pdf) = if ls.delta {
                                 (1.0, pmf)
@@ -313,7 +327,7 @@ impl PathState {
         if two_sided && ng.dot(wi) <= 0.0 {
             return (shadow, false);
         }
-        self.beta *= bs.weight;
+        self.beta *= if diffuse_tilted { bs.weight * bump_shadowing(smooth, ns, wi) } else { bs.weight };
         if !(self.beta.max_element() > 0.0) || !self.beta.is_finite() {
             return (shadow, false);
         }

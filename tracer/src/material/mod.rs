@@ -19,24 +19,20 @@ pub struct PbrDesc {
     pub inputs: Principled,
     /// Opacity: a stochastic cut-out below 1 (MTL's `d`, unless `d` made it glass).
     pub alpha: f32,
-    pub sheen: f32,
     pub anisotropic: f32,
 }
 
 impl Default for PbrDesc {
     fn default() -> Self {
-        Self { inputs: Principled::default(), alpha: 1.0, sheen: 0.0, anisotropic: 0.0 }
+        Self { inputs: Principled::default(), alpha: 1.0, anisotropic: 0.0 }
     }
 }
 
 impl PbrDesc {
     /// What the renderer does not shade yet, in plain words (one line each), so that
     /// nothing is dropped silently.
-    pub fn unshaded(&self, maps: &Maps) -> Vec<&'static str> {
+    pub fn unshaded(&self) -> Vec<&'static str> {
         let mut out = Vec::new();
-        if self.sheen > 0.0 || maps.get(Slot::Sheen).is_some() {
-            out.push("sheen is not shaded yet (rendered without)");
-        }
         if self.anisotropic > 0.0 {
             out.push("anisotropy is not shaded yet (rendered isotropic)");
         }
@@ -195,6 +191,7 @@ impl Material {
                     roughness: m.scale(Slot::Roughness, p.roughness, uv, textures),
                     metallic: m.scale(Slot::Metallic, p.metallic, uv, textures),
                     coat: m.scale(Slot::Coat, p.coat, uv, textures),
+                    sheen: m.scale(Slot::Sheen, p.sheen, uv, textures),
                     transmission: m.scale(Slot::Transmission, p.transmission, uv, textures),
                     ..p
                 };

@@ -54,7 +54,7 @@ impl Builder {
                 Some(i) => self.materials[i as usize],
                 None => {
                     if let Some(pbr) = &m.pbr {
-                        for what in pbr.unshaded(&m.maps) {
+                        for what in pbr.unshaded() {
                             self.warnings.push(format!("material '{}': {what}", m.name));
                         }
                     }

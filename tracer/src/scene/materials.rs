@@ -39,7 +39,7 @@ pub(super) fn add_table(
     b.textures.extend(cache.textures);
     for d in &descs {
         if let Some(pbr) = &d.pbr {
-            b.warnings.extend(pbr.unshaded(&d.maps).into_iter().map(|what| format!("materials.{}: {what}", d.name)));
+            b.warnings.extend(pbr.unshaded().into_iter().map(|what| format!("materials.{}: {what}", d.name)));
         }
     }
     // Plain materials first, then mixes once both their parts have an index.
@@ -145,7 +145,7 @@ fn describe(
         unit("transmission", t.transmission, 0.0)?,
     );
     p.coat = textured(slot(Slot::Coat, "coat_map", &t.coat_map)?, positive("coat", t.coat, 0.0)?);
-    pbr.sheen = textured(slot(Slot::Sheen, "sheen_map", &t.sheen_map)?, positive("sheen", t.sheen, 0.0)?);
+    pbr.inputs.sheen = textured(slot(Slot::Sheen, "sheen_map", &t.sheen_map)?, positive("sheen", t.sheen, 0.0)?);
     pbr.alpha = textured(slot(Slot::Alpha, "alpha_map", &t.alpha_map)?, unit("alpha", t.alpha, 1.0)?);
     let emission_map = slot(Slot::Emission, "emission_map", &t.emission_map)?;
     let normal = slot(Slot::Normal, "normal_map", &t.normal_map)?;
@@ -175,8 +175,8 @@ fn describe(
             format!("unknown distribution '{other}' (expected multiscatter_ggx or ggx)"),
         ))?,
     };
-    unit("sheen_roughness", t.sheen_roughness, 0.5)?;
-    colour("sheen_tint", t.sheen_tint, Vec3::ONE)?;
+    pbr.inputs.sheen_roughness = unit("sheen_roughness", t.sheen_roughness, 0.5)?;
+    pbr.inputs.sheen_tint = colour("sheen_tint", t.sheen_tint, Vec3::ONE)?;
     pbr.anisotropic = unit("anisotropic", t.anisotropic, 0.0)?;
     if let Some(r) = t.anisotropic_rotation
         && !r.is_finite()

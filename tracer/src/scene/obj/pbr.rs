@@ -64,7 +64,7 @@ impl PbrKeys {
         let glass = matches!(desc.illum, Some(4 | 6 | 7)) || (desc.d < 1.0 && ni.is_some_and(|n| n != 1.0));
         p.transmission = if glass { 1.0 } else { self.pt.unwrap_or(0.0) };
         pbr.alpha = if glass { 1.0 } else { desc.d };
-        pbr.sheen = self.ps.unwrap_or(0.0);
+        p.sheen = self.ps.unwrap_or(0.0);
         pbr.anisotropic = self.aniso.unwrap_or(0.0);
         pbr
     }
