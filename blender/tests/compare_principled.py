@@ -183,6 +183,9 @@ def build(objects):
 
 def cycles(scene, spp, seed, path):
     cc.cycles_settings(scene, spp, seed)
+    # Filter Glossy (default 1) blurs glossy bounces after diffuse ones: a bias tilefarm
+    # does not have (the comparisons ran with 0).
+    scene.cycles.blur_glossy = 0.0
     scene.render.resolution_x, scene.render.resolution_y = W, H
     scene.view_layers[0].use_pass_object_index = True
     scene.render.filepath = path

@@ -82,16 +82,38 @@ impl Texture {
     }
 
     /// The gradient of the luminance over `uv` (a height map's slope, for bump mapping):
-    /// central differences over half a texel of the mapped image on each side.
+    /// the derivative of the bilinear interpolation itself, constant within a cell of four
+    /// texels (as Cycles' tiny finite differences see it); zero with `closest`.
     pub fn luminance_gradient(&self, uv: Vec2) -> Vec2 {
-        let texels = self.width.max(self.height).max(1) as f32 * self.map.scale.abs().max_element();
-        if !(texels > 0.0) || !texels.is_finite() {
+        let (w, h) = (self.width as i64, self.height as i64);
+        if w == 0 || h == 0 || self.map.closest {
             return Vec2::ZERO;
         }
-        let d = 0.5 / texels;
-        let h = |du: f32, dv: f32| luminance(self.sample(uv + Vec2::new(du, dv)));
-        let g = Vec2::new(h(d, 0.0) - h(-d, 0.0), h(0.0, d) - h(0.0, -d)) / (2.0 * d);
-        if g.is_finite() { g } else { Vec2::ZERO }
+        let mapped = self.map.apply(uv);
+        if self.map.clamp && (mapped.cmplt(Vec2::ZERO).any() || mapped.cmpgt(Vec2::ONE).any()) {
+            return Vec2::ZERO;
+        }
+        let x = mapped.x * self.width as f32 - 0.5;
+        let y = (1.0 - mapped.y) * self.height as f32 - 0.5;
+        if !x.is_finite() || !y.is_finite() {
+            return Vec2::ZERO;
+        }
+        let clamp = self.map.clamp;
+        let wrap = |i: i64, n: i64| if clamp { i.clamp(0, n - 1) } else { i.rem_euclid(n) };
+        let l = |ix: i64, iy: i64| luminance(self.texels[(wrap(iy, h) * w + wrap(ix, w)) as usize]);
+        let (x0, y0) = (x.floor(), y.floor());
+        let (fx, fy) = (x - x0, y - y0);
+        let (ix, iy) = (x0 as i64, y0 as i64);
+        let (t00, t10, t01, t11) = (l(ix, iy), l(ix + 1, iy), l(ix, iy + 1), l(ix + 1, iy + 1));
+        let d_dx = (1.0 - fy) * (t10 - t00) + fy * (t11 - t01);
+        let d_dy = (1.0 - fx) * (t01 - t00) + fx * (t11 - t10);
+        // Over the mapped coordinates (y runs down the image), then back through the
+        // mapping's linear part R·S (transposed).
+        let g = Vec2::new(d_dx * self.width as f32, -d_dy * self.height as f32);
+        let (c, s) = (self.map.rotation.x, self.map.rotation.y);
+        let (sx, sy) = (self.map.scale.x, self.map.scale.y);
+        let grad = Vec2::new(sx * (c * g.x + s * g.y), sy * (-s * g.x + c * g.y));
+        if grad.is_finite() { grad } else { Vec2::ZERO }
     }
 }
 
@@ -131,9 +153,19 @@ mod tests {
         let ramp = Texture { width: 8, height: 1, texels, map: TexMap::default() };
         let g = ramp.luminance_gradient(Vec2::new(0.5, 0.5));
         assert!((g - Vec2::new(1.0, 0.0)).length() < 1e-4, "{g}");
-        let scaled = Texture { map: TexMap { scale: Vec2::splat(2.0), ..Default::default() }, ..ramp };
+        let scaled = Texture { map: TexMap { scale: Vec2::splat(2.0), ..Default::default() }, ..ramp.clone() };
         let g2 = scaled.luminance_gradient(Vec2::new(0.25, 0.5));
         assert!((g2 - Vec2::new(2.0, 0.0)).length() < 1e-3, "chain rule through the mapping: {g2}");
+        // A quarter turn: the ramp now rises along v (mapped x = −v·… after rotation).
+        let turned = Texture { map: TexMap { rotation: Vec2::new(0.0, 1.0), ..Default::default() }, ..ramp.clone() };
+        let uv = Vec2::new(0.5, -0.5);
+        let g3 = turned.luminance_gradient(uv);
+        let d = 1e-3;
+        let fd = Vec2::new(
+            luminance(turned.sample(uv + Vec2::new(d, 0.0))) - luminance(turned.sample(uv - Vec2::new(d, 0.0))),
+            luminance(turned.sample(uv + Vec2::new(0.0, d))) - luminance(turned.sample(uv - Vec2::new(0.0, d))),
+        ) / (2.0 * d);
+        assert!((g3 - fd).length() < 1e-2, "{g3} against finite differences {fd}");
     }
 
     #[test]
