@@ -4,7 +4,8 @@ in `bpy`, rendered by Cycles twice (seeds 1 and 2: the noise floor) and by tilef
 bounces), compared object by object (Cycles' object index pass, eroded by a pixel, is
 each object's mask): every channel mean within 2 % of Cycles' (of the brightest
 channel's mean at least, so a red object's near-black green is not divided by almost
-nothing), and the relative MSE against Cycles within twice Cycles' own against its
+nothing; or, where Cycles' two seeds differ by more than a third of that, within three
+times their difference: a small sharp highlight is noisy in both), and the relative MSE against Cycles within twice Cycles' own against its
 second seed. The cases in KNOWN_GAPS are held to the looser bounds written there, with
 the reason. An export or a tilefarm render that fails is a failed case. Prints one JSON
 line of figures; exits non-zero on a failure.
@@ -134,8 +135,11 @@ def maps(img):
     rough = linked(principled("roughtex", Base_Color=GOLD, Metallic=1.0), img["rough"], "Color", "Roughness")
     cutout = linked(principled("cutout", Roughness=0.5), img["cutout"], "Color", "Base Color")
     linked(cutout, img["cutout"], "Alpha", "Alpha")
+    # A coat over a normal-mapped base: Blender's coat keeps its own (unlinked) Coat Normal.
+    coated = linked(principled("coatnmap", Base_Color=RED, Roughness=0.6, Coat_Weight=1.0, Coat_Roughness=0.1),
+                    img["normal"], "Color", "Normal", via=("ShaderNodeNormalMap", {"Strength": 1.0}, "Color"))
     return [("normal_mapped", normal), ("bump_mapped", bump), ("roughness_textured", rough),
-            ("alpha_textured", cutout)]
+            ("alpha_textured", cutout), ("coat_over_normal_map", coated)]
 
 
 def layers(img):
@@ -288,8 +292,9 @@ def run_scene(coordinator, work, spp, name, img, tilefarm_spp):
             f["known_gap"] = why
         if error is not None:
             f["error"] = error
-        elif not all(d <= means for d in f["mean_rel_diff"]):
-            f["error"] = f"channel means differ by {f['mean_rel_diff']} (more than {means:.0%})"
+        elif not all(d <= max(means, 3.0 * s) for d, s in zip(f["mean_rel_diff"], f["cycles_seeds_mean_diff"])):
+            f["error"] = (f"channel means differ by {f['mean_rel_diff']} (more than {means:.0%}, and more than three "
+                          f"times Cycles' own seed-to-seed {f['cycles_seeds_mean_diff']})")
         elif f["relmse"] > times * f["relmse_floor"]:
             f["error"] = f"relMSE {f['relmse']:.3g} over {times:g} times Cycles' noise floor {f['relmse_floor']:.3g}"
         results[key] = f

@@ -92,6 +92,8 @@ impl Default for Principled {
 enum Kind {
     Diffuse,
     Ggx(GgxLobe),
+    /// The coat: a GGX lobe about the coat's own normal ([`Lobes::coat_frame`]).
+    Coat(GgxLobe),
     Sheen(SheenLobe),
 }
 
@@ -121,6 +123,10 @@ pub struct Lobes {
     /// it for the glossy lobes only; the lobe is then Cycles' diffuse about it, front
     /// side only) and the surface's own shading normal, in the lobes' frame.
     tilted: Option<Tilted>,
+    /// The coat's frame within the lobes' frame, where its normal differs from theirs
+    /// (Blender's Coat Normal: a normal map on the surface's Normal leaves the coat
+    /// smooth).
+    coat_frame: Option<Frame>,
 }
 
 #[derive(Clone, Copy, Debug)]
@@ -193,15 +199,24 @@ impl Principled {
     /// a frame where wo is above.
     // Long on purpose: Cycles' layer stack in its order, one running weight through it; split, the order would be harder to check against the source.
     pub fn at(&self, wo: Vec3) -> Lobes {
+        self.at_with_coat_normal(wo, None)
+    }
+
+    /// [`Self::at`], with the coat about its own unit normal `coat_normal` (same frame),
+    /// as Blender's Coat Normal (unlinked: the surface's normal before normal maps).
+    pub fn at_with_coat_normal(&self, wo: Vec3, coat_normal: Option<Vec3>) -> Lobes {
         let p = self;
         let flipped = wo.z < 0.0;
         let mu = wo.z.abs().min(1.0);
+        let mirror = |v: Vec3| if flipped { Vec3::new(v.x, v.y, -v.z) } else { v };
+        let coat_frame = coat_normal.filter(|_| p.coat > CUTOFF).map(|n| Frame::from_normal(mirror(n)));
         let mut lobes = Lobes {
             lobes: [Lobe { kind: Kind::Diffuse, weight: Vec3::ZERO, scale: 1.0, sample_weight: 0.0 }; MAX_LOBES],
             n: 0,
             total: 0.0,
             flipped,
             tilted: None,
+            coat_frame,
         };
         let push = |lobes: &mut Lobes, kind: Kind, weight: Vec3, scale: f32, albedo: f32| {
             let sample_weight = average(weight) * albedo;
@@ -226,8 +241,9 @@ impl Principled {
             w *= (1.0 - layer.max_element()).clamp(0.0, 1.0);
         }
 
-        // 1. Coat.
+        // 1. Coat (seen from wo in its own frame, if it has one).
         if p.coat > CUTOFF {
+            let mu = coat_frame.map_or(mu, |f| f.to_local(mirror(wo)).z.clamp(0.0, 1.0));
             let r = p.coat_roughness;
             let lobe = ggx_lobe(r, Fresnel::Dielectric { eta: p.coat_ior }, p.coat_ior, false);
             let (scale, dark) = energy::compensation(
@@ -238,7 +254,7 @@ impl Principled {
             let f0 = f0_from_ior(p.coat_ior);
             let estimate = f0 + (1.0 - f0) * energy::dielectric_fresnel_mean(r, mu, p.coat_ior);
             let weight = w * p.coat * dark;
-            push(&mut lobes, Kind::Ggx(lobe), weight, scale, estimate);
+            push(&mut lobes, Kind::Coat(lobe), weight, scale, estimate);
             w *= (1.0 - (p.coat * dark * estimate).max_element()).clamp(0.0, 1.0);
             if p.coat_tint != Vec3::ONE {
                 let inv = 1.0 / p.coat_ior;
@@ -352,6 +368,10 @@ impl Lobes {
             let (lf, lp) = match lobe.kind {
                 Kind::Diffuse => self.diffuse(wo, wi),
                 Kind::Ggx(g) => g.eval_pdf(wo, wi),
+                Kind::Coat(g) => match self.coat_frame {
+                    Some(c) => g.eval_pdf(c.to_local(wo), c.to_local(wi)),
+                    None => g.eval_pdf(wo, wi),
+                },
                 Kind::Sheen(s) => {
                     let d = s.density(wi);
                     let shadow = self.tilted.map_or(1.0, |t| bump_shadowing(t.smooth, t.diffuse, wi));
@@ -390,19 +410,26 @@ impl Lobes {
                 None => Lambert { kd: Vec3::ONE }.sample(wo_l, u)?.wi,
             },
             Kind::Sheen(s) => s.sample(u)?,
-            Kind::Ggx(g) => {
-                let s = g.sample(wo_l, u_choice, u)?;
+            Kind::Ggx(g) | Kind::Coat(g) => {
+                // The coat in its own frame: there and back.
+                let frame = match lobe.kind {
+                    Kind::Coat(_) => self.coat_frame,
+                    _ => None,
+                };
+                let wo_g = frame.map_or(wo_l, |f| f.to_local(wo_l));
+                let s = g.sample(wo_g, u_choice, u)?;
+                let wi_g = frame.map_or(s.wi, |f| f.to_world(s.wi));
                 if g.delta {
                     let p = lobe.sample_weight / self.total * s.pdf;
                     let weight = lobe.weight * lobe.scale * s.value / p;
                     return weight.is_finite().then_some(BsdfSample {
-                        wi: self.local(s.wi),
+                        wi: self.local(wi_g),
                         weight,
                         pdf: p,
                         delta: true,
                     });
                 }
-                s.wi
+                wi_g
             }
         };
         let wi = self.local(wi_l);

@@ -240,10 +240,11 @@ impl PathState {
         // As Cycles does for a tilted normal: glossy lobes turn it just enough that the
         // mirror reflection of wo stays above the surface (seen from wo's side); diffuse
         // lobes keep it as the maps made it.
+        let side = if ng.dot(wo) < 0.0 { -1.0 } else { 1.0 };
+        let valid = |n: Vec3| side * ensure_valid_specular_reflection(side * ng, wo, side * n);
         let mut ns = tilted;
         if perturbed && !matches!(bsdf, Bsdf::Diffuse { .. }) {
-            let s = if ng.dot(wo) < 0.0 { -1.0 } else { 1.0 };
-            ns = s * ensure_valid_specular_reflection(s * ng, wo, s * tilted);
+            ns = valid(tilted);
         }
         let frame = Frame::from_normal(ns);
         let wo_local = frame.to_local(wo);
@@ -252,7 +253,10 @@ impl PathState {
         // A Principled BSDF's lobes at wo, set up once for light and BSDF sampling.
         let lobes = match bsdf {
             Bsdf::Principled(p) if perturbed => {
-                Some(p.at(wo_local).with_tilted_normal(frame.to_local(tilted), frame.to_local(smooth)))
+                // Blender's coat keeps the surface's own normal (its Coat Normal, unlinked).
+                let coat = (p.coat > 0.0).then(|| frame.to_local(valid(smooth)));
+                let lobes = p.at_with_coat_normal(wo_local, coat);
+                Some(lobes.with_tilted_normal(frame.to_local(tilted), frame.to_local(smooth)))
             }
             Bsdf::Principled(p) => Some(p.at(wo_local)),
             _ => None,
