@@ -75,6 +75,7 @@ fn a_white_rough_metal_in_a_white_furnace_stays_white() {
         for theta in [0.0, 45.0, 75.0] {
             let wo = dir(theta, 0.3, 1.0);
             let (e, se) = energy(&white_metal(roughness, true), wo, 200_000, 7);
+            println!("white metal, roughness {roughness}, θ {theta}°: {e:.4} ± {se:.4}");
             assert!((e - 1.0).abs() < 0.01 + 5.0 * se, "roughness {roughness} θ {theta}: {e} ± {se}");
         }
     }
@@ -89,6 +90,10 @@ fn a_white_rough_dielectric_in_a_white_furnace_stays_white() {
         for (theta, side) in [(0.0, 1.0), (50.0, 1.0), (20.0, -1.0), (60.0, -1.0)] {
             let wo = dir(theta, 0.3, side);
             let (e, se) = energy(&white_glass(roughness, true), wo, 200_000, 9);
+            println!(
+                "white glass, roughness {roughness}, θ {theta}° from {}: {e:.4} ± {se:.4}",
+                if side > 0.0 { "outside" } else { "inside" }
+            );
             assert!((e - 1.0).abs() < 0.01 + 5.0 * se, "roughness {roughness} θ {theta} side {side}: {e} ± {se}");
         }
     }
