@@ -178,6 +178,15 @@ impl Coordinator {
     }
 }
 
+/// The last line of a script's standard output that is a JSON object (where the
+/// comparison scripts print their figures), also printed with `label` for the log.
+pub fn figures_of(out: &Output, label: &str) -> String {
+    let said = String::from_utf8_lossy(&out.stdout);
+    let figures = said.lines().rev().find(|l| l.starts_with('{')).unwrap_or("").to_string();
+    println!("{label}: {figures}");
+    figures
+}
+
 /// Runs a command to completion within `limit`, capturing its output.
 pub fn run(cmd: &mut Command, limit: Duration) -> Output {
     quiet(cmd);

@@ -50,8 +50,7 @@ fn blender_scenes_export_and_render_like_cycles() {
         .env("HOME", dir.path("home"));
     let out = run(&mut cmd, LIMIT);
     let said = String::from_utf8_lossy(&out.stdout);
-    let figures = said.lines().rev().find(|l| l.starts_with('{')).unwrap_or("");
-    println!("figures: {figures}");
+    let figures = figures_of(&out, "figures");
     assert!(
         out.status.success(),
         "the Blender comparison failed:\n{}\n{}",
@@ -75,9 +74,7 @@ fn blender_principled_materials_export_as_tables() {
     let mut cmd = Command::new(&python);
     cmd.arg(here.join("../blender/tests/principled_export.py")).arg(dir.path("work")).env("HOME", dir.path("home"));
     let out = run(&mut cmd, LIMIT);
-    let said = String::from_utf8_lossy(&out.stdout);
-    let figures = said.lines().rev().find(|l| l.starts_with('{')).unwrap_or("");
-    println!("figures: {figures}");
+    let figures = figures_of(&out, "figures");
     assert!(
         out.status.success() && figures.contains("\"failed\": {}"),
         "the Principled export checks failed:\n{figures}\n{}",
@@ -109,9 +106,7 @@ fn blender_principled_materials_render_like_cycles() {
         .args(["256", "all", "1024"])
         .env("HOME", dir.path("home"));
     let out = run(&mut cmd, LIMIT);
-    let said = String::from_utf8_lossy(&out.stdout);
-    let figures = said.lines().rev().find(|l| l.starts_with('{')).unwrap_or("");
-    println!("figures: {figures}");
+    let figures = figures_of(&out, "figures");
     assert!(
         out.status.success(),
         "tilefarm's Principled materials differ from Cycles':\n{}",
@@ -130,7 +125,7 @@ fn a_blender_animation_renders_as_a_group_of_frames() {
     let out = run(&mut cmd, LIMIT);
     let said = String::from_utf8_lossy(&out.stdout);
     assert!(out.status.success(), "the export failed:\n{said}\n{}", String::from_utf8_lossy(&out.stderr));
-    println!("export: {}", said.lines().rev().find(|l| l.starts_with('{')).unwrap_or(""));
+    figures_of(&out, "export");
     let shot = dir.path("work").join("shot");
     let files = std::fs::read_dir(&shot).unwrap().count();
 

@@ -39,8 +39,7 @@ fn spheres_of_diffuse_metal_and_glass_render_like_mitsuba() {
     cmd.args(["--cases", CASES]);
     let out = run(&mut cmd, LIMIT);
     let said = String::from_utf8_lossy(&out.stdout);
-    let figures = said.lines().rev().find(|l| l.starts_with('{')).unwrap_or("");
-    println!("figures: {figures}");
+    let figures = figures_of(&out, "figures");
     assert!(
         out.status.success(),
         "the Mitsuba comparison failed:\n{}\n{}",
