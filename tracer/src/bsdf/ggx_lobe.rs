@@ -154,6 +154,19 @@ impl GgxLobe {
     /// the direction is on the wrong side or carries nothing.
     #[inline]
     pub fn sample(&self, wo: Vec3, u_choice: f32, u: Vec2) -> Option<LobeSample> {
+        let (wi, value, choice) = self.sample_direction(wo, u_choice, u)?;
+        if self.delta {
+            return (choice > 0.0 && value.max_element() > 0.0).then_some(LobeSample { wi, value, pdf: choice });
+        }
+        let (value, pdf) = self.eval_pdf(wo, wi);
+        (pdf > 0.0 && pdf.is_finite()).then_some(LobeSample { wi, value, pdf })
+    }
+
+    /// [`Self::sample`]'s direction alone, with the Fresnel weight of the branch taken
+    /// (reflectance, or radiance-scaled transmittance) and that branch's probability: for
+    /// callers that evaluate the BSDF at wi themselves (the Principled mixture does).
+    #[inline]
+    pub fn sample_direction(&self, wo: Vec3, u_choice: f32, u: Vec2) -> Option<(Vec3, Vec3, f32)> {
         if !(wo.z > 0.0) {
             return None;
         }
@@ -177,11 +190,7 @@ impl GgxLobe {
             }
             (wi, t / (self.eta * self.eta), 1.0 - pr)
         };
-        if self.delta {
-            return (choice > 0.0 && value.max_element() > 0.0).then_some(LobeSample { wi, value, pdf: choice });
-        }
-        let (value, pdf) = self.eval_pdf(wo, wi);
-        (pdf > 0.0 && pdf.is_finite()).then_some(LobeSample { wi, value, pdf })
+        Some((wi, value, choice))
     }
 
     /// The weight G2/G1 of a sampled pair without Fresnel, summed over reflection and

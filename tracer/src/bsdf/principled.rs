@@ -417,9 +417,13 @@ impl Lobes {
                     _ => None,
                 };
                 let wo_g = frame.map_or(wo_l, |f| f.to_local(wo_l));
-                let s = g.sample(wo_g, u_choice, u)?;
-                let wi_g = frame.map_or(s.wi, |f| f.to_world(s.wi));
-                if g.delta {
+                if !g.delta {
+                    // The direction only: the whole mixture is evaluated there below.
+                    let (wi, _, _) = g.sample_direction(wo_g, u_choice, u)?;
+                    frame.map_or(wi, |f| f.to_world(wi))
+                } else {
+                    let s = g.sample(wo_g, u_choice, u)?;
+                    let wi_g = frame.map_or(s.wi, |f| f.to_world(s.wi));
                     let p = lobe.sample_weight / self.total * s.pdf;
                     let weight = lobe.weight * lobe.scale * s.value / p;
                     return weight.is_finite().then_some(BsdfSample {
@@ -429,7 +433,6 @@ impl Lobes {
                         delta: true,
                     });
                 }
-                wi_g
             }
         };
         let wi = self.local(wi_l);
