@@ -158,7 +158,8 @@ def layers(img):
 # multiple of Cycles' floor, channel-mean difference) they are held to instead, so that
 # they still fail when they get worse. README.md's Blender table says the same.
 FIREFLIES = ("rare bright paths through the neighbouring rough glass sphere, which Cycles does not show at "
-             "equal samples (the means agree; not understood yet)")
+             "equal samples (the means agree; Mitsuba 3's path tracer, the same estimator, has the same tails "
+             "through rough glass: how Cycles avoids them is not known yet)")
 KNOWN_GAPS = {
     "maps/bump_mapped": (12.0, 0.03, "Cycles 4.2 differentiates the height over a pixel's footprint (forward "
                          "differences along ray differentials); tilefarm takes the bilinear height's own derivative"),
