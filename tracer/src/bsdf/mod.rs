@@ -14,6 +14,7 @@
 //! 0) `eval`/`pdf` return finite values and `sample` returns None or a finite sample.
 
 pub mod blinn_phong;
+mod bump_shadowing;
 pub mod dielectric;
 pub mod energy;
 pub mod fresnel;
@@ -33,6 +34,7 @@ mod principled_tests;
 mod tests;
 
 use blinn_phong::BlinnPhong;
+pub use bump_shadowing::bump_shadowing;
 use dielectric::Dielectric;
 use glam::{Vec2, Vec3};
 use lambert::Lambert;

@@ -31,6 +31,7 @@
 use glam::{Vec2, Vec3};
 
 use super::BsdfSample;
+use super::bump_shadowing;
 use super::energy;
 use super::fresnel::{dielectric_average, f0_from_ior, f82_average, f82_b, ior_from_f0};
 use super::ggx_lobe::{Fresnel, GgxLobe};
@@ -38,7 +39,6 @@ use super::lambert::Lambert;
 use super::microfacet::Ggx;
 use super::sheen::SheenLobe;
 use crate::geometry::Frame;
-use crate::material::normals::bump_shadowing;
 use crate::math::powf;
 use crate::sampling::sample_cosine_hemisphere;
 
