@@ -124,7 +124,11 @@ def metal(img):
     textured = linked(principled("goldtex", Metallic=1.0, Roughness=0.3), img["color"], "Color", "Base Color")
     return [("gold_rough_0.0", principled("gold0", Base_Color=GOLD, Metallic=1.0, Roughness=0.0)),
             ("gold_rough_0.3", principled("gold3", Base_Color=GOLD, Metallic=1.0, Roughness=0.3)),
-            ("gold_textured", textured)]
+            ("gold_textured", textured),
+            # Blender's default tangent is radial about the object's Z; on a UV sphere that
+            # is the UV map's tangent, which tilefarm uses.
+            ("gold_anisotropic", principled("goldaniso", Base_Color=GOLD, Metallic=1.0, Roughness=0.4,
+                                            Anisotropic=0.8, Anisotropic_Rotation=0.1))]
 
 
 def maps(img):

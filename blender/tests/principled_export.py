@@ -454,8 +454,11 @@ def other_bsdfs_as_principled(b):
         expect("sheen tint", v["sheen_tint"], [0.6, 0.1, 0.2])
         expect("sheen roughness", v["sheen_roughness"], 0.4)
         expect("sheen base", v["base_color"], [0.0, 0.0, 0.0])
-        for name in ("Glossy", "GlossyAniso", "Glass", "Diffuse", "Velvet"):
+        for name in ("Glossy", "Glass", "Diffuse", "Velvet"):
             no_warning(x, name)
+        assert x.warned("GlossyAniso") == [
+            "anisotropy along the UV map's tangent (Blender's default is radial about the object's Z axis: the same "
+            "on a UV sphere)"], x.warned("GlossyAniso")
         assert x.warned("Lamp") == ["emits from its front faces only (Blender: both sides)"], x.warned("Lamp")
         assert x.warned("Refraction") == ["Refraction BSDF rendered as glass (with a reflection it does not have)",
                                           "Refraction BSDF distribution Beckmann rendered GGX"], x.warned("Refraction")

@@ -197,10 +197,20 @@ def principled(node, r):
     if film > 0.0 or r.linked("Thin Film Thickness"):
         r.note(f"thin film ({show(film)} nm) not mapped (rendered without)")
     if r.linked("Coat Normal"):
-        r.note("Coat Normal not mapped (the coat takes the base's normal)")
-    if r.linked("Tangent"):
-        r.note("Tangent not mapped (anisotropy along the default tangent)")
+        r.note("Coat Normal not mapped (the coat keeps the surface's own normal)")
+    tangent(r, t)
     return t
+
+
+def tangent(r, t):
+    """tilefarm stretches anisotropic lobes along the UV map's tangent; Blender's default
+    (the Tangent socket unlinked) is radial about the object's Z axis. The two agree on
+    a UV sphere, not in general: said whenever anisotropy is on."""
+    if r.linked("Tangent"):
+        r.note("Tangent not mapped (anisotropy along the UV map's tangent)")
+    elif t.get("anisotropic", 0.0) > 0.0 or "anisotropic_map" in t:
+        r.note("anisotropy along the UV map's tangent (Blender's default is radial about the object's Z axis: "
+               "the same on a UV sphere)")
 
 
 def diffuse(node, r):
@@ -241,8 +251,7 @@ def glossy(node, r):
         t["anisotropic_rotation"] = r.value("Rotation") + (0.25 if a > 0.0 else 0.0)
         if (1.0 - ratio) / 0.9 > 1.0 + 1e-6:
             r.note(f"Glossy BSDF anisotropy {show(a)} beyond the Principled's (stretched 10:1 at most)")
-    if r.linked("Tangent"):
-        r.note("Tangent not mapped (anisotropy along the default tangent)")
+    tangent(r, t)
     r.normal(t)
     return t
 

@@ -112,7 +112,7 @@ fn blender_principled_materials_render_like_cycles() {
         "tilefarm's Principled materials differ from Cycles':\n{}",
         String::from_utf8_lossy(&out.stderr).lines().filter(|l| l.starts_with("FAILED")).collect::<Vec<_>>().join("\n")
     );
-    assert!(figures.contains("\"passed\": 21"), "every case ran: {figures}");
+    assert!(figures.contains("\"passed\": 22"), "every case ran: {figures}");
 }
 
 #[test]

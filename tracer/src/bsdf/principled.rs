@@ -127,6 +127,9 @@ pub struct Lobes {
     /// (Blender's Coat Normal: a normal map on the surface's Normal leaves the coat
     /// smooth).
     coat_frame: Option<Frame>,
+    /// The tangent's direction (cos, sin) in the frame's xy plane: anisotropic lobes are
+    /// evaluated with it turned to x.
+    tangent: Vec2,
 }
 
 #[derive(Clone, Copy, Debug)]
@@ -197,14 +200,17 @@ impl Principled {
     /// transmits is oriented (z = outside) and wo below it sees the interface from
     /// inside (IOR inverted); otherwise it is two-sided. Either way the lobes live in
     /// a frame where wo is above.
-    // Long on purpose: Cycles' layer stack in its order, one running weight through it; split, the order would be harder to check against the source.
     pub fn at(&self, wo: Vec3) -> Lobes {
-        self.at_with_coat_normal(wo, None)
+        self.at_with(wo, None, None)
     }
 
     /// [`Self::at`], with the coat about its own unit normal `coat_normal` (same frame),
-    /// as Blender's Coat Normal (unlinked: the surface's normal before normal maps).
-    pub fn at_with_coat_normal(&self, wo: Vec3, coat_normal: Option<Vec3>) -> Lobes {
+    /// as Blender's Coat Normal (unlinked: the surface's normal before normal maps); and
+    /// with `anisotropy` (Blender's Anisotropic in [0, 1], and the tangent's direction in
+    /// the frame's xy plane as (cos, sin)): the metal and specular lobes stretch along the
+    /// tangent, α_x = α / √(1 − 0.9 a) and α_y = α √(1 − 0.9 a), as Cycles does.
+    // Long on purpose: Cycles' layer stack in its order, one running weight through it; split, the order would be harder to check against the source.
+    pub fn at_with(&self, wo: Vec3, coat_normal: Option<Vec3>, anisotropy: Option<(f32, Vec2)>) -> Lobes {
         let p = self;
         let flipped = wo.z < 0.0;
         let mu = wo.z.abs().min(1.0);
@@ -217,6 +223,7 @@ impl Principled {
             flipped,
             tilted: None,
             coat_frame,
+            tangent: Vec2::X,
         };
         let push = |lobes: &mut Lobes, kind: Kind, weight: Vec3, scale: f32, albedo: f32| {
             let sample_weight = average(weight) * albedo;
@@ -229,6 +236,20 @@ impl Principled {
         let ggx_lobe = |roughness: f32, fresnel: Fresnel, eta: f32, transmits: bool| {
             let alpha = roughness * roughness;
             GgxLobe { ggx: Ggx::new(alpha), fresnel, eta, transmits, delta: Ggx::is_delta(alpha) }
+        };
+        // Anisotropic lobes (metal, specular) in the tangent's frame.
+        let anisotropy = anisotropy.filter(|(a, t)| *a > 0.0 && t.is_finite() && t.length_squared() > 0.0);
+        if let Some((_, t)) = anisotropy {
+            lobes.tangent = t.normalize();
+        }
+        let stretched = |mut lobe: GgxLobe| {
+            if let Some((a, _)) = anisotropy
+                && !lobe.delta
+            {
+                let (alpha, aspect) = (lobe.ggx.alpha, (1.0 - 0.9 * a.min(1.0)).sqrt());
+                lobe.ggx = Ggx::anisotropic(alpha / aspect, alpha * aspect);
+            }
+            lobe
         };
         let mut w = Vec3::ONE;
 
@@ -274,7 +295,7 @@ impl Principled {
         // 2. Metal.
         if p.metallic > CUTOFF {
             let b = f82_b(base, p.specular_tint.min(Vec3::ONE));
-            let lobe = ggx_lobe(r, Fresnel::F82 { f0: base, b }, 1.0, false);
+            let lobe = stretched(ggx_lobe(r, Fresnel::F82 { f0: base, b }, 1.0, false));
             let (scale, dark) = compensate(
                 energy::reflection_albedo(r, mu),
                 energy::reflection_albedo_average(r),
@@ -311,7 +332,7 @@ impl Principled {
         }
         if eta != 1.0 && w.max_element() > CUTOFF {
             let f0 = saturate(Vec3::splat(f0) * p.specular_tint);
-            let lobe = ggx_lobe(r, Fresnel::Tinted { eta, f0, transmit: Vec3::ZERO }, eta, false);
+            let lobe = stretched(ggx_lobe(r, Fresnel::Tinted { eta, f0, transmit: Vec3::ZERO }, eta, false));
             let real0 = f0_from_ior(eta);
             let s_avg = ((dielectric_average(eta) - real0) / (1.0 - real0)).clamp(0.0, 1.0);
             let (scale, dark) = compensate(
@@ -345,6 +366,19 @@ impl Lobes {
         self
     }
 
+    /// `v` turned so that the tangent is x (for anisotropic lobes).
+    #[inline]
+    fn along_tangent(&self, v: Vec3) -> Vec3 {
+        let (c, s) = (self.tangent.x, self.tangent.y);
+        Vec3::new(c * v.x + s * v.y, -s * v.x + c * v.y, v.z)
+    }
+
+    #[inline]
+    fn back_from_tangent(&self, v: Vec3) -> Vec3 {
+        let (c, s) = (self.tangent.x, self.tangent.y);
+        Vec3::new(c * v.x - s * v.y, s * v.x + c * v.y, v.z)
+    }
+
     /// The diffuse lobe's f cos θi and its pdf at `wi`.
     #[inline]
     fn diffuse(&self, wo: Vec3, wi: Vec3) -> (Vec3, f32) {
@@ -367,6 +401,7 @@ impl Lobes {
         for lobe in &self.lobes[..self.n] {
             let (lf, lp) = match lobe.kind {
                 Kind::Diffuse => self.diffuse(wo, wi),
+                Kind::Ggx(g) if g.ggx.is_anisotropic() => g.eval_pdf(self.along_tangent(wo), self.along_tangent(wi)),
                 Kind::Ggx(g) => g.eval_pdf(wo, wi),
                 Kind::Coat(g) => match self.coat_frame {
                     Some(c) => g.eval_pdf(c.to_local(wo), c.to_local(wi)),
@@ -417,7 +452,10 @@ impl Lobes {
                     _ => None,
                 };
                 let wo_g = frame.map_or(wo_l, |f| f.to_local(wo_l));
-                if !g.delta {
+                if g.ggx.is_anisotropic() {
+                    let (wi, _, _) = g.sample_direction(self.along_tangent(wo_g), u_choice, u)?;
+                    self.back_from_tangent(wi)
+                } else if !g.delta {
                     // The direction only: the whole mixture is evaluated there below.
                     let (wi, _, _) = g.sample_direction(wo_g, u_choice, u)?;
                     frame.map_or(wi, |f| f.to_world(wi))

@@ -23,7 +23,7 @@ use crate::geometry::{Frame, Ray, offset_origin};
 use crate::material::Slot;
 use crate::material::normals::ensure_valid_specular_reflection;
 use crate::sampler::Sampler;
-use crate::sampling::{power_heuristic, uniform_sphere_pdf};
+use crate::sampling::{power_heuristic, sin_cos_turns, uniform_sphere_pdf};
 use crate::scene::MAX_MIX_DEPTH;
 use crate::scene::Scene;
 
@@ -188,9 +188,11 @@ impl PathState {
         }
         // Normal and bump maps tilt the shading normal (on the front side, as `si.ns` is).
         let perturbed = material.perturbs_normal();
+        let anisotropic = material.anisotropy.amount > 0.0 && matches!(material.bsdf, Bsdf::Principled(_));
+        let uv_frame = (perturbed || anisotropic).then(|| scene.uv_frame(&hit, &si));
         let smooth_ns = si.ns;
-        if perturbed {
-            si.ns = material.shading_normal(si.ns, si.uv, &scene.uv_frame(&hit, &si), &scene.textures);
+        if let (true, Some(f)) = (perturbed, &uv_frame) {
+            si.ns = material.shading_normal(si.ns, si.uv, f, &scene.textures);
         }
         // The first hit's layers, for the paths that end before their BSDF is known.
         let record_first = |first: Option<&mut FirstHit>| {
@@ -251,14 +253,24 @@ impl PathState {
         let wo_local = frame.to_local(wo);
         // A Lambertian surface with maps: Cycles' shadowing of its tilted normal.
         let diffuse_tilted = perturbed && matches!(bsdf, Bsdf::Diffuse { .. });
+        // Anisotropy: the tangent (MikkTSpace's, or ∂p/∂u) on the shading plane, turned by
+        // the material's rotation about the normal, as a direction in the frame's xy plane.
+        let tangent = uv_frame.filter(|_| anisotropic).map(|f| {
+            let t = f.tangent.map_or(f.dpdu, |(t, _, _)| t);
+            let t = (t - ns * ns.dot(t)).normalize_or_zero();
+            let (sin, cos) = sin_cos_turns(material.anisotropy.rotation);
+            let t = frame.to_local(cos * t + sin * ns.cross(t));
+            (material.anisotropy.amount, Vec2::new(t.x, t.y))
+        });
         // A Principled BSDF's lobes at wo, set up once for light and BSDF sampling.
         let lobes = match bsdf {
             Bsdf::Principled(p) if perturbed => {
                 // Blender's coat keeps the surface's own normal (its Coat Normal, unlinked).
                 let coat = (p.coat > 0.0).then(|| frame.to_local(valid(smooth)));
-                let lobes = p.at_with_coat_normal(wo_local, coat);
+                let lobes = p.at_with(wo_local, coat, tangent);
                 Some(lobes.with_tilted_normal(frame.to_local(tilted), frame.to_local(smooth)))
             }
+            Bsdf::Principled(p) if tangent.is_some() => Some(p.at_with(wo_local, None, tangent)),
             Bsdf::Principled(p) => Some(p.at(wo_local)),
             _ => None,
         };

@@ -19,12 +19,21 @@ pub struct PbrDesc {
     pub inputs: Principled,
     /// Opacity: a stochastic cut-out below 1 (MTL's `d`, unless `d` made it glass).
     pub alpha: f32,
-    pub anisotropic: f32,
+    pub anisotropy: Anisotropy,
+}
+
+/// Blender's Anisotropic (0–1) and Anisotropic Rotation (in turns) of a Principled
+/// material: its metal and specular lobes stretch along the surface's tangent (the
+/// direction of its texture coordinates' u), turned by the rotation.
+#[derive(Clone, Copy, Debug, Default, PartialEq, serde::Serialize, serde::Deserialize)]
+pub struct Anisotropy {
+    pub amount: f32,
+    pub rotation: f32,
 }
 
 impl Default for PbrDesc {
     fn default() -> Self {
-        Self { inputs: Principled::default(), alpha: 1.0, anisotropic: 0.0 }
+        Self { inputs: Principled::default(), alpha: 1.0, anisotropy: Anisotropy::default() }
     }
 }
 
@@ -32,11 +41,7 @@ impl PbrDesc {
     /// What the renderer does not shade yet, in plain words (one line each), so that
     /// nothing is dropped silently.
     pub fn unshaded(&self) -> Vec<&'static str> {
-        let mut out = Vec::new();
-        if self.anisotropic > 0.0 {
-            out.push("anisotropy is not shaded yet (rendered isotropic)");
-        }
-        out
+        Vec::new()
     }
 }
 
@@ -131,6 +136,8 @@ pub struct Material {
     pub mix: Option<Mix>,
     /// The strengths of the normal and bump maps in `maps`.
     pub bumps: Bumps,
+    /// A Principled material's anisotropy (zero amount: none).
+    pub anisotropy: Anisotropy,
 }
 
 impl Material {
@@ -159,7 +166,20 @@ impl Material {
             }
         };
         let emission = desc.ke.max(Vec3::ZERO);
-        Self { bsdf, emission, opacity, kd_texture: desc.map_kd, maps: desc.maps, mix: None, bumps: desc.bumps }
+        let anisotropy = desc.pbr.as_ref().map_or(Anisotropy::default(), |p| Anisotropy {
+            amount: if p.anisotropy.amount.is_finite() { p.anisotropy.amount.clamp(0.0, 1.0) } else { 0.0 },
+            rotation: if p.anisotropy.rotation.is_finite() { p.anisotropy.rotation } else { 0.0 },
+        });
+        Self {
+            bsdf,
+            emission,
+            opacity,
+            kd_texture: desc.map_kd,
+            maps: desc.maps,
+            mix: None,
+            bumps: desc.bumps,
+            anisotropy,
+        }
     }
 
     #[inline]

@@ -381,10 +381,10 @@ fn sphere_has_keys(s: &SphereDesc) -> bool {
         || [s.pr, s.pm, s.ps, s.pc, s.pcr].iter().any(Option::is_some)
 }
 
-/// Whether some material has a tangent-space normal map (its triangles then need
-/// MikkTSpace tangents, 48 bytes each).
+/// Whether some material has a tangent-space normal map or anisotropy (its triangles
+/// then need MikkTSpace tangents, 48 bytes each).
 fn has_normal_maps(materials: &[Material]) -> bool {
-    materials.iter().any(|m| m.maps.get(Slot::Normal).is_some())
+    materials.iter().any(|m| m.maps.get(Slot::Normal).is_some() || m.anisotropy.amount > 0.0)
 }
 
 /// Collects area lights and builds the hierarchy.

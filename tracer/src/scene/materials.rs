@@ -177,11 +177,12 @@ fn describe(
     };
     pbr.inputs.sheen_roughness = unit("sheen_roughness", t.sheen_roughness, 0.5)?;
     pbr.inputs.sheen_tint = colour("sheen_tint", t.sheen_tint, Vec3::ONE)?;
-    pbr.anisotropic = unit("anisotropic", t.anisotropic, 0.0)?;
-    if let Some(r) = t.anisotropic_rotation
-        && !r.is_finite()
-    {
-        return Err(invalid(field("anisotropic_rotation"), "must be finite".into()));
+    pbr.anisotropy.amount = unit("anisotropic", t.anisotropic, 0.0)?;
+    if let Some(r) = t.anisotropic_rotation {
+        if !r.is_finite() {
+            return Err(invalid(field("anisotropic_rotation"), "must be finite".into()));
+        }
+        pbr.anisotropy.rotation = r;
     }
     let emission = if emission_map { Vec3::ONE } else { colour("emission_color", t.emission_color, Vec3::ONE)? };
     desc.ke = emission * positive("emission_strength", t.emission_strength, 0.0)?;

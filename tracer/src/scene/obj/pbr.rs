@@ -65,7 +65,8 @@ impl PbrKeys {
         p.transmission = if glass { 1.0 } else { self.pt.unwrap_or(0.0) };
         pbr.alpha = if glass { 1.0 } else { desc.d };
         p.sheen = self.ps.unwrap_or(0.0);
-        pbr.anisotropic = self.aniso.unwrap_or(0.0);
+        pbr.anisotropy.amount = self.aniso.unwrap_or(0.0);
+        pbr.anisotropy.rotation = self.anisor.unwrap_or(0.0);
         pbr
     }
 }
