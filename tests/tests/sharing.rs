@@ -59,13 +59,35 @@ fn jobs_share_workers_by_priority_and_a_paused_job_waits() {
     assert!((2.2..=4.0).contains(&ratio), "priority 150 against 50 should get about 3 units for 1: {da} : {db}");
 
     // Paused: the long job's units out finish, then it gets no more while the other runs.
+    // Its count settles first (a second without a new unit): at the pause the worker may
+    // hold 8 leased and 8 rendered units, and results on their way are merged after it.
     update(&coord, &b, &["--pause"]);
-    let paused = job(&coord.url, &b);
+    let mut paused = job(&coord.url, &b);
     assert!(paused.paused);
+    let at_pause = paused.units_done;
+    let mut quiet_since = std::time::Instant::now();
+    eventually("the paused job's units out finishing", LIMIT, || {
+        let now = job(&coord.url, &b);
+        if now.units_done != paused.units_done {
+            (paused, quiet_since) = (now, std::time::Instant::now());
+        }
+        quiet_since.elapsed() >= Duration::from_secs(1)
+    });
+    // What settled is what was out, not a job that went on (or ran to its end) unpaused.
+    assert!(
+        paused.units_done <= at_pause + 48 && paused.units_done < paused.units_total,
+        "the paused job went on: {at_pause} at the pause, {} of {} after",
+        paused.units_done,
+        paused.units_total
+    );
+    // Then 200 of the urgent job's units, or its end and half a second more (an idle
+    // worker would render far more than 16 units of a job whose pause did not hold).
     let urgent = job(&coord.url, &a);
+    let watched = std::time::Instant::now();
     eventually("the urgent job going on", LIMIT, || {
         let j = job(&coord.url, &a);
-        j.units_done >= urgent.units_done + 200 || j.units_done == j.units_total
+        j.units_done >= urgent.units_done + 200
+            || (j.units_done == j.units_total && watched.elapsed() >= Duration::from_millis(500))
     });
     let still = job(&coord.url, &b);
     assert!(
