@@ -37,14 +37,6 @@ impl Default for PbrDesc {
     }
 }
 
-impl PbrDesc {
-    /// What the renderer does not shade yet, in plain words (one line each), so that
-    /// nothing is dropped silently.
-    pub fn unshaded(&self) -> Vec<&'static str> {
-        Vec::new()
-    }
-}
-
 /// Blender's Mix Shader: `(1 − factor) · first + factor · second`, by material name.
 #[derive(Clone, Debug, PartialEq)]
 pub struct MixDesc {

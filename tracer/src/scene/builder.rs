@@ -53,11 +53,6 @@ impl Builder {
             let material = match self.named(&m.name) {
                 Some(i) => self.materials[i as usize],
                 None => {
-                    if let Some(pbr) = &m.pbr {
-                        for what in pbr.unshaded() {
-                            self.warnings.push(format!("material '{}': {what}", m.name));
-                        }
-                    }
                     let mut m = m.clone();
                     m.map_kd = m.map_kd.map(|t| t + tex_base);
                     m.maps = m.maps.shifted(tex_base);

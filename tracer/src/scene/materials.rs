@@ -37,11 +37,6 @@ pub(super) fn add_table(
         descs.push(desc);
     }
     b.textures.extend(cache.textures);
-    for d in &descs {
-        if let Some(pbr) = &d.pbr {
-            b.warnings.extend(pbr.unshaded().into_iter().map(|what| format!("materials.{}: {what}", d.name)));
-        }
-    }
     // Plain materials first, then mixes once both their parts have an index.
     for desc in descs.iter().filter(|d| d.mix.is_none()) {
         b.add_named(desc.name.clone(), Material::from_desc(desc));
