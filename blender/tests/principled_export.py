@@ -524,6 +524,8 @@ def unmapped_things_are_listed(b):
     nt.links.new(nt.nodes.new("ShaderNodeValToRGB").outputs["Color"], p.inputs["Base Color"])
     nt.links.new(nt.nodes.new("ShaderNodeVertexColor").outputs["Color"], p.inputs["Specular Tint"])
     nt.links.new(nt.nodes.new("ShaderNodeTexNoise").outputs["Fac"], p.inputs["Coat Weight"])
+    # An image on an input tilefarm cannot texture: reported, its constant used.
+    nt.links.new(b.texture(nt, b.image("rough", colorspace="Non-Color")).outputs["Color"], p.inputs["IOR"])
     group = bpy.data.node_groups.new("Rust", "ShaderNodeTree")
     group.interface.new_socket("Value", in_out="OUTPUT", socket_type="NodeSocketFloat")
     gnode = nt.nodes.new("ShaderNodeGroup")
@@ -551,6 +553,7 @@ def unmapped_things_are_listed(b):
             "Base Color from a Color Ramp node: not mapped (its unlinked value (0.8, 0.8, 0.8) used)",
             "Metallic from a node group \"Rust\": not mapped (its unlinked value 0 used)",
             "Roughness from a Math node: not mapped (its unlinked value 0.4 used)",
+            "IOR from an image: not mapped (its unlinked value 1.5 used)",
             "Specular Tint from a Color Attribute node: not mapped (its unlinked value (1, 1, 1) used)",
             "Coat Weight from a Noise Texture node: not mapped (its unlinked value 0 used)",
             "Emission Color: image \"color\": box projection (flat, from the UVs, here)",
@@ -565,6 +568,8 @@ def unmapped_things_are_listed(b):
         assert got == want, "the warning's lines:\n  " + "\n  ".join(got)
         t = x.table("Unmapped")
         expect("roughness: the socket's own value", t["roughness"], 0.4)
+        expect("ior: the socket's own value (no ior_map)", t["ior"], 1.5)
+        assert "ior_map" not in t, t
         assert "normal_map" not in t, t
         ref = x.ref("Unmapped", "emission_color_map")
         expect("X rotation 20°: v scaled by cos 20°", ref["scale"], [1.0, math.cos(math.radians(20))])

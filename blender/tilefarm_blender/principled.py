@@ -33,6 +33,11 @@ INPUTS = [
     ("emission_strength", "Emission Strength", SCALAR),
 ]
 
+# The inputs tilefarm can texture (its `NAME_map` keys): an image on any other input is
+# reported and its constant used.
+TEXTURED = {"base_color", "metallic", "roughness", "transmission", "coat", "sheen", "alpha", "emission_color",
+            "factor"}
+
 # The format's defaults (README.md), which are also Blender's.
 DEFAULTS = {
     "base_color": [0.8, 0.8, 0.8], "metallic": 0.0, "roughness": 0.5, "ior": 1.5, "specular_ior_level": 0.5,
@@ -107,7 +112,9 @@ class Reader:
         if src is None:
             return
         node, out = src
-        if node.type == "TEX_IMAGE":
+        if node.type == "TEX_IMAGE" and key not in TEXTURED:
+            self.note(f"{name} from an image: not mapped (its unlinked value {show(own)} used)")
+        elif node.type == "TEX_IMAGE":
             ref = tex.image_ref(node, out, kind, self.where + name, self.problems)
             if ref is not None:
                 table[key] = [1.0, 1.0, 1.0] if kind == COLOR else 1.0
@@ -271,7 +278,7 @@ def glass(node, r, label="Glass BSDF"):
     r.read(t, "base_color", "Color", COLOR)
     if "base_color_map" in t:
         r.note(f"{label} Color from a texture: the Principled glass tints refraction by the square root of its "
-               "base colour (lighter here) and only F0 of its reflection")
+               "base colour (lighter here), and its reflection not at all")
     else:
         color = t["base_color"]
         t["base_color"] = [c * c for c in color]
@@ -280,8 +287,6 @@ def glass(node, r, label="Glass BSDF"):
     r.read(t, "ior", "IOR", SCALAR)
     distribution(node, r, t, label)
     r.normal(t)
-    if "base_color_map" in t:
-        t["specular_tint_map"] = t["base_color_map"]
     return t
 
 

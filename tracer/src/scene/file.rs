@@ -54,6 +54,8 @@ pub struct MaterialTable {
     pub alpha_map: Option<TextureRef>,
     pub emission_color: Option<[f32; 3]>,
     pub emission_strength: Option<f32>,
+    /// Also `emission_color_map` (the input's name + `_map`, as the add-on writes it).
+    #[serde(alias = "emission_color_map")]
     pub emission_map: Option<TextureRef>,
     /// `"multiscatter_ggx"` (the default) or `"ggx"`.
     pub distribution: Option<String>,
