@@ -50,6 +50,23 @@ pub struct Texture {
 }
 
 impl Texture {
+    /// Where mapped coordinates `uv` fall in the image, in texels (x to the right, y down
+    /// from the top row; texel centres at integers), or None if not finite.
+    #[inline]
+    fn texel_position(&self, uv: Vec2) -> Option<(f32, f32)> {
+        let x = uv.x * self.width as f32 - 0.5;
+        let y = (1.0 - uv.y) * self.height as f32 - 0.5;
+        (x.is_finite() && y.is_finite()).then_some((x, y))
+    }
+
+    /// Texel (ix, iy), the image repeating or, with `clamp`, its edge extending.
+    #[inline]
+    fn texel(&self, ix: i64, iy: i64) -> Vec3 {
+        let (w, h) = (self.width as i64, self.height as i64);
+        let wrap = |i: i64, n: i64| if self.map.clamp { i.clamp(0, n - 1) } else { i.rem_euclid(n) };
+        self.texels[(wrap(iy, h) * w + wrap(ix, w)) as usize]
+    }
+
     /// Bilinear lookup. `uv` follows OBJ's convention: v = 0 is the bottom row of the
     /// image; outside [0, 1] the image repeats, or with `clamp` its edge texels extend.
     pub fn sample(&self, uv: Vec2) -> Vec3 {
@@ -61,14 +78,10 @@ impl Texture {
         if self.map.clamp {
             uv = uv.clamp(Vec2::ZERO, Vec2::ONE);
         }
-        let x = uv.x * self.width as f32 - 0.5;
-        let y = (1.0 - uv.y) * self.height as f32 - 0.5;
-        if !x.is_finite() || !y.is_finite() {
+        let Some((x, y)) = self.texel_position(uv) else {
             return self.texels[0];
-        }
-        let clamp = self.map.clamp;
-        let wrap = |i: i64, n: i64| if clamp { i.clamp(0, n - 1) } else { i.rem_euclid(n) };
-        let texel = |ix: i64, iy: i64| self.texels[(wrap(iy, h) * w + wrap(ix, w)) as usize];
+        };
+        let texel = |ix: i64, iy: i64| self.texel(ix, iy);
         if self.map.closest {
             // The texel the point lies in (x + 0.5 is the position in texels).
             return texel((x + 0.5).floor() as i64, (y + 0.5).floor() as i64);
@@ -93,14 +106,10 @@ impl Texture {
         if self.map.clamp && (mapped.cmplt(Vec2::ZERO).any() || mapped.cmpgt(Vec2::ONE).any()) {
             return Vec2::ZERO;
         }
-        let x = mapped.x * self.width as f32 - 0.5;
-        let y = (1.0 - mapped.y) * self.height as f32 - 0.5;
-        if !x.is_finite() || !y.is_finite() {
+        let Some((x, y)) = self.texel_position(mapped) else {
             return Vec2::ZERO;
-        }
-        let clamp = self.map.clamp;
-        let wrap = |i: i64, n: i64| if clamp { i.clamp(0, n - 1) } else { i.rem_euclid(n) };
-        let l = |ix: i64, iy: i64| luminance(self.texels[(wrap(iy, h) * w + wrap(ix, w)) as usize]);
+        };
+        let l = |ix: i64, iy: i64| luminance(self.texel(ix, iy));
         let (x0, y0) = (x.floor(), y.floor());
         let (fx, fy) = (x - x0, y - y0);
         let (ix, iy) = (x0 as i64, y0 as i64);

@@ -38,7 +38,7 @@ use super::ggx_lobe::{Fresnel, GgxLobe};
 use super::lambert::Lambert;
 use super::microfacet::Ggx;
 use super::sheen::SheenLobe;
-use crate::geometry::Frame;
+use crate::geometry::{Azimuth, Frame};
 use crate::math::powf;
 use crate::sampling::sample_cosine_hemisphere;
 
@@ -129,7 +129,7 @@ pub struct Lobes {
     coat_frame: Option<Frame>,
     /// The tangent's direction (cos, sin) in the frame's xy plane: anisotropic lobes are
     /// evaluated with it turned to x.
-    tangent: Vec2,
+    tangent: Azimuth,
 }
 
 #[derive(Clone, Copy, Debug)]
@@ -223,7 +223,7 @@ impl Principled {
             flipped,
             tilted: None,
             coat_frame,
-            tangent: Vec2::X,
+            tangent: Azimuth::X,
         };
         let push = |lobes: &mut Lobes, kind: Kind, weight: Vec3, scale: f32, albedo: f32| {
             let sample_weight = average(weight) * albedo;
@@ -240,7 +240,7 @@ impl Principled {
         // Anisotropic lobes (metal, specular) in the tangent's frame.
         let anisotropy = anisotropy.filter(|(a, t)| *a > 0.0 && t.is_finite() && t.length_squared() > 0.0);
         if let Some((_, t)) = anisotropy {
-            lobes.tangent = t.normalize();
+            lobes.tangent = Azimuth(t.normalize());
         }
         let stretched = |mut lobe: GgxLobe| {
             if let Some((a, _)) = anisotropy
@@ -366,19 +366,6 @@ impl Lobes {
         self
     }
 
-    /// `v` turned so that the tangent is x (for anisotropic lobes).
-    #[inline]
-    fn along_tangent(&self, v: Vec3) -> Vec3 {
-        let (c, s) = (self.tangent.x, self.tangent.y);
-        Vec3::new(c * v.x + s * v.y, -s * v.x + c * v.y, v.z)
-    }
-
-    #[inline]
-    fn back_from_tangent(&self, v: Vec3) -> Vec3 {
-        let (c, s) = (self.tangent.x, self.tangent.y);
-        Vec3::new(c * v.x - s * v.y, s * v.x + c * v.y, v.z)
-    }
-
     /// The diffuse lobe's f cos θi and its pdf at `wi`.
     #[inline]
     fn diffuse(&self, wo: Vec3, wi: Vec3) -> (Vec3, f32) {
@@ -401,7 +388,9 @@ impl Lobes {
         for lobe in &self.lobes[..self.n] {
             let (lf, lp) = match lobe.kind {
                 Kind::Diffuse => self.diffuse(wo, wi),
-                Kind::Ggx(g) if g.ggx.is_anisotropic() => g.eval_pdf(self.along_tangent(wo), self.along_tangent(wi)),
+                Kind::Ggx(g) if g.ggx.is_anisotropic() => {
+                    g.eval_pdf(self.tangent.to_local(wo), self.tangent.to_local(wi))
+                }
                 Kind::Ggx(g) => g.eval_pdf(wo, wi),
                 Kind::Coat(g) => match self.coat_frame {
                     Some(c) => g.eval_pdf(c.to_local(wo), c.to_local(wi)),
@@ -453,8 +442,8 @@ impl Lobes {
                 };
                 let wo_g = frame.map_or(wo_l, |f| f.to_local(wo_l));
                 if g.ggx.is_anisotropic() {
-                    let (wi, _, _) = g.sample_direction(self.along_tangent(wo_g), u_choice, u)?;
-                    self.back_from_tangent(wi)
+                    let (wi, _, _) = g.sample_direction(self.tangent.to_local(wo_g), u_choice, u)?;
+                    self.tangent.to_world(wi)
                 } else if !g.delta {
                     // The direction only: the whole mixture is evaluated there below.
                     let (wi, _, _) = g.sample_direction(wo_g, u_choice, u)?;

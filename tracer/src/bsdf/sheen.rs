@@ -12,6 +12,7 @@
 use glam::{Vec2, Vec3};
 
 use super::sheen_ltc::SHEEN_LTC;
+use crate::geometry::Azimuth;
 use crate::sampling::sample_uniform_disk_concentric;
 
 /// The sheen lobe seen from one wo.
@@ -20,7 +21,7 @@ pub struct SheenLobe {
     a: f32,
     b: f32,
     /// wo's azimuth in the shading frame (cos, sin): the LTC's frame is turned to it.
-    azimuth: Vec2,
+    azimuth: Azimuth,
 }
 
 /// Cycles' `lookup_table_read`: linear interpolation over `size` samples spanning [0, 1].
@@ -61,28 +62,15 @@ impl SheenLobe {
         let planar = Vec2::new(wo.x, wo.y);
         let len = planar.length();
         // Straight above, the azimuth is arbitrary (and the fit is symmetric there).
-        let azimuth = if len > 1e-7 { planar / len } else { Vec2::X };
+        let azimuth = Azimuth(if len > 1e-7 { planar / len } else { Vec2::X });
         Some((Self { a, b, azimuth }, albedo))
-    }
-
-    /// `v` in the LTC's frame (x towards wo).
-    #[inline]
-    fn turned_to_wo(&self, v: Vec3) -> Vec3 {
-        let (c, s) = (self.azimuth.x, self.azimuth.y);
-        Vec3::new(c * v.x + s * v.y, -s * v.x + c * v.y, v.z)
-    }
-
-    #[inline]
-    fn turned_back(&self, v: Vec3) -> Vec3 {
-        let (c, s) = (self.azimuth.x, self.azimuth.y);
-        Vec3::new(c * v.x - s * v.y, s * v.x + c * v.y, v.z)
     }
 
     /// The density at `wi` (shading frame): the BSDF times cos θi over the albedo, and
     /// the pdf of [`Self::sample`].
     #[inline]
     pub fn density(&self, wi: Vec3) -> f32 {
-        let o = self.turned_to_wo(wi);
+        let o = self.azimuth.to_local(wi);
         if o.z <= 0.0 {
             return 0.0;
         }
@@ -98,7 +86,7 @@ impl SheenLobe {
         let disk = sample_uniform_disk_concentric(u);
         let z = (1.0 - disk.length_squared()).max(0.0).sqrt();
         let o = Vec3::new(disk.x - z * self.b, disk.y, z * self.a).normalize_or_zero();
-        let wi = self.turned_back(o);
+        let wi = self.azimuth.to_world(o);
         (wi.z > 0.0 && wi.is_finite()).then_some(wi)
     }
 }

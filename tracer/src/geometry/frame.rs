@@ -1,4 +1,4 @@
-use glam::Vec3;
+use glam::{Vec2, Vec3};
 
 use crate::simd::V3w;
 
@@ -30,6 +30,30 @@ impl Frame {
     #[inline]
     pub fn to_world(&self, v: Vec3) -> Vec3 {
         self.s * v.x + self.t * v.y + self.n * v.z
+    }
+}
+
+/// A turn about the local z axis that brings the direction (cos, sin) of the xy plane
+/// to x: the frame of lobes that are not symmetric about the normal (sheen's, which
+/// faces wo; anisotropic GGX, along the tangent).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Azimuth(pub Vec2);
+
+impl Azimuth {
+    pub const X: Azimuth = Azimuth(Vec2::X);
+
+    /// `v` turned so that the direction is x.
+    #[inline]
+    pub fn to_local(&self, v: Vec3) -> Vec3 {
+        let (c, s) = (self.0.x, self.0.y);
+        Vec3::new(c * v.x + s * v.y, -s * v.x + c * v.y, v.z)
+    }
+
+    /// The inverse of [`Azimuth::to_local`].
+    #[inline]
+    pub fn to_world(&self, v: Vec3) -> Vec3 {
+        let (c, s) = (self.0.x, self.0.y);
+        Vec3::new(c * v.x - s * v.y, s * v.x + c * v.y, v.z)
     }
 }
 

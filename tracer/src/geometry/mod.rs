@@ -8,7 +8,7 @@ pub mod sphere;
 pub mod triangle;
 
 pub use aabb::Aabb;
-pub use frame::Frame;
 pub(crate) use frame::FrameW;
+pub use frame::{Azimuth, Frame};
 pub(crate) use ray::offset_origin_wide;
 pub use ray::{Ray, offset_origin};

@@ -243,8 +243,10 @@ impl PathState {
         // As Cycles does for a tilted normal: glossy lobes turn it just enough that the
         // mirror reflection of wo stays above the surface (seen from wo's side); diffuse
         // lobes keep it as the maps made it.
-        let side = if ng.dot(wo) < 0.0 { -1.0 } else { 1.0 };
-        let valid = |n: Vec3| side * ensure_valid_specular_reflection(side * ng, wo, side * n);
+        let valid = |n: Vec3| {
+            let side = if ng.dot(wo) < 0.0 { -1.0 } else { 1.0 };
+            side * ensure_valid_specular_reflection(side * ng, wo, side * n)
+        };
         let mut ns = tilted;
         if perturbed && !matches!(bsdf, Bsdf::Diffuse { .. }) {
             ns = valid(tilted);
