@@ -329,6 +329,15 @@ radiance = [0.05, 0.06, 0.08]
 "#;
         let wide = crate::scene::scene_from_toml(toml, "wide.toml", &dir).unwrap();
         assert!(wide.lights.wide_ok() && wide.lights.lights.len() == 7 && wide.packed.is_some());
+        // The same under an environment map (turned, Z up): its samples on the wide route.
+        let sky = image::RgbImage::from_fn(16, 9, |x, y| image::Rgb([(x * 15) as u8, (y * 28) as u8, 200]));
+        sky.save(dir.join("sky.png")).unwrap();
+        let with_map = toml.replace(
+            "[background]\nradiance = [0.05, 0.06, 0.08]",
+            "[background]\nmap = \"sky.png\"\nstrength = 0.2\nrotate = 30\nup = \"z\"",
+        );
+        let wide_map = crate::scene::scene_from_toml(&with_map, "wide-map.toml", &dir).unwrap();
+        assert!(wide_map.lights.wide_ok() && wide_map.lights.environment_map().is_some());
         // The same with a finely divided back wall: too many triangles for brute force,
         // so the eight paths' rays go through the kd-tree one by one.
         let mut grid = String::from("mtllib w.mtl\nusemtl wall\n");
@@ -362,6 +371,7 @@ radiance = [0.05, 0.06, 0.08]
         let mut scenes = vec![
             ("variants.toml".to_string(), extra),
             ("wide.toml".to_string(), wide),
+            ("wide-map.toml".to_string(), wide_map),
             ("wide-tree.toml".to_string(), tree),
         ];
         // Every bundled scene, so that every material and light kind is covered.
@@ -372,7 +382,7 @@ radiance = [0.05, 0.06, 0.08]
                 scenes.push((path.display().to_string(), crate::scene::load_scene(&path).unwrap()));
             }
         }
-        assert!(scenes.len() >= 9, "only {} bundled scenes found", scenes.len() - 3);
+        assert!(scenes.len() >= 10, "only {} bundled scenes found", scenes.len() - 4);
         scenes
     }
 

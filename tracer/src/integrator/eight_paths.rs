@@ -471,7 +471,7 @@ fn scatter_wide(
             scene
                 .lights
                 .light_of_prim(hit.0.0[l])
-                .map_or(0.0, |li| scene.lights.pmf_at(prev_p, li) * scene.lights.lights[li].pdf_li(prev_p, dir, pl))
+                .map_or(0.0, |li| scene.lights.pmf_at(prev_p, li) * scene.lights.pdf_li(li, prev_p, dir, pl))
         });
         let emission = scene.materials[material.0[l] as usize].emission;
         paths.l.set(l, paths.l.get(l) + paths.beta.get(l) * emission * w);

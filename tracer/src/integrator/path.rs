@@ -23,7 +23,7 @@ use crate::geometry::{Frame, Ray, offset_origin};
 use crate::material::Slot;
 use crate::material::normals::ensure_valid_specular_reflection;
 use crate::sampler::Sampler;
-use crate::sampling::{power_heuristic, sin_cos_turns, uniform_sphere_pdf};
+use crate::sampling::{power_heuristic, sin_cos_turns};
 use crate::scene::MAX_MIX_DEPTH;
 use crate::scene::Scene;
 
@@ -170,9 +170,9 @@ impl PathState {
             if let Some(env) = scene.lights.environment() {
                 let prev_p = self.prev_p;
                 let w = emitter_weight(self.depth, self.prev_delta, opt.strategy, self.prev_pdf, || {
-                    scene.lights.pmf_at(prev_p, env) * uniform_sphere_pdf()
+                    scene.lights.pmf_at(prev_p, env) * scene.lights.pdf_li(env, prev_p, ray.dir, prev_p)
                 });
-                self.l += self.beta * scene.background * w;
+                self.l += self.beta * scene.lights.environment_radiance(ray.dir) * w;
             }
             return (None, false);
         };
@@ -215,9 +215,10 @@ impl PathState {
             let prev_p = self.prev_p;
             let w = emitter_weight(self.depth, self.prev_delta, opt.strategy, self.prev_pdf, || {
                 // What NEE at prev_p would have had for this light (0 if it never could).
-                scene.lights.light_of_prim(hit.prim).map_or(0.0, |li| {
-                    scene.lights.pmf_at(prev_p, li) * scene.lights.lights[li].pdf_li(prev_p, ray.dir, si.p)
-                })
+                scene
+                    .lights
+                    .light_of_prim(hit.prim)
+                    .map_or(0.0, |li| scene.lights.pmf_at(prev_p, li) * scene.lights.pdf_li(li, prev_p, ray.dir, si.p))
             });
             self.l += self.beta * material.emission_at(si.uv, &scene.textures) * w;
         }
@@ -283,43 +284,37 @@ impl PathState {
         let mut shadow = None;
         if use_nee && !bsdf.is_delta() {
             let u = sampler.next_2d();
-            if let Some((light_index, pmf, ux)) = scene.lights.select_at(si.p, u.x) {
-                let light = &scene.lights.lights[light_index];
-                if let Some(ls) = light.sample_li(si.p, Vec2::new(ux, u.y)) {
-                    let reflects_above = !two_sided || ng.dot(ls.wi) > 0.0;
-                    if ls.pdf > 0.0 && ls.li.max_element() > 0.0 && reflects_above {
-                        let wi_local = frame.to_local(ls.wi);
-                        let (mut f, bsdf_pdf) = match &lobes {
-                            Some(l) => l.eval_pdf(wo_local, wi_local),
-                            None => bsdf.eval_pdf(wo_local, wi_local),
+            if let Some((light_index, pmf, ux)) = scene.lights.select_at(si.p, u.x)
+                && let Some(ls) = scene.lights.sample_li(light_index, si.p, Vec2::new(ux, u.y))
+            {
+                let reflects_above = !two_sided || ng.dot(ls.wi) > 0.0;
+                if ls.pdf > 0.0 && ls.li.max_element() > 0.0 && reflects_above {
+                    let wi_local = frame.to_local(ls.wi);
+                    let (mut f, bsdf_pdf) = match &lobes {
+                        Some(l) => l.eval_pdf(wo_local, wi_local),
+                        None => bsdf.eval_pdf(wo_local, wi_local),
+                    };
+                    if diffuse_tilted {
+                        f *= bump_shadowing(smooth, ns, ls.wi);
+                    }
+                    if f.max_element() > 0.0 {
+                        let (weight, pdf) = if ls.delta {
+                            (1.0, pmf)
+                        } else {
+                            let light_pdf = pmf * ls.pdf;
+                            let w = if use_bsdf_hits { power_heuristic(1.0, light_pdf, 1.0, bsdf_pdf) } else { 1.0 };
+                            (w, light_pdf)
                         };
-                        if diffuse_tilted {
-                            f *= bump_shadowing(smooth, ns, ls.wi);
-                        }
-                        if f.max_element() > 0.0 {
-                            let (weight, pdf) = if ls.delta {
-                                (1.0, pmf)
-                            } else {
-                                let light_pdf = pmf * ls.pdf;
-                                let w =
-                                    if use_bsdf_hits { power_heuristic(1.0, light_pdf, 1.0, bsdf_pdf) } else { 1.0 };
-                                (w, light_pdf)
-                            };
-                            let origin = offset_origin(si.p, ng, ls.wi);
-                            let ray = match ls.target {
-                                Some(q) => {
-                                    let d = q - origin;
-                                    let dist = d.length();
-                                    if dist <= 0.0 {
-                                        None
-                                    } else {
-                                        Some((Ray::new(origin, d / dist), dist * (1.0 - 1e-5)))
-                                    }
-                                }
-                                None => Some((Ray::new(origin, ls.wi), f32::INFINITY)),
-                            };
-                            shadow = Some(ShadowQuery { ray, unshadowed: self.beta * f * ls.li, weight, pdf });
-                        }
+                        let origin = offset_origin(si.p, ng, ls.wi);
+                        let ray = match ls.target {
+                            Some(q) => {
+                                let d = q - origin;
+                                let dist = d.length();
+                                if dist <= 0.0 { None } else { Some((Ray::new(origin, d / dist), dist * (1.0 - 1e-5))) }
+                            }
+                            None => Some((Ray::new(origin, ls.wi), f32::INFINITY)),
+                        };
+                        shadow = Some(ShadowQuery { ray, unshadowed: self.beta * f * ls.li, weight, pdf });
                     }
                 }
             }

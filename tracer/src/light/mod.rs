@@ -14,11 +14,14 @@ use crate::geometry::{offset_origin, offset_origin_wide};
 use crate::sampling::{sample_uniform_sphere, sample_uniform_triangle, uniform_sphere_pdf, wide};
 use crate::simd::{F8, M8, U8, V2w, V3w, each};
 
+pub mod distribution;
+mod environment;
 mod set;
 mod sphere_cone;
 #[cfg(test)]
 mod tests;
 
+pub use environment::{EnvironmentMap, EnvironmentSample, Up};
 pub use set::{LOCAL_SELECTION_MAX, LightSet};
 use sphere_cone::{sample_sphere_cone, sample_sphere_cone_wide};
 
@@ -261,6 +264,20 @@ impl LightSet {
             pdf = dir.select(simd.one(), env.select(simd.splat(uniform_sphere_pdf()), pdf));
             some = some | dir | env;
             delta = delta | dir;
+        }
+        if let (Some(map), true) = (self.environment_map(), env.any()) {
+            // An environment map: [`LightSet::sample_li`]'s arm, lane by lane (a table
+            // search per lane; rare next to the surfaces' own work).
+            for l in each(env.bits()) {
+                match map.sample(Vec2::new(u.x.0[l], u.y.0[l])) {
+                    Some(s) => {
+                        wi.set(l, s.wi);
+                        pdf.0[l] = s.pdf;
+                        radiance.set(l, li.get(l) * s.radiance);
+                    }
+                    None => some.0[l] = 0,
+                }
+            }
         }
         if tri.any() {
             // `Light::Triangle`'s arm.

@@ -2,9 +2,9 @@
 //! shading point — by an estimate of the irradiance each delivers there in scenes of
 //! few lights, by power alone in the others — with their eight-lane twins beside them.
 
-use glam::Vec3;
+use glam::{Vec2, Vec3};
 
-use super::Light;
+use super::{EnvironmentMap, Light, LightSample};
 use crate::sampler::ONE_MINUS_EPSILON;
 use crate::sampling::{select, select_bits};
 use crate::simd::{F8, M8, U8, V3w};
@@ -32,9 +32,8 @@ struct Importance {
 }
 
 impl Importance {
-    fn new(light: &Light, scene_radius: f32) -> Self {
+    fn new(light: &Light, power: f32, scene_radius: f32) -> Self {
         let r2 = (scene_radius * scene_radius).max(f32::MIN_POSITIVE);
-        let power = light.power(scene_radius);
         let mut imp =
             Importance { center: Vec3::ZERO, power, min_d2: 1e-8 * r2, normal: Vec3::ZERO, plane: 0.0, inside_r2: 0.0 };
         match *light {
@@ -108,11 +107,30 @@ pub struct LightSet {
     /// when a path hits an emitter).
     prim_light: Vec<(u32, u32)>,
     environment: Option<u32>,
+    /// The environment light's radiance by direction, when it is a map (the light's own
+    /// `radiance` is then 1).
+    map: Option<EnvironmentMap>,
 }
 
 impl LightSet {
     pub fn new(lights: Vec<Light>, prim_count: usize, scene_radius: f32) -> Self {
-        let powers: Vec<f32> = lights.iter().map(|l| l.power(scene_radius)).collect();
+        Self::with_environment_map(lights, None, prim_count, scene_radius)
+    }
+
+    /// [`LightSet::new`] with the environment light's radiance given by `map`.
+    pub fn with_environment_map(
+        lights: Vec<Light>,
+        map: Option<EnvironmentMap>,
+        prim_count: usize,
+        scene_radius: f32,
+    ) -> Self {
+        let power = |l: &Light| match (l, &map) {
+            (Light::Environment { radiance }, Some(m)) => {
+                Light::Environment { radiance: *radiance * m.mean() }.power(scene_radius)
+            }
+            _ => l.power(scene_radius),
+        };
+        let powers: Vec<f32> = lights.iter().map(power).collect();
         let total: f64 = powers.iter().map(|&p| p as f64).sum();
         let mut pmf = Vec::with_capacity(lights.len());
         let mut cdf = Vec::with_capacity(lights.len());
@@ -149,11 +167,52 @@ impl LightSet {
         prim_light.reverse();
         prim_light.shrink_to_fit();
         let importance = if lights.len() <= LOCAL_SELECTION_MAX {
-            lights.iter().map(|l| Importance::new(l, scene_radius)).collect()
+            lights.iter().zip(&powers).map(|(l, &p)| Importance::new(l, p, scene_radius)).collect()
         } else {
             Vec::new()
         };
-        Self { lights, cdf, pmf, importance, prim_light, environment }
+        let map = map.filter(|_| environment.is_some());
+        Self { lights, cdf, pmf, importance, prim_light, environment, map }
+    }
+
+    /// Samples incident light from light `light` at `p` ([`Light::sample_li`], or the
+    /// environment map's importance sampling).
+    #[inline(always)]
+    pub fn sample_li(&self, light: usize, p: Vec3, u: Vec2) -> Option<LightSample> {
+        match (&self.lights[light], &self.map) {
+            (Light::Environment { radiance }, Some(map)) => {
+                let s = map.sample(u)?;
+                Some(LightSample { wi: s.wi, li: *radiance * s.radiance, pdf: s.pdf, target: None, delta: false })
+            }
+            (l, _) => l.sample_li(p, u),
+        }
+    }
+
+    /// The solid-angle pdf with which [`LightSet::sample_li`] of `light` at `p` gives `wi`
+    /// reaching it at `q` ([`Light::pdf_li`]).
+    #[inline(always)]
+    pub fn pdf_li(&self, light: usize, p: Vec3, wi: Vec3, q: Vec3) -> f32 {
+        match (&self.lights[light], &self.map) {
+            (Light::Environment { .. }, Some(map)) => map.pdf(wi),
+            (l, _) => l.pdf_li(p, wi, q),
+        }
+    }
+
+    /// Radiance from the environment along `dir` (a ray that left the scene); zero
+    /// without an environment.
+    #[inline(always)]
+    pub fn environment_radiance(&self, dir: Vec3) -> Vec3 {
+        let Some(env) = self.environment else { return Vec3::ZERO };
+        match (&self.lights[env as usize], &self.map) {
+            (Light::Environment { radiance }, Some(map)) => *radiance * map.eval(dir),
+            (Light::Environment { radiance }, None) => *radiance,
+            _ => Vec3::ZERO,
+        }
+    }
+
+    /// The environment map, if the environment is one.
+    pub fn environment_map(&self) -> Option<&EnvironmentMap> {
+        self.map.as_ref()
     }
 
     pub fn is_empty(&self) -> bool {

@@ -77,6 +77,7 @@ fn files_where(scene_path: &Path, readable: &dyn Fn(&Path) -> bool) -> Result<Ve
         let objs: Vec<PathBuf> = file.mesh.iter().map(|m| base.join(&m.obj)).collect();
         files.extend(objs.iter().cloned());
         files.extend(file.materials.values().flat_map(|m| m.textures()).map(|t| base.join(&t.file)));
+        files.extend(file.background.map.iter().map(|m| base.join(m)));
         objs
     };
     for obj in objs.iter().filter(|o| o.is_file() && readable(o)) {

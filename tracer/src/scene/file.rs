@@ -312,8 +312,26 @@ pub enum LightDesc {
 #[derive(Clone, Debug, Default, Deserialize, PartialEq)]
 #[serde(deny_unknown_fields)]
 pub struct BackgroundDesc {
-    #[serde(default)]
-    pub radiance: [f32; 3],
+    /// Constant radiance from every direction (black when neither this nor `map`).
+    pub radiance: Option<[f32; 3]>,
+    /// A latitude-longitude radiance map (README.md, "Environment maps").
+    pub map: Option<String>,
+    /// Multiplies the map (default 1).
+    pub strength: Option<f32>,
+    /// Degrees, right-handed about the up axis.
+    pub rotate: Option<f32>,
+    /// The world axis that is the map's zenith (default y).
+    pub up: Option<UpDesc>,
+    /// A note from the program that wrote the scene (an exporter) about lighting it could
+    /// not reproduce: printed as a warning whenever the scene is loaded.
+    pub warning: Option<String>,
+}
+
+#[derive(Clone, Copy, Debug, Deserialize, PartialEq, Eq)]
+#[serde(rename_all = "lowercase")]
+pub enum UpDesc {
+    Y,
+    Z,
 }
 
 /// The 1-based line of `field` (as the loader names it: `render.spp`, `mesh[2].scale`,

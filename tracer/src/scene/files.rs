@@ -14,6 +14,11 @@ pub const MAX_OBJ_BYTES: u64 = 4 << 30;
 pub const MAX_MTL_BYTES: u64 = 64 << 20;
 /// Largest texture file, and the most its decoding may allocate.
 pub const MAX_TEXTURE_BYTES: u64 = 1 << 30;
+/// Largest environment map file, and the most its decoding may allocate (a 16k × 8k
+/// RGBA float image is 2 GiB).
+pub const MAX_ENVIRONMENT_BYTES: u64 = 3 << 30;
+/// Widest and tallest environment map, in texels.
+pub const MAX_ENVIRONMENT_SIZE: (u32, u32) = (16_384, 8_192);
 
 /// Checks that `path` is a regular file of at most `limit` bytes (following symlinks).
 pub fn check_regular(path: &Path, limit: u64) -> std::io::Result<u64> {

@@ -7,6 +7,7 @@ use glam::Vec3;
 
 use super::builder::Builder;
 pub(super) use super::builder::Depth;
+use super::environment::Background;
 use super::file::{LightDesc, SceneFile, SphereDesc, UpAxis};
 use super::obj::{ObjError, ObjModel, load_obj_as};
 use super::{Geometry, Scene, Sphere};
@@ -175,7 +176,7 @@ pub(super) struct Assembled {
     pub camera: Camera,
     pub settings: RenderSettings,
     pub lights: Vec<Light>,
-    pub background: Vec3,
+    pub background: Background,
 }
 
 /// An error about `field` of the scene file `name`, at the field's line in `text`.
@@ -319,7 +320,10 @@ pub(super) fn assemble_parts(
             },
         });
     }
-    let background = non_negative3("background.radiance".into(), file.background.radiance)?;
+    let background = super::environment::background(&file.background, base, &invalid)?;
+    if let Some(w) = &file.background.warning {
+        b.warnings.push(format!("{name}: {w}"));
+    }
     Ok(Assembled { b, camera, settings, lights, background })
 }
 
@@ -394,9 +398,10 @@ fn finish(
     camera: Camera,
     settings: RenderSettings,
     mut lights: Vec<Light>,
-    background: Vec3,
+    background: Background,
     instances: Option<Instances>,
 ) -> Scene {
+    let Background { radiance: background, map } = background;
     let Builder { mesh, spheres, materials, material_names, textures, warnings, .. } = b;
     // From here on the scene keeps only the compact runtime form of the mesh.
     let t = std::time::Instant::now();
@@ -467,7 +472,13 @@ fn finish(
     if background.max_element() > 0.0 {
         lights.push(Light::Environment { radiance: background });
     }
-    let lights = LightSet::new(lights, geometry.len(), radius);
+    // A map lights the scene through one environment light of unit scale (the map holds
+    // its strength); an all-black map is no light.
+    let map = map.filter(|m| m.mean().max_element() > 0.0);
+    if map.is_some() {
+        lights.push(Light::Environment { radiance: Vec3::ONE });
+    }
+    let lights = LightSet::with_environment_map(lights, map, geometry.len(), radius);
     let has_cutouts = materials.iter().any(|m| m.has_cutout());
     if materials.iter().any(|m| matches!(m.bsdf, crate::bsdf::Bsdf::Principled(_))) {
         crate::bsdf::energy::prepare();
@@ -499,6 +510,7 @@ pub fn scene_from_bare_obj(model: ObjModel, up: UpAxis) -> Scene {
     b.add_model(model, up.to_y_up(), Vec3::ZERO);
     let (camera, lights, background) =
         bare_obj_view(crate::geometry::Aabb::from_points(&b.mesh.positions), any_emitter);
+    let background = Background { radiance: background, map: None };
     finish(b, camera, RenderSettings::default(), lights, background, None)
 }
 

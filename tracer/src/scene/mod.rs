@@ -4,6 +4,7 @@
 pub mod assets;
 mod builder;
 pub mod check;
+mod environment;
 pub mod file;
 pub mod files;
 pub mod generate;

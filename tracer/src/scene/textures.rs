@@ -88,13 +88,27 @@ fn clean_texel(c: Vec3) -> Vec3 {
 
 /// Decodes an image into linear RGB texels (see [`Decode`]).
 pub fn decode_texture(path: &Path, decode: Decode) -> Result<Texture, String> {
-    use crate::scene::files::{MAX_TEXTURE_BYTES, check_regular};
+    decode_image(path, decode, crate::scene::files::MAX_TEXTURE_BYTES, None)
+}
+
+/// [`decode_texture`] within `max_bytes` of file and of decoding memory, and, with
+/// `max_size`, at most that many texels wide and high.
+pub fn decode_image(
+    path: &Path,
+    decode: Decode,
+    max_bytes: u64,
+    max_size: Option<(u32, u32)>,
+) -> Result<Texture, String> {
+    use crate::scene::files::check_regular;
     use image::DynamicImage;
-    check_regular(path, MAX_TEXTURE_BYTES).map_err(|e| io_reason(&e))?;
+    check_regular(path, max_bytes).map_err(|e| io_reason(&e))?;
     let mut reader =
         image::ImageReader::open(path).map_err(|e| io_reason(&e))?.with_guessed_format().map_err(|e| e.to_string())?;
     let mut limits = image::Limits::default();
-    limits.max_alloc = Some(MAX_TEXTURE_BYTES);
+    limits.max_alloc = Some(max_bytes);
+    if let Some((w, h)) = max_size {
+        (limits.max_image_width, limits.max_image_height) = (Some(w), Some(h));
+    }
     reader.limits(limits);
     let img = reader.decode().map_err(|e| e.to_string())?;
     let (width, height) = (img.width(), img.height());

@@ -20,7 +20,7 @@ use sha2::{Digest, Sha256};
 use super::Scene;
 
 /// The format's tag; the last byte is its version.
-const MAGIC: &[u8; 8] = b"TFPREP\0\x06";
+const MAGIC: &[u8; 8] = b"TFPREP\0\x07";
 const HEADER: usize = MAGIC.len() + 8 + 32;
 
 #[derive(Debug, thiserror::Error)]
