@@ -269,3 +269,49 @@ fn finished_images_are_fetched_from_the_store_after_the_job_is_forgotten() {
     let id = restarted.submit_id(&cornell(), &JOB, LIMIT);
     assert_ne!(id, "job-1", "a stored job's id is not reused");
 }
+
+/// A scene lit by an environment map (a sky with a sun, written here as an EXR): the map
+/// ships to the workers with the job, and 1, 2 and 3 workers give the in-process bits.
+#[test]
+fn an_environment_map_scene_gives_the_same_bits_for_any_number_of_workers() {
+    let dir = TempDir::new("workers-map");
+    let (w, h) = (64u32, 33u32);
+    let pixels = (0..h)
+        .flat_map(|r| (0..w).map(move |c| (r, c)))
+        .map(|(r, c)| match (r, c) {
+            (8..=9, 20..=21) => glam::Vec3::new(400.0, 380.0, 300.0),
+            (0..=16, _) => glam::Vec3::new(0.3, 0.45, 0.9),
+            _ => glam::Vec3::new(0.12, 0.1, 0.08),
+        })
+        .collect();
+    let map = tracer::film::Image {
+        width: w,
+        height: h,
+        pixels,
+        counts: vec![1; (w * h) as usize],
+        layers: vec![],
+        denoised: vec![],
+    };
+    tracer::output::write_exr(&map, &dir.path("sky.exr")).unwrap();
+    std::fs::write(
+        dir.path("scene.toml"),
+        "[camera]\nposition = [0, 1.2, 4]\nlook_at = [0, 0.5, 0]\nfov = 40\nwidth = 48\nheight = 32\n\
+         [render]\nspp = 16\nmax_depth = 6\nseed = 4\n\
+         [[sphere]]\ncenter = [-0.6, 0.5, 0]\nradius = 0.5\nkd = [0.8, 0.7, 0.6]\n\
+         [[sphere]]\ncenter = [0.6, 0.5, 0]\nradius = 0.5\nks = [0.9, 0.9, 0.9]\nillum = 3\n\
+         [[sphere]]\ncenter = [0, -1000, 0]\nradius = 1000\nkd = [0.5, 0.5, 0.5]\n\
+         [background]\nmap = \"sky.exr\"\nstrength = 1.5\nrotate = 40\n",
+    )
+    .unwrap();
+    let scene = dir.path("scene.toml");
+    let job = ["--tile", "16", "--batch-spp", "4"];
+    let reference = dir.path("reference.exr");
+    render(&scene, &reference, &[&job[..], &["--local-workers", "0"]].concat(), LIMIT);
+    let expected = read_exr(&reference);
+    assert!(expected.pixels.iter().any(|p| p.max_element() > 0.5), "the map lights the scene");
+    for workers in ["1", "2", "3"] {
+        let out = dir.path(&format!("w{workers}.exr"));
+        render(&scene, &out, &[&job[..], &["--local-workers", workers, "--threads", "1"]].concat(), LIMIT);
+        assert_same_bits(&read_exr(&out), &expected, &format!("{workers} local workers with a map"));
+    }
+}
