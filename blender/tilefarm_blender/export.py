@@ -3,7 +3,9 @@
 its materials, both named by the digest of their content (meshes that are the same, in
 one frame or across an animation's frames, share one file), and the textures. Each
 material is also a `[materials.NAME]` table at the end of scene.toml (materials.py),
-which overrides its MTL namesake with everything MTL cannot say.
+which overrides its MTL namesake with everything MTL cannot say. The world is
+`[background]` (world.py): a constant colour, an Environment Texture's image as a map,
+a Sky Texture rendered by Cycles into one.
 
 Blender's world coordinates are kept as they are (Z up): the camera's `up` says which
 way is up, and both are right-handed, so nothing is mirrored. The camera looks down its
@@ -28,6 +30,7 @@ import numpy as np
 
 from . import materials as mats
 from . import textures as tex
+from . import world as world_mod
 
 MESH_TYPES = {"MESH", "CURVE", "SURFACE", "META", "FONT"}
 
@@ -80,7 +83,7 @@ class _Exporter:
         self.names = set()
         self.materials = {}  # material (or None) -> Mapped
         self.by_name = {}  # its MTL name -> Mapped
-        self.textures = {}  # image name -> file name
+        self.textures = {}  # image name -> file name (or why it could not be written)
         self.texture_names = set()
         self.objs = {}  # digest -> file name
         self.toml = []
@@ -96,22 +99,31 @@ class _Exporter:
         mapped = mats.map_material(material, name, self.names)
         for ref in mapped.refs():
             image = ref.image
-            if image.name not in self.textures:
-                try:
-                    self.textures[image.name] = tex.write_texture(image, self.folder, self.texture_names,
-                                                                  mats.safe_name)
-                except Exception as e:  # a texture that cannot be saved is reported, not fatal
-                    why = " ".join(str(e).split()) or type(e).__name__
-                    self.report.warn(f"material {label}: texture {image.name} not written ({why}; the input's "
-                                     "own value used)")
-                    self.textures[image.name] = None
-            ref.file = self.textures[image.name]
+            try:
+                ref.file = self.texture_file(image)
+            except Exception as e:  # a texture that cannot be saved is reported, not fatal
+                why = " ".join(str(e).split()) or type(e).__name__
+                self.report.warn(f"material {label}: texture {image.name} not written ({why}; the input's "
+                                 "own value used)")
         mapped.resolve()
         for p in mapped.problems:
             self.report.warn(f"material {label}: {p}")
         self.materials[key] = mapped
         self.by_name[name] = mapped
         return name
+
+    def texture_file(self, image):
+        """`image` written into the folder (once, by its name): its file name there.
+        Raises if it cannot be written (and again for each later use)."""
+        if image.name not in self.textures:
+            try:
+                self.textures[image.name] = tex.write_texture(image, self.folder, self.texture_names, mats.safe_name)
+            except Exception as e:
+                self.textures[image.name] = e
+                raise
+        if isinstance(self.textures[image.name], Exception):
+            raise self.textures[image.name]
+        return self.textures[image.name]
 
     def material_tables(self):
         """scene.toml's `[materials]` tables of the materials written (they override the
@@ -304,23 +316,8 @@ class _Exporter:
                 f"up = {_vec(up)}", f"fov = {fov:.9g}", f"width = {width}", f"height = {height}"] + lens
 
     def background(self):
-        world = self.scene.world
-        if world is None:
-            return [0.0, 0.0, 0.0]
-        if not world.use_nodes or world.node_tree is None:
-            return [float(c) for c in world.color]
-        out = next((n for n in world.node_tree.nodes if n.type == "OUTPUT_WORLD" and n.is_active_output), None)
-        src = out.inputs["Surface"].links[0].from_node if out and out.inputs["Surface"].is_linked else None
-        if src is None:
-            return [0.0, 0.0, 0.0]
-        if src.type != "BACKGROUND":
-            self.report.warn(f"world: a {src.bl_idname} node (black here)")
-            return [0.0, 0.0, 0.0]
-        if src.inputs["Color"].is_linked or src.inputs["Strength"].is_linked:
-            self.report.warn("world: a texture on the background (only a constant colour maps; black here)")
-            return [0.0, 0.0, 0.0]
-        strength = float(src.inputs["Strength"].default_value)
-        return [float(c) * strength for c in src.inputs["Color"].default_value[:3]]
+        """The `[background]` table (world.py), and a Sky Texture's sun as a light."""
+        return world_mod.background(self.scene.world, self.folder, self.texture_file, self.report.warn)
 
     def render_settings(self):
         r = self.scene.render
@@ -374,9 +371,7 @@ def export_scene(folder, scene=None, frame=None, toml="scene.toml"):
         raise ValueError("nothing to render: the scene has no visible mesh")
     head = ["# exported from Blender " + bpy.app.version_string + " by tilefarm_blender", ""]
     head += ex.camera(width, height) + [""] + ex.render_settings()
-    bg = ex.background()
-    if any(c > 0 for c in bg):
-        head += ["", "[background]", f"radiance = {_vec(bg)}"]
+    head += ex.background()
     with open(os.path.join(folder, toml), "w", encoding="utf-8") as f:
         f.write("\n".join(head + ex.toml + ex.material_tables()) + "\n")
     report.seconds = time.perf_counter() - started
