@@ -270,8 +270,9 @@ fn finished_images_are_fetched_from_the_store_after_the_job_is_forgotten() {
     assert_ne!(id, "job-1", "a stored job's id is not reused");
 }
 
-/// A scene lit by an environment map (a sky with a sun, written here as an EXR): the map
-/// ships to the workers with the job, and 1, 2 and 3 workers give the in-process bits.
+/// A scene lit by an environment map (a sky with a sun, written here as an EXR) and an
+/// area light: the map ships to the workers with the job, and 1, 2 and 3 workers give
+/// the in-process bits.
 #[test]
 fn an_environment_map_scene_gives_the_same_bits_for_any_number_of_workers() {
     let dir = TempDir::new("workers-map");
@@ -300,6 +301,7 @@ fn an_environment_map_scene_gives_the_same_bits_for_any_number_of_workers() {
          [[sphere]]\ncenter = [-0.6, 0.5, 0]\nradius = 0.5\nkd = [0.8, 0.7, 0.6]\n\
          [[sphere]]\ncenter = [0.6, 0.5, 0]\nradius = 0.5\nks = [0.9, 0.9, 0.9]\nillum = 3\n\
          [[sphere]]\ncenter = [0, -1000, 0]\nradius = 1000\nkd = [0.5, 0.5, 0.5]\n\
+         [[light]]\ntype = \"area\"\nsize = [1, 0.5]\nposition = [0, 2, 1]\ndirection = [0, -1, -0.5]\npower = 30\n\
          [background]\nmap = \"sky.exr\"\nstrength = 1.5\nrotate = 40\n",
     )
     .unwrap();

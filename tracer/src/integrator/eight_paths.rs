@@ -19,7 +19,7 @@
 
 use glam::{Vec2, Vec3};
 
-use super::path::{Options, PathState, ShadowQuery, Strategy, emitter_weight, transmittance};
+use super::path::{Options, PathState, ShadowQuery, Strategy, area_light_emission, emitter_weight, transmittance};
 use super::{RayCount, aov};
 use crate::accel::ray_packets::{PACKET, PacketHits, RayPacket};
 use crate::accel::triangle_blocks::PackedTriangles;
@@ -388,9 +388,25 @@ fn scatter(
             (false, _) => one |= lane,
         }
     }
-    // Misses: the environment (a lane alone), or, in scenes without one, the end.
-    if scene.lights.environment().is_some() {
+    // Misses: the environment or area lights (a lane alone), or, in scenes without
+    // either, the end.
+    if scene.lights.environment().is_some() || scene.lights.has_areas() {
         one |= live & !hits.found;
+    }
+    // Area lights on the wide lanes' segments, as `PathState::scatter` begins (lane by
+    // lane: they are few).
+    if scene.lights.has_areas() {
+        for l in each(tri | sph) {
+            let depth = paths.depth.0[l];
+            if depth == 0 {
+                continue;
+            }
+            let ray = Ray::new(paths.origin.get(l), paths.dir.get(l));
+            let prev = (depth, paths.prev_delta.0[l] != 0, paths.prev_pdf.0[l], paths.prev_p.get(l));
+            if let Some(e) = area_light_emission(scene, &ray, hits.t[l], prev, opt) {
+                paths.l.set(l, paths.l.get(l) + paths.beta.get(l) * e);
+            }
+        }
     }
     for l in each(one) {
         let (mut path, mut sampler) = (paths.get(l), samplers.get(l));

@@ -163,6 +163,15 @@ impl PathState {
             Strategy::BsdfOnly => (false, true),
         };
         let ray = self.ray;
+        // Area lights on the segment (they block nothing; camera rays do not see them).
+        if self.depth > 0 && scene.lights.has_areas() {
+            let tmax = hit.map_or(f32::INFINITY, |h| h.t);
+            if let Some(e) =
+                area_light_emission(scene, &ray, tmax, (self.depth, self.prev_delta, self.prev_pdf, self.prev_p), opt)
+            {
+                self.l += self.beta * e;
+            }
+        }
         let Some(hit) = hit else {
             if let Some(f) = first {
                 *f = FirstHit::default();
@@ -359,6 +368,29 @@ impl PathState {
         }
         (shadow, true)
     }
+}
+
+/// The emission of the area lights that the segment `ray` (up to `tmax`) passes through,
+/// each weighted against light sampling from the vertex it left (`prev`: the path's
+/// depth, whether that vertex scattered by a delta lobe, its BSDF pdf and its point);
+/// `None` if it meets none.
+#[inline]
+pub(crate) fn area_light_emission(
+    scene: &Scene,
+    ray: &Ray,
+    tmax: f32,
+    (depth, prev_delta, prev_pdf, prev_p): (u32, bool, f32, Vec3),
+    opt: &Options,
+) -> Option<Vec3> {
+    let mut sum: Option<Vec3> = None;
+    scene.lights.area_hits(ray.origin, ray.dir, tmax, |light, radiance, q| {
+        let w = emitter_weight(depth, prev_delta, opt.strategy, prev_pdf, || {
+            scene.lights.pmf_at(prev_p, light) * scene.lights.pdf_li(light, prev_p, ray.dir, q)
+        });
+        let e = radiance * w;
+        sum = Some(sum.map_or(e, |s| s + e));
+    });
+    sum
 }
 
 /// The weight of emission found by BSDF sampling (or seen from the camera), given the

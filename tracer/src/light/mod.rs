@@ -14,6 +14,7 @@ use crate::geometry::{offset_origin, offset_origin_wide};
 use crate::sampling::{sample_uniform_sphere, sample_uniform_triangle, uniform_sphere_pdf, wide};
 use crate::simd::{F8, M8, U8, V2w, V3w, each};
 
+mod area;
 pub mod distribution;
 mod environment;
 mod set;
@@ -21,6 +22,7 @@ mod sphere_cone;
 #[cfg(test)]
 mod tests;
 
+pub use area::{Area, AreaShape};
 pub use environment::{EnvironmentMap, EnvironmentSample, Up};
 pub use set::{LOCAL_SELECTION_MAX, LightSet};
 use sphere_cone::{sample_sphere_cone, sample_sphere_cone_wide};
@@ -40,6 +42,9 @@ pub enum Light {
     Sphere { prim: u32, center: Vec3, radius: f32, radiance: Vec3 },
     /// Constant radiance from every direction (the report's "ambient light").
     Environment { radiance: Vec3 },
+    /// A one-sided rectangle or ellipse of constant `radiance` that is not a surface
+    /// (Blender's area light): found by light sampling and by scattered rays.
+    Area { geometry: Area, radiance: Vec3 },
 }
 
 /// Incident light from one sampled point of a light.
@@ -92,6 +97,7 @@ impl Light {
             Light::Triangle { area, radiance, .. } => PI * area * luminance(radiance),
             Light::Sphere { radius, radiance, .. } => PI * 4.0 * PI * radius * radius * luminance(radiance),
             Light::Environment { radiance } => PI * 4.0 * disc * luminance(radiance),
+            Light::Area { geometry, radiance } => PI * geometry.area * luminance(radiance),
         };
         if p.is_finite() { p.max(0.0) } else { 0.0 }
     }
@@ -152,6 +158,10 @@ impl Light {
                 let wi = sample_uniform_sphere(u);
                 Some(LightSample { wi, li: radiance, pdf: uniform_sphere_pdf(), target: None, delta: false })
             }
+            Light::Area { geometry, radiance } => {
+                let s = geometry.sample(p, u)?;
+                Some(LightSample { wi: s.wi, li: radiance, pdf: s.pdf, target: Some(s.q), delta: false })
+            }
         }
     }
 
@@ -177,6 +187,7 @@ impl Light {
                 1.0 / (2.0 * PI * one_minus_cos_max)
             }
             Light::Environment { .. } => uniform_sphere_pdf(),
+            Light::Area { geometry, .. } => geometry.pdf(p, wi, q),
             _ => 0.0,
         }
     }
@@ -195,6 +206,8 @@ impl LightSet {
         let (mut tri, mut sph, mut pnt, mut spt) = (simd.none(), simd.none(), simd.none(), simd.none());
         // Lights at infinity: the environment, directional lights (`dir` in `b`).
         let (mut env, mut dir) = (simd.none(), simd.none());
+        // Area lights: the one-path code, lane by lane.
+        let mut area = simd.none();
         // Triangles: p0, e1, e2, normal, area; spheres: center (in `a`), radius; points:
         // position (in `a`); spots: position, direction (in `n`), cos_total (in `size`),
         // cos_falloff_start.
@@ -239,6 +252,7 @@ impl LightSet {
                     size.0[l] = radius;
                     li.set(l, radiance);
                 }
+                Light::Area { .. } => area.0[l] = u32::MAX,
             }
         }
         let (mut wi, mut pdf, mut target, mut some, mut delta) = (zero, simd.zero(), zero, simd.none(), simd.none());
@@ -301,6 +315,16 @@ impl LightSet {
             pdf = ok.select(pdf_s, pdf);
             target = ok.select3(offset_origin_wide(q, normal, -w), target);
             some = some | ok;
+        }
+        for l in each(area.bits()) {
+            let pl = p.get(l);
+            if let Some(s) = self.lights[light.0[l] as usize].sample_li(pl, Vec2::new(u.x.0[l], u.y.0[l])) {
+                wi.set(l, s.wi);
+                pdf.0[l] = s.pdf;
+                radiance.set(l, s.li);
+                target.set(l, s.target.unwrap_or(pl));
+                some.0[l] = u32::MAX;
+            }
         }
         LightSamplesW { wi, li: radiance, pdf, target, some, delta, at_infinity: dir | env }
     }

@@ -51,6 +51,12 @@ impl Importance {
                 imp.inside_r2 = radius * radius;
                 imp.min_d2 = imp.inside_r2.max(imp.min_d2);
             }
+            Light::Area { geometry, .. } => {
+                imp.center = geometry.center;
+                imp.normal = geometry.normal;
+                imp.plane = geometry.normal.dot(geometry.center);
+                imp.min_d2 = geometry.area.max(imp.min_d2);
+            }
             Light::Directional { .. } | Light::Environment { .. } => {
                 imp.power = power / r2;
                 imp.min_d2 = 0.0;
@@ -110,6 +116,8 @@ pub struct LightSet {
     /// The environment light's radiance by direction, when it is a map (the light's own
     /// `radiance` is then 1).
     map: Option<EnvironmentMap>,
+    /// The area lights (not surfaces: scattered rays test them one by one).
+    areas: Vec<u32>,
 }
 
 impl LightSet {
@@ -172,7 +180,8 @@ impl LightSet {
             Vec::new()
         };
         let map = map.filter(|_| environment.is_some());
-        Self { lights, cdf, pmf, importance, prim_light, environment, map }
+        let areas = (0..lights.len() as u32).filter(|&i| matches!(lights[i as usize], Light::Area { .. })).collect();
+        Self { lights, cdf, pmf, importance, prim_light, environment, map, areas }
     }
 
     /// Samples incident light from light `light` at `p` ([`Light::sample_li`], or the
@@ -208,6 +217,25 @@ impl LightSet {
             (Light::Environment { radiance }, None) => *radiance,
             _ => Vec3::ZERO,
         }
+    }
+
+    /// The area lights a ray from `origin` along `dir` (unit) meets before `tmax`: calls
+    /// `found(light, radiance, point)` for each, in the lights' order.
+    #[inline]
+    pub fn area_hits(&self, origin: Vec3, dir: Vec3, tmax: f32, mut found: impl FnMut(usize, Vec3, Vec3)) {
+        for &i in &self.areas {
+            if let Light::Area { geometry, radiance } = self.lights[i as usize]
+                && let Some((_, q)) = geometry.intersect(origin, dir, tmax)
+            {
+                found(i as usize, radiance, q);
+            }
+        }
+    }
+
+    /// Whether the scene has area lights (that scattered rays must be tested against).
+    #[inline]
+    pub fn has_areas(&self) -> bool {
+        !self.areas.is_empty()
     }
 
     /// The environment map, if the environment is one.

@@ -307,6 +307,49 @@ pub enum LightDesc {
     /// Parallel light travelling along `direction`, irradiance in W/m² on a surface
     /// facing it.
     Directional { direction: [f32; 3], irradiance: [f32; 3] },
+    /// A one-sided rectangle, disk or ellipse that lights but is not a surface (README.md,
+    /// "Area lights").
+    Area(AreaDesc),
+}
+
+#[derive(Clone, Debug, Deserialize, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct AreaDesc {
+    #[serde(default)]
+    pub shape: AreaShapeDesc,
+    /// Width along the light's x and height along its y (one number: both).
+    pub size: AreaSize,
+    /// Blender's `matrix_world`, row by row: the light at the origin of its own frame,
+    /// emitting towards its −Z.
+    pub matrix: Option<[[f32; 4]; 4]>,
+    pub position: Option<[f32; 3]>,
+    /// The way the light faces (it emits towards this side).
+    pub direction: Option<[f32; 3]>,
+    /// The general direction of the light's own +y axis.
+    pub up: Option<[f32; 3]>,
+    /// Watts, as Blender's Power: radiance = color × power / (π × area).
+    pub power: Option<f32>,
+    pub color: Option<[f32; 3]>,
+    pub radiance: Option<[f32; 3]>,
+    /// Seen by camera rays and casting shadows: an emissive surface instead.
+    #[serde(default)]
+    pub visible: bool,
+}
+
+#[derive(Clone, Copy, Debug, Default, Deserialize, PartialEq, Eq)]
+#[serde(rename_all = "lowercase")]
+pub enum AreaShapeDesc {
+    #[default]
+    Rectangle,
+    Disk,
+    Ellipse,
+}
+
+#[derive(Clone, Copy, Debug, Deserialize, PartialEq)]
+#[serde(untagged)]
+pub enum AreaSize {
+    Both(f32),
+    Each([f32; 2]),
 }
 
 #[derive(Clone, Debug, Default, Deserialize, PartialEq)]

@@ -1,6 +1,7 @@
 //! Scene input — the TOML scene file, OBJ/MTL meshes — and the assembled [`Scene`] with
 //! its ray queries.
 
+mod area_lights;
 pub mod assets;
 mod builder;
 pub mod check;

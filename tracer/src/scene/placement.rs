@@ -135,7 +135,7 @@ pub fn about_axis(axis: Vec3, degrees: f32) -> Mat3 {
 }
 
 /// A row-major 4×4 affine matrix: finite, last row `[0, 0, 0, 1]`, invertible.
-fn from_rows(m: &[[f32; 4]; 4]) -> Result<Placement, String> {
+pub(super) fn from_rows(m: &[[f32; 4]; 4]) -> Result<Placement, String> {
     if m.iter().flatten().any(|x| !x.is_finite()) {
         return Err("must be finite".into());
     }

@@ -1,0 +1,159 @@
+//! Area lights (issue 50): a rectangle and a disk over a floor against the irradiance
+//! formulas, by light sampling, BSDF sampling and MIS; unseen by the camera; blocking
+//! nothing.
+
+// Tests may use the C library's functions: they check values, not platform-free bits.
+#![allow(clippy::disallowed_methods)]
+
+mod common;
+
+use std::f64::consts::PI;
+
+use common::TempDir;
+use glam::Vec2;
+use tracer::film::{Image, SampleRange};
+use tracer::integrator::Integrator;
+use tracer::render::render_image;
+use tracer::scene::{Scene, scene_from_toml};
+
+fn render(s: &Scene, integrator: Integrator, spp: u32) -> Image {
+    let (img, stats) = render_image(s, integrator, SampleRange::new(0, spp), 8, &|_| {});
+    assert_eq!(stats.nonfinite, 0, "non-finite samples");
+    img
+}
+
+fn mean_stderr(v: &[f64]) -> (f64, f64) {
+    let n = v.len() as f64;
+    let mean = v.iter().sum::<f64>() / n;
+    let var = v.iter().map(|x| (x - mean) * (x - mean)).sum::<f64>() / (n - 1.0);
+    (mean, (var / n).sqrt())
+}
+
+/// E / L at a point under the corner of an `a × b` rectangle at height `c` (parallel,
+/// facing it): π times the corner form factor.
+fn corner(a: f64, b: f64, c: f64) -> f64 {
+    let (x, y) = (a / c, b / c);
+    let (sx, sy) = ((1.0 + x * x).sqrt(), (1.0 + y * y).sqrt());
+    0.5 * (x / sx * (y / sx).atan() + y / sy * (x / sy).atan())
+}
+
+/// E / L at `(px, pz)` on the floor under the rectangle `[x0, x1] × [z0, z1]` at height
+/// `c`: four signed corner rectangles.
+fn under_rectangle(px: f64, pz: f64, (x0, x1, z0, z1): (f64, f64, f64, f64), c: f64) -> f64 {
+    let part = |dx: f64, dz: f64| dx.signum() * dz.signum() * corner(dx.abs(), dz.abs(), c);
+    part(x1 - px, z1 - pz) - part(x0 - px, z1 - pz) - part(x1 - px, z0 - pz) + part(x0 - px, z0 - pz)
+}
+
+const FLOOR: &str = "mtllib m.mtl\nv -30 0 -30\nv 30 0 -30\nv 30 0 30\nv -30 0 30\nusemtl floor\nf 1 4 3 2\n";
+
+fn scene(dir: &TempDir, light: &str) -> Scene {
+    dir.write("m.mtl", "newmtl floor\nKd 0.6 0.6 0.6\n");
+    dir.write("floor.obj", FLOOR);
+    let toml = format!(
+        "[camera]\nposition = [0.2, 3.0, 0.1]\nlook_at = [0.2, 0.0, 0.0]\nup = [0, 0, 1]\nfov = 60\nwidth = 24\n\
+         height = 18\n[render]\nmax_depth = 2\nseed = 5\n[[mesh]]\nobj = \"floor.obj\"\n[[light]]\n{light}"
+    );
+    scene_from_toml(&toml, "area.toml", &dir.0).unwrap()
+}
+
+/// Ratios of each pixel to its analytic value (`exact(x, z)` at floor points averaged
+/// over the pixel), which are independent with mean 1: their mean and standard error.
+fn ratios(s: &Scene, img: &Image, exact: &dyn Fn(f64, f64) -> f64) -> (f64, f64) {
+    let mut r = Vec::new();
+    for y in 0..s.camera.height {
+        for x in 0..s.camera.width {
+            let n = 6;
+            let reference: f64 = (0..n * n)
+                .map(|k| {
+                    let o = Vec2::new((k % n) as f32 + 0.5, (k / n) as f32 + 0.5) / n as f32;
+                    let ray = s.camera.generate_ray(Vec2::new(x as f32, y as f32) + o, Vec2::ZERO);
+                    let p = ray.at(-ray.origin.y / ray.dir.y);
+                    exact(p.x as f64, p.z as f64)
+                })
+                .sum::<f64>()
+                / (n * n) as f64;
+            r.push(img.at(x, y).x as f64 / reference);
+        }
+    }
+    mean_stderr(&r)
+}
+
+#[test]
+fn a_rectangle_light_lights_the_floor_as_the_form_factor_says() {
+    // 2 × 1 at height 1.5 facing down, 40 W: L = 40 / (π · 2).
+    let dir = TempDir::new("area-rect");
+    let s = scene(
+        &dir,
+        "type = \"area\"\nsize = [2.0, 1.0]\nposition = [0.5, 1.5, -0.2]\ndirection = [0, -1, 0]\nup = [0, 0, 1]\npower = 40\n",
+    );
+    let l = 40.0 / (PI * 2.0);
+    let exact = |x: f64, z: f64| 0.6 / PI * l * under_rectangle(x, z, (-0.5, 1.5, -0.7, 0.3), 1.5);
+    for (integrator, spp, power) in
+        [(Integrator::Path, 64, 0.01), (Integrator::PathLightOnly, 64, 0.01), (Integrator::PathBsdfOnly, 512, 0.02)]
+    {
+        let img = render(&s, integrator, spp);
+        let (mean, se) = ratios(&s, &img, &exact);
+        assert!(4.0 * se < power, "{integrator:?}: too weak, se {se}");
+        assert!((mean - 1.0).abs() < 4.0 * se + 5e-4, "{integrator:?}: ratio {mean} ± {se}");
+    }
+}
+
+#[test]
+fn a_disk_light_lights_the_floor_below_as_pi_l_r2_over_h2_plus_r2() {
+    // A disk of radius 0.6 at height 2 (by its matrix: Blender's light looks down its −Z,
+    // so the identity with a translation faces down the world's −Z; turned to face −Y).
+    let dir = TempDir::new("area-disk");
+    let s = scene(
+        &dir,
+        "type = \"area\"\nshape = \"disk\"\nsize = 1.2\nmatrix = [[1, 0, 0, 0.2], [0, 0, 1, 2], [0, -1, 0, 0], [0, 0, 0, 1]]\n\
+         radiance = [3, 3, 3]\n",
+    );
+    // On the axis of a disk: E = π L r² / (h² + r²); off the axis by the disk's own
+    // numerical integral over its area.
+    let (r, h, l) = (0.6f64, 2.0f64, 3.0f64);
+    let exact = |x: f64, z: f64| {
+        let n = 64;
+        let mut e = 0.0;
+        for i in 0..n {
+            for j in 0..n {
+                let rho = r * ((i as f64 + 0.5) / n as f64).sqrt();
+                let phi = 2.0 * PI * (j as f64 + 0.5) / n as f64;
+                let (dx, dz) = (0.2 + rho * phi.cos() - x, rho * phi.sin() - z);
+                let d2 = dx * dx + dz * dz + h * h;
+                e += h * h / (d2 * d2);
+            }
+        }
+        0.6 / PI * l * e * PI * r * r / (n * n) as f64
+    };
+    assert!((exact(0.2, 0.0) * PI / 0.6 / l - PI * r * r / (h * h + r * r)).abs() < 1e-3);
+    for integrator in [Integrator::Path, Integrator::PathLightOnly] {
+        let img = render(&s, integrator, 64);
+        let (mean, se) = ratios(&s, &img, &exact);
+        assert!(4.0 * se < 0.01, "{integrator:?}: too weak, se {se}");
+        assert!((mean - 1.0).abs() < 4.0 * se + 5e-4, "{integrator:?}: ratio {mean} ± {se}");
+    }
+}
+
+#[test]
+fn an_area_light_is_not_seen_by_the_camera_and_blocks_nothing() {
+    let dir = TempDir::new("area-unseen");
+    dir.write("m.mtl", "newmtl floor\nKd 0.6 0.6 0.6\n");
+    dir.write("floor.obj", FLOOR);
+    // Looking straight up at a bright light from below it: black.
+    let up = "[camera]\nposition = [0, 0.5, 0]\nlook_at = [0, 3, 0]\nup = [0, 0, 1]\nfov = 30\nwidth = 8\nheight = 8\n\
+              [[light]]\ntype = \"area\"\nsize = 4\nposition = [0, 2, 0]\ndirection = [0, -1, 0]\nradiance = [50, 50, 50]\n";
+    let img = render(&scene_from_toml(up, "up.toml", &dir.0).unwrap(), Integrator::Path, 4);
+    assert!(img.pixels.iter().all(|p| p.max_element() == 0.0), "the camera saw the light");
+    // The same light with `visible = true` is a surface the camera sees.
+    let visible = format!("{up}visible = true\n");
+    let img = render(&scene_from_toml(&visible, "up.toml", &dir.0).unwrap(), Integrator::Path, 4);
+    assert!(img.pixels.iter().all(|p| (p.x - 50.0).abs() < 1e-3), "the visible light is a surface");
+    // A sun above a dark area light: the floor below gets the sun's full irradiance.
+    let sun = "[camera]\nposition = [0, 3, 0.01]\nlook_at = [0, 0, 0]\nup = [0, 0, 1]\nfov = 20\nwidth = 8\nheight = 8\n\
+               [render]\nmax_depth = 2\n[[mesh]]\nobj = \"floor.obj\"\n[[light]]\ntype = \"directional\"\n\
+               direction = [0, -1, 0]\nirradiance = [2, 2, 2]\n[[light]]\ntype = \"area\"\nsize = 10\n\
+               position = [0, 1, 0]\ndirection = [0, 1, 0]\nradiance = [1, 1, 1]\n";
+    let img = render(&scene_from_toml(sun, "sun.toml", &dir.0).unwrap(), Integrator::Path, 4);
+    let expected = 0.6 / std::f32::consts::PI * 2.0;
+    assert!(img.pixels.iter().all(|p| (p.x - expected).abs() < 1e-4), "{:?} against {expected}", img.pixels[0]);
+}
