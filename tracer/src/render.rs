@@ -332,13 +332,19 @@ radiance = [0.05, 0.06, 0.08]
         // The same under an environment map (turned, Z up): its samples on the wide route.
         let sky = image::RgbImage::from_fn(16, 9, |x, y| image::Rgb([(x * 15) as u8, (y * 28) as u8, 200]));
         sky.save(dir.join("sky.png")).unwrap();
-        // And two area lights (a rectangle by its frame, a disk by its matrix): lit by
-        // light sampling on the wide route, met by the scattered rays of both routes.
+        // And two area lights (a rectangle by its frame, a disk by its matrix) and a point,
+        // a spot and a sun with a size: lit by light sampling on the wide route, met by
+        // the scattered rays of both routes.
         let with_map = toml.replace(
             "[background]\nradiance = [0.05, 0.06, 0.08]",
             "[[light]]\ntype = \"area\"\nsize = [0.8, 0.5]\nposition = [-1.0, 2.5, 0.5]\ndirection = [0.3, -1, 0]\n\
              power = 20\n[[light]]\ntype = \"area\"\nshape = \"disk\"\nsize = 0.6\n\
              matrix = [[1, 0, 0, 1.2], [0, 0, 1, 2.0], [0, -1, 0, -0.5], [0, 0, 0, 1]]\nradiance = [4, 3, 2]\n\
+             [[light]]\ntype = \"point\"\nposition = [0.5, 2.0, -1.0]\nintensity = [1, 1, 1]\nradius = 0.2\n\
+             [[light]]\ntype = \"spot\"\nposition = [-0.5, 2.5, 0.0]\ndirection = [0, -1, 0.2]\n\
+             intensity = [3, 3, 3]\ncone_angle = 40\nfalloff_start = 20\nradius = 0.1\n\
+             [[light]]\ntype = \"directional\"\ndirection = [-0.3, -1.0, 0.4]\nirradiance = [0.3, 0.3, 0.3]\n\
+             angle = 8\n\
              [background]\nmap = \"sky.png\"\nstrength = 0.2\nrotate = 30\nup = \"z\"",
         );
         let wide_map = crate::scene::scene_from_toml(&with_map, "wide-map.toml", &dir).unwrap();

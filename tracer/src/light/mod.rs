@@ -18,6 +18,7 @@ mod area;
 pub mod distribution;
 mod environment;
 mod set;
+mod soft;
 mod sphere_cone;
 #[cfg(test)]
 mod tests;
@@ -25,6 +26,7 @@ mod tests;
 pub use area::{Area, AreaShape};
 pub use environment::{EnvironmentMap, EnvironmentSample, Up};
 pub use set::{LOCAL_SELECTION_MAX, LightSet};
+pub use soft::{Cone, SoftPoint, Sun};
 use sphere_cone::{sample_sphere_cone, sample_sphere_cone_wide};
 
 #[derive(Clone, Copy, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
@@ -45,6 +47,10 @@ pub enum Light {
     /// A one-sided rectangle or ellipse of constant `radiance` that is not a surface
     /// (Blender's area light): found by light sampling and by scattered rays.
     Area { geometry: Area, radiance: Vec3 },
+    /// A point or spot light with a radius (soft shadows; not a surface).
+    SoftPoint(SoftPoint),
+    /// A sun with an angular size (soft shadows; at infinity).
+    Sun(Sun),
 }
 
 /// Incident light from one sampled point of a light.
@@ -98,6 +104,16 @@ impl Light {
             Light::Sphere { radius, radiance, .. } => PI * 4.0 * PI * radius * radius * luminance(radiance),
             Light::Environment { radiance } => PI * 4.0 * disc * luminance(radiance),
             Light::Area { geometry, radiance } => PI * geometry.area * luminance(radiance),
+            // As the point or spot light of intensity π r² L.
+            Light::SoftPoint(s) => {
+                let i = PI * s.radius * s.radius * luminance(s.radiance);
+                match s.cone {
+                    None => 4.0 * PI * i,
+                    Some(c) => 2.0 * PI * i * (1.0 - 0.5 * (c.cos_total + c.cos_falloff_start)),
+                }
+            }
+            // As the hard sun of irradiance π sin²α L (sin²α = (1 − cos α)(1 + cos α)).
+            Light::Sun(s) => disc * PI * s.one_minus_cos * (2.0 - s.one_minus_cos) * luminance(s.radiance),
         };
         if p.is_finite() { p.max(0.0) } else { 0.0 }
     }
@@ -162,6 +178,28 @@ impl Light {
                 let s = geometry.sample(p, u)?;
                 Some(LightSample { wi: s.wi, li: radiance, pdf: s.pdf, target: Some(s.q), delta: false })
             }
+            Light::SoftPoint(s) => {
+                let (wi, q, pdf) = s.sample(p, u)?;
+                let li = s.radiance * s.attenuation(-wi);
+                Some(LightSample { wi, li, pdf, target: Some(q), delta: false })
+            }
+            Light::Sun(s) => {
+                let (wi, pdf) = s.sample(u);
+                Some(LightSample { wi, li: s.radiance, pdf, target: None, delta: false })
+            }
+        }
+    }
+
+    /// Where a ray scattered from `origin` along `dir` (unit) meets this light before
+    /// `tmax` (infinite: the ray left the scene), for the lights that are not surfaces
+    /// yet are seen in reflections: `(radiance, point)`.
+    #[inline]
+    pub fn meet(&self, origin: Vec3, dir: Vec3, tmax: f32) -> Option<(Vec3, Vec3)> {
+        match *self {
+            Light::Area { geometry, radiance } => geometry.intersect(origin, dir, tmax).map(|(_, q)| (radiance, q)),
+            Light::SoftPoint(s) => s.intersect(origin, dir, tmax).map(|(_, q)| (s.radiance * s.attenuation(-dir), q)),
+            Light::Sun(s) if tmax == f32::INFINITY && s.contains(dir) => Some((s.radiance, origin + dir)),
+            _ => None,
         }
     }
 
@@ -188,6 +226,8 @@ impl Light {
             }
             Light::Environment { .. } => uniform_sphere_pdf(),
             Light::Area { geometry, .. } => geometry.pdf(p, wi, q),
+            Light::SoftPoint(s) => s.pdf(p, wi, q),
+            Light::Sun(s) => s.pdf(wi),
             _ => 0.0,
         }
     }
@@ -206,7 +246,7 @@ impl LightSet {
         let (mut tri, mut sph, mut pnt, mut spt) = (simd.none(), simd.none(), simd.none(), simd.none());
         // Lights at infinity: the environment, directional lights (`dir` in `b`).
         let (mut env, mut dir) = (simd.none(), simd.none());
-        // Area lights: the one-path code, lane by lane.
+        // Area lights, lights with a size: the one-path code, lane by lane.
         let mut area = simd.none();
         // Triangles: p0, e1, e2, normal, area; spheres: center (in `a`), radius; points:
         // position (in `a`); spots: position, direction (in `n`), cos_total (in `size`),
@@ -252,7 +292,7 @@ impl LightSet {
                     size.0[l] = radius;
                     li.set(l, radiance);
                 }
-                Light::Area { .. } => area.0[l] = u32::MAX,
+                Light::Area { .. } | Light::SoftPoint(_) | Light::Sun(_) => area.0[l] = u32::MAX,
             }
         }
         let (mut wi, mut pdf, mut target, mut some, mut delta) = (zero, simd.zero(), zero, simd.none(), simd.none());
@@ -316,6 +356,7 @@ impl LightSet {
             target = ok.select3(offset_origin_wide(q, normal, -w), target);
             some = some | ok;
         }
+        let mut at_infinity = dir | env;
         for l in each(area.bits()) {
             let pl = p.get(l);
             if let Some(s) = self.lights[light.0[l] as usize].sample_li(pl, Vec2::new(u.x.0[l], u.y.0[l])) {
@@ -324,9 +365,10 @@ impl LightSet {
                 radiance.set(l, s.li);
                 target.set(l, s.target.unwrap_or(pl));
                 some.0[l] = u32::MAX;
+                at_infinity.0[l] = if s.target.is_none() { u32::MAX } else { 0 };
             }
         }
-        LightSamplesW { wi, li: radiance, pdf, target, some, delta, at_infinity: dir | env }
+        LightSamplesW { wi, li: radiance, pdf, target, some, delta, at_infinity }
     }
 }
 

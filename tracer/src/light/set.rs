@@ -57,7 +57,11 @@ impl Importance {
                 imp.plane = geometry.normal.dot(geometry.center);
                 imp.min_d2 = geometry.area.max(imp.min_d2);
             }
-            Light::Directional { .. } | Light::Environment { .. } => {
+            Light::SoftPoint(s) => {
+                imp.center = s.position;
+                imp.min_d2 = (s.radius * s.radius).max(imp.min_d2);
+            }
+            Light::Directional { .. } | Light::Environment { .. } | Light::Sun(_) => {
                 imp.power = power / r2;
                 imp.min_d2 = 0.0;
             }
@@ -116,7 +120,8 @@ pub struct LightSet {
     /// The environment light's radiance by direction, when it is a map (the light's own
     /// `radiance` is then 1).
     map: Option<EnvironmentMap>,
-    /// The area lights (not surfaces: scattered rays test them one by one).
+    /// The lights that scattered rays meet though they are not surfaces (area lights,
+    /// lights with a size), tested one by one.
     areas: Vec<u32>,
 }
 
@@ -180,7 +185,8 @@ impl LightSet {
             Vec::new()
         };
         let map = map.filter(|_| environment.is_some());
-        let areas = (0..lights.len() as u32).filter(|&i| matches!(lights[i as usize], Light::Area { .. })).collect();
+        let met = |l: &Light| matches!(l, Light::Area { .. } | Light::SoftPoint(_) | Light::Sun(_));
+        let areas = (0..lights.len() as u32).filter(|&i| met(&lights[i as usize])).collect();
         Self { lights, cdf, pmf, importance, prim_light, environment, map, areas }
     }
 
@@ -219,20 +225,20 @@ impl LightSet {
         }
     }
 
-    /// The area lights a ray from `origin` along `dir` (unit) meets before `tmax`: calls
-    /// `found(light, radiance, point)` for each, in the lights' order.
+    /// The lights that are not surfaces which a ray from `origin` along `dir` (unit)
+    /// meets before `tmax` ([`Light::meet`]): calls `found(light, radiance, point)` for
+    /// each, in the lights' order.
     #[inline]
     pub fn area_hits(&self, origin: Vec3, dir: Vec3, tmax: f32, mut found: impl FnMut(usize, Vec3, Vec3)) {
         for &i in &self.areas {
-            if let Light::Area { geometry, radiance } = self.lights[i as usize]
-                && let Some((_, q)) = geometry.intersect(origin, dir, tmax)
-            {
+            if let Some((radiance, q)) = self.lights[i as usize].meet(origin, dir, tmax) {
                 found(i as usize, radiance, q);
             }
         }
     }
 
-    /// Whether the scene has area lights (that scattered rays must be tested against).
+    /// Whether the scene has lights that scattered rays meet though they are not
+    /// surfaces (area lights, lights with a size).
     #[inline]
     pub fn has_areas(&self) -> bool {
         !self.areas.is_empty()

@@ -1,18 +1,63 @@
-//! `[[light]] type = "area"`: Blender's area light, placed by its matrix or by position,
-//! direction and up, as a [`Light::Area`] — or, with `visible = true`, as the emissive
-//! surface it used to be (seen by the camera, casting shadows).
+//! Lights with a size. `[[light]] type = "area"`: Blender's area light, placed by its
+//! matrix or by position, direction and up, as a [`Light::Area`] — or, with
+//! `visible = true`, as the emissive surface it used to be (seen by the camera, casting
+//! shadows). A point or spot light's `radius` and a directional light's `angle`: the
+//! soft lights of `light/soft.rs`.
 
 use std::f32::consts::PI;
 
 use glam::{Mat3, Vec3};
 
 use super::builder::Builder;
-use super::file::{AreaDesc, AreaShapeDesc, AreaSize};
+use super::file::{AreaDesc, AreaShapeDesc, AreaSize, LightDesc};
 use super::load::SceneError;
 use super::placement::from_rows;
 use super::{NONE, Tri};
-use crate::light::{Area, AreaShape, Light};
+use crate::light::{Area, AreaShape, Cone, Light, SoftPoint, Sun};
 use crate::material::{Material, MaterialDesc};
+
+/// `hard`, the light `desc` describes without its size, with its size: a point or spot
+/// with `radius` > 0 as a disk, a directional light with `angle` > 0 as a sun's disc. A
+/// size of 0 (or none) keeps the hard light, bit for bit.
+pub(super) fn soften(
+    hard: Light,
+    desc: &LightDesc,
+    field: &dyn Fn(&str) -> String,
+    invalid: &dyn Fn(String, String) -> SceneError,
+) -> Result<Light, SceneError> {
+    let size = match *desc {
+        LightDesc::Point { radius, .. } | LightDesc::Spot { radius, .. } => radius.map(|r| ("radius", r)),
+        LightDesc::Directional { angle, .. } => angle.map(|a| ("angle", a)),
+        LightDesc::Area(_) => None,
+    };
+    let Some((key, size)) = size.filter(|&(_, s)| s != 0.0) else { return Ok(hard) };
+    if key == "angle" && !(size > 0.0 && size < 180.0) {
+        return Err(invalid(
+            field(key),
+            format!("must be in [0, 180) degrees (the sun's angular diameter), got {size}"),
+        ));
+    }
+    if !(size > 0.0 && size.is_finite()) {
+        return Err(invalid(field(key), format!("must be finite and ≥ 0, got {size}")));
+    }
+    let disk = |position: Vec3, intensity: Vec3, cone| {
+        let radiance = intensity / (PI * size * size);
+        Light::SoftPoint(SoftPoint { position, radius: size, radiance, cone })
+    };
+    Ok(match hard {
+        Light::Point { position, intensity } => disk(position, intensity, None),
+        Light::Spot { position, direction, intensity, cos_total, cos_falloff_start } => {
+            disk(position, intensity, Some(Cone { direction, cos_total, cos_falloff_start }))
+        }
+        Light::Directional { direction, irradiance } => {
+            let half = 0.5 * size.to_radians();
+            let sin_half = crate::math::sin(half);
+            let one_minus_cos = 2.0 * crate::math::sin(0.5 * half).powi(2);
+            Light::Sun(Sun { direction, radiance: irradiance / (PI * sin_half * sin_half), one_minus_cos })
+        }
+        other => other,
+    })
+}
 
 /// Segments of a visible ellipse's outline.
 const ELLIPSE_SEGMENTS: usize = 64;
@@ -176,6 +221,23 @@ mod tests {
             let e = load(&light).err().unwrap_or_default();
             assert!(e.contains(expected), "{light:?}: {e}");
         }
+    }
+
+    #[test]
+    fn a_size_of_zero_keeps_the_hard_light_and_bad_sizes_are_errors() {
+        let light = |keys: &str| {
+            let toml = format!("{CAMERA}[[light]]\n{keys}");
+            scene_from_toml(&toml, "s.toml", std::path::Path::new(".")).map(|s| s.lights.lights[0])
+        };
+        let point = "type = \"point\"\nposition = [0, 1, 0]\nintensity = [1, 1, 1]\n";
+        let sun = "type = \"directional\"\ndirection = [0, -1, 0]\nirradiance = [1, 1, 1]\n";
+        assert!(matches!(light(&format!("{point}radius = 0\n")), Ok(Light::Point { .. })));
+        assert!(matches!(light(&format!("{point}radius = 0.1\n")), Ok(Light::SoftPoint(_))));
+        assert!(matches!(light(&format!("{sun}angle = 0.5\n")), Ok(Light::Sun(_))));
+        let e = light(&format!("{point}radius = -1\n")).err().map(|e| e.to_string()).unwrap_or_default();
+        assert!(e.contains("s.toml:10: light[0].radius: must be finite and ≥ 0"), "{e}");
+        let e = light(&format!("{sun}angle = 200\n")).err().map(|e| e.to_string()).unwrap_or_default();
+        assert!(e.contains("light[0].angle: must be in [0, 180) degrees"), "{e}");
     }
 
     #[test]

@@ -300,13 +300,22 @@ pub struct SphereDesc {
 #[serde(tag = "type", rename_all = "lowercase", deny_unknown_fields)]
 pub enum LightDesc {
     /// Radiant intensity in W/sr.
-    Point { position: [f32; 3], intensity: [f32; 3] },
+    /// With `radius` (metres): a disk of that radius facing what it lights (soft shadows).
+    Point { position: [f32; 3], intensity: [f32; 3], radius: Option<f32> },
     /// A cone: full intensity inside `falloff_start`, smooth falloff to zero at `cone_angle`
     /// (both half-angles in degrees from `direction`, the way the light points).
-    Spot { position: [f32; 3], direction: [f32; 3], intensity: [f32; 3], cone_angle: f32, falloff_start: Option<f32> },
+    Spot {
+        position: [f32; 3],
+        direction: [f32; 3],
+        intensity: [f32; 3],
+        cone_angle: f32,
+        falloff_start: Option<f32>,
+        radius: Option<f32>,
+    },
     /// Parallel light travelling along `direction`, irradiance in W/m² on a surface
     /// facing it.
-    Directional { direction: [f32; 3], irradiance: [f32; 3] },
+    /// With `angle` (degrees, the sun's angular diameter): a disc of directions.
+    Directional { direction: [f32; 3], irradiance: [f32; 3], angle: Option<f32> },
     /// A one-sided rectangle, disk or ellipse that lights but is not a surface (README.md,
     /// "Area lights").
     Area(AreaDesc),

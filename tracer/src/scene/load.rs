@@ -297,13 +297,13 @@ pub(super) fn assemble_parts(
             lights.extend(super::area_lights::area_light(a, &mut b, &field, &invalid)?);
             continue;
         }
-        lights.push(match *l {
+        let hard = match *l {
             LightDesc::Area(_) => unreachable!("handled above"),
-            LightDesc::Point { position, intensity } => Light::Point {
+            LightDesc::Point { position, intensity, .. } => Light::Point {
                 position: finite3(field("position"), position)?,
                 intensity: non_negative3(field("intensity"), intensity)?,
             },
-            LightDesc::Spot { position, direction, intensity, cone_angle, falloff_start } => {
+            LightDesc::Spot { position, direction, intensity, cone_angle, falloff_start, .. } => {
                 if !(cone_angle > 0.0 && cone_angle <= 180.0) {
                     return Err(invalid(field("cone_angle"), format!("must be in (0, 180] degrees, got {cone_angle}")));
                 }
@@ -319,11 +319,12 @@ pub(super) fn assemble_parts(
                     cos_falloff_start: math::cos(start.to_radians()),
                 }
             }
-            LightDesc::Directional { direction, irradiance } => Light::Directional {
+            LightDesc::Directional { direction, irradiance, .. } => Light::Directional {
                 direction: unit("direction", direction)?,
                 irradiance: non_negative3(field("irradiance"), irradiance)?,
             },
-        });
+        };
+        lights.push(super::area_lights::soften(hard, l, &field, &invalid)?);
     }
     let background = super::environment::background(&file.background, base, &invalid)?;
     if let Some(w) = &file.background.warning {
