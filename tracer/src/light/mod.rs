@@ -22,6 +22,7 @@ mod soft;
 mod sphere_cone;
 #[cfg(test)]
 mod tests;
+mod tree;
 
 pub use area::{Area, AreaShape};
 pub use environment::{EnvironmentMap, EnvironmentSample, Up};

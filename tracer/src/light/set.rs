@@ -4,6 +4,7 @@
 
 use glam::{Vec2, Vec3};
 
+use super::tree::LightTree;
 use super::{EnvironmentMap, Light, LightSample};
 use crate::sampler::ONE_MINUS_EPSILON;
 use crate::sampling::{select, select_bits};
@@ -11,7 +12,7 @@ use crate::simd::{F8, M8, U8, V3w};
 
 /// Scenes with at most this many lights choose one per shading point, in proportion to
 /// an estimate of the irradiance each delivers there ([`LightSet::select_at`]); larger
-/// scenes choose by power alone (a CDF), which costs O(log N) instead of O(N).
+/// scenes walk a light hierarchy (`light/tree.rs`), which costs O(log N) instead of O(N).
 pub const LOCAL_SELECTION_MAX: usize = 16;
 
 /// What [`LightSet::select_at`] needs of a light, flat and small.
@@ -123,6 +124,9 @@ pub struct LightSet {
     /// The lights that scattered rays meet though they are not surfaces (area lights,
     /// lights with a size), tested one by one.
     areas: Vec<u32>,
+    /// Scenes of more than [`LOCAL_SELECTION_MAX`] lights: the hierarchy that chooses
+    /// one per point (`None`: by power alone).
+    tree: Option<LightTree>,
 }
 
 impl LightSet {
@@ -187,7 +191,8 @@ impl LightSet {
         let map = map.filter(|_| environment.is_some());
         let met = |l: &Light| matches!(l, Light::Area { .. } | Light::SoftPoint(_) | Light::Sun(_));
         let areas = (0..lights.len() as u32).filter(|&i| met(&lights[i as usize])).collect();
-        Self { lights, cdf, pmf, importance, prim_light, environment, map, areas }
+        let tree = (lights.len() > LOCAL_SELECTION_MAX).then(|| LightTree::new(&lights, &powers));
+        Self { lights, cdf, pmf, importance, prim_light, environment, map, areas, tree }
     }
 
     /// Samples incident light from light `light` at `p` ([`Light::sample_li`], or the
@@ -237,6 +242,17 @@ impl LightSet {
         }
     }
 
+    /// Chooses lights by power alone from now on, as scenes of many lights did before the
+    /// hierarchy (for comparisons of the two).
+    pub fn use_power_selection(&mut self) {
+        self.tree = None;
+    }
+
+    /// Heap bytes of the light hierarchy (0 without one).
+    pub fn tree_bytes(&self) -> usize {
+        self.tree.as_ref().map_or(0, LightTree::bytes)
+    }
+
     /// Whether the scene has lights that scattered rays meet though they are not
     /// surfaces (area lights, lights with a size).
     #[inline]
@@ -281,6 +297,9 @@ impl LightSet {
     // kept them as calls in the path loop (bench/RESULTS.md).
     #[inline(always)]
     pub fn select_at(&self, p: Vec3, u: f32) -> Option<(usize, f32, f32)> {
+        if let Some(tree) = &self.tree {
+            return tree.select(p, u);
+        }
         if self.importance.is_empty() {
             let (i, pmf) = self.select(u)?;
             let below = if i == 0 { 0.0 } else { self.cdf[i - 1] };
@@ -317,6 +336,9 @@ impl LightSet {
     /// Probability that [`Self::select_at`] at `p` picks `light`.
     #[inline(always)]
     pub fn pmf_at(&self, p: Vec3, light: usize) -> f32 {
+        if let Some(tree) = &self.tree {
+            return tree.pmf(p, light);
+        }
         if self.importance.is_empty() {
             return self.pmf[light];
         }

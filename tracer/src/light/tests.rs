@@ -100,17 +100,64 @@ fn selection_at_a_point_matches_its_pmf() {
 }
 
 #[test]
-fn many_lights_fall_back_to_power_selection() {
-    let lights: Vec<Light> = (0..LOCAL_SELECTION_MAX + 1)
-        .map(|i| Light::Point { position: Vec3::new(i as f32, 0.0, 0.0), intensity: Vec3::splat(1.0 + i as f32) })
-        .collect();
-    let set = LightSet::new(lights, 0, 20.0);
-    for i in 0..set.lights.len() {
-        assert_eq!(set.pmf_at(Vec3::new(100.0, 3.0, 1.0), i), set.pmf(i));
+fn many_lights_walk_the_hierarchy_and_its_pmf_is_the_walk() {
+    // 300 lights of every bounded kind and a sun, scattered over a box: the chosen
+    // light's pmf equals pmf_at bit for bit, and the choices' frequencies follow the pmfs.
+    // Their sum may fall short of 1 where a node's bounds reach a point that none of its
+    // children's do (the walk then chooses nothing, as pbrt-v4's does).
+    let mut lights = Vec::new();
+    for i in 0..300u32 {
+        let f = |k: u32| ((i * 7919 + k * 104_729) % 1000) as f32 / 1000.0;
+        let pos = Vec3::new(10.0 * f(1) - 5.0, 4.0 * f(2), 10.0 * f(3) - 5.0);
+        lights.push(match i % 4 {
+            0 => Light::Point { position: pos, intensity: Vec3::splat(0.1 + f(4)) },
+            1 => Light::Triangle {
+                prim: i,
+                p0: pos,
+                e1: Vec3::new(0.2, 0.0, 0.0),
+                e2: Vec3::new(0.0, 0.0, 0.2),
+                normal: -Vec3::Y,
+                area: 0.02,
+                radiance: Vec3::splat(5.0 * f(5)),
+            },
+            2 => Light::Spot {
+                position: pos,
+                direction: -Vec3::Y,
+                intensity: Vec3::splat(2.0),
+                cos_total: 0.7,
+                cos_falloff_start: 0.9,
+            },
+            _ => Light::Sphere { prim: i, center: pos, radius: 0.1, radiance: Vec3::splat(1.0 + f(6)) },
+        });
     }
-    let (i, pmf, ur) = set.select_at(Vec3::ZERO, 0.5).unwrap();
-    assert_eq!((i, pmf), set.select(0.5).unwrap());
-    assert!((0.0..1.0).contains(&ur));
+    lights.push(Light::Directional { direction: -Vec3::Y, irradiance: Vec3::splat(0.5) });
+    let set = LightSet::new(lights, 300, 8.0);
+    assert!(set.tree_bytes() > 0);
+    let p = Vec3::new(0.5, 1.0, -0.3);
+    let total: f64 = (0..set.lights.len()).map(|i| f64::from(set.pmf_at(p, i))).sum();
+    assert!(total > 0.99 && total < 1.0 + 1e-4, "pmfs sum to {total}");
+    let n = 200_000;
+    let mut counts = vec![0u32; set.lights.len()];
+    for k in 0..n {
+        let u = (k as f32 + 0.5) / n as f32;
+        let Some((i, pmf, ur)) = set.select_at(p, u) else { continue };
+        assert_eq!(pmf, set.pmf_at(p, i), "light {i}");
+        assert!((0.0..1.0).contains(&ur));
+        counts[i] += 1;
+    }
+    for (i, &c) in counts.iter().enumerate() {
+        let expect = f64::from(set.pmf_at(p, i)) * f64::from(n);
+        assert!((f64::from(c) - expect).abs() <= 4.0 * expect.sqrt() + 2.0, "light {i}: {c} against {expect}");
+    }
+    // Nothing is chosen that cannot reach p (the downward triangles above it can).
+    let below = Vec3::new(0.0, 10.0, 0.0);
+    for i in (1..300).step_by(4) {
+        assert_eq!(set.pmf_at(below, i), 0.0, "a triangle facing away from {below}");
+    }
+    // By power alone once the hierarchy is dropped.
+    let mut power = set.clone();
+    power.use_power_selection();
+    assert_eq!(power.pmf_at(p, 7), power.pmf(7));
 }
 
 #[test]
