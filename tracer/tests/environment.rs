@@ -10,25 +10,9 @@ mod common;
 
 use std::f64::consts::PI;
 
-use common::TempDir;
-use tracer::film::{Image, SampleRange};
+use common::{TempDir, mean_stderr, render};
 use tracer::integrator::Integrator;
-use tracer::render::render_image;
 use tracer::scene::{Scene, scene_from_toml};
-
-fn render(s: &Scene, integrator: Integrator, spp: u32) -> Image {
-    let (img, stats) = render_image(s, integrator, SampleRange::new(0, spp), 8, &|_| {});
-    assert_eq!(stats.nonfinite, 0, "non-finite samples");
-    img
-}
-
-/// Mean and standard error of the mean of independent values.
-fn mean_stderr(v: &[f64]) -> (f64, f64) {
-    let n = v.len() as f64;
-    let mean = v.iter().sum::<f64>() / n;
-    let var = v.iter().map(|x| (x - mean) * (x - mean)).sum::<f64>() / (n - 1.0);
-    (mean, (var / n).sqrt())
-}
 
 /// Writes a `w × h` float EXR of `texel(row, col)` (grey) to `dir/name`.
 fn write_map(dir: &TempDir, name: &str, w: u32, h: u32, texel: impl Fn(u32, u32) -> [f32; 3]) {

@@ -11,27 +11,12 @@ mod common;
 
 use std::path::Path;
 
-use common::{TempDir, bundled};
+use common::{TempDir, bundled, mean_stderr, render};
 
 use glam::{Vec2, Vec3};
-use tracer::film::{Image, SampleRange};
+use tracer::film::Image;
 use tracer::integrator::Integrator;
-use tracer::render::render_image;
 use tracer::scene::{Scene, scene_from_toml};
-
-fn render(s: &Scene, integrator: Integrator, spp: u32) -> Image {
-    let (img, stats) = render_image(s, integrator, SampleRange::new(0, spp), 8, &|_| {});
-    assert_eq!(stats.nonfinite, 0, "non-finite samples");
-    img
-}
-
-/// Mean and standard error of the mean of independent estimates.
-fn mean_stderr(v: &[f64]) -> (f64, f64) {
-    let n = v.len() as f64;
-    let mean = v.iter().sum::<f64>() / n;
-    let var = v.iter().map(|x| (x - mean) * (x - mean)).sum::<f64>() / (n - 1.0);
-    (mean, (var / n).sqrt())
-}
 
 /// An axis-aligned box as OBJ faces, wound so that the front faces point outward
 /// (`inward = false`) or into the box (`inward = true`).
