@@ -128,8 +128,10 @@ def cornell(work):
 
 def lamps(work):
     """A corner of a room lit by a point, a spot, a sun and an area light (Blender's
-    light objects, whose units the exporter converts), the area light out of view and
-    its shadow off the floor."""
+    light objects, whose units the exporter converts). The area light (behind the
+    camera, lighting the room from there) is tilefarm's `type = "area"`: unseen and
+    casting no shadow, as Blender's (compare_area_lights.py holds it to Cycles up
+    close: rectangles and disks, their noise, what is behind them)."""
     scene = fresh()
     white = principled("white", (0.7, 0.7, 0.7))
     quad("floor", [(-3, -3, 0), (3, -3, 0), (3, 3, 0), (-3, 3, 0)], white)
@@ -153,7 +155,6 @@ def lamps(work):
     light("SPOT", (1.5, -1.0, 2.5), 400.0, (0.8, 0.9, 1.0), aim=(0.5, 1.0, 0.0), shadow_soft_size=0.0,
           spot_size=math.radians(50), spot_blend=0.0)
     light("SUN", (0, 0, 5), 1.5, (1.0, 1.0, 0.9), aim=(0.4, 0.8, 0.0), angle=0.0)
-    # Behind the camera, its own shadow (tilefarm's area lights are surfaces) off the floor.
     light("AREA", (0.5, -4.5, 2.5), 300.0, aim=(0.0, -1.0, 0.0), shape="RECTANGLE", size=0.6, size_y=0.3)
     camera(scene, (0.5, -3.5, 1.4), (0.0, 1.0, 0.6))
     return scene

@@ -15,7 +15,8 @@ an object to the camera's right in Blender is on the image's right.
 Light units, measured against Cycles 4.2 (a white Lambertian plane under each light):
 a point or spot light of power P watts has intensity P / 4π W/sr; a sun of strength S
 gives irradiance S W/m²; an area light of power P and area A has radiance P / (π A),
-emitted from its front (local −Z) only; an Emission shader of strength s emits s × its
+emitted from its front (local −Z) only (tilefarm's `type = "area"` takes Blender's
+power, size and matrix as they are); an Emission shader of strength s emits s × its
 colour.
 """
 
@@ -248,33 +249,61 @@ class _Exporter:
             self.report.warn(f"light {ob.name}: type {light.type}")
 
     def area_light(self, ob, light, color, matrix):
-        """An area light as an emissive polygon in its own OBJ, facing its local −Z."""
-        sx = light.size
-        sy = light.size_y if light.shape in {"RECTANGLE", "ELLIPSE"} else light.size
-        if light.shape in {"SQUARE", "RECTANGLE"}:
-            local = [(-sx / 2, -sy / 2), (-sx / 2, sy / 2), (sx / 2, sy / 2), (sx / 2, -sy / 2)]
-        else:
-            n = 32
-            local = [(sx / 2 * math.cos(-2 * math.pi * k / n), sy / 2 * math.sin(-2 * math.pi * k / n)) for k in range(n)]
-        # Clockwise seen from +Z: counter-clockwise, the front, seen from −Z.
-        world = [matrix @ mathutils.Vector((x, y, 0.0)) for x, y in local]
-        area = sum(((world[k] - world[0]).cross(world[k + 1] - world[0])).length / 2 for k in range(1, len(world) - 1))
-        if area <= 0.0:
+        """An area light as `type = "area"`: its shape and size, placed by its world
+        matrix (whose scale scales it, as in Blender), its power and colour, and
+        `visible` from the object's camera visibility (off by default for lights)."""
+        cy = getattr(light, "cycles", None)
+        if cy is not None and cy.is_portal:
+            self.report.warn(f"light {ob.name}: a portal (skipped: in Cycles it only guides the world's sampling)")
+            return
+        shape = light.shape
+        size = [light.size, light.size_y] if shape in {"RECTANGLE", "ELLIPSE"} else [light.size, light.size]
+        m = matrix.copy()
+        x, y = m.col[0].xyz, m.col[1].xyz
+        if min(size) <= 0.0 or x.length * size[0] <= 0.0 or y.length * size[1] <= 0.0:
             self.report.warn(f"light {ob.name}: zero area (skipped)")
             return
-        radiance = [c * light.energy / (math.pi * area) for c in color]
-        name = mats.safe_name("light_" + ob.name, self.names)
-        mapped = mats.Mapped(name)
-        mapped.lines = ["Kd 0 0 0", "Ke " + " ".join(f"{c:.6g}" for c in radiance)]
-        self.materials[("light", ob.name)] = mapped
-        self.by_name[name] = mapped
-        lines = [f"# the area light {ob.name}", f"usemtl {name}"]
-        lines += [f"v {p.x:.9g} {p.y:.9g} {p.z:.9g}" for p in world]
-        lines.append("f " + " ".join(str(k + 1) for k in range(len(world))))
-        file_name = self.write_obj("light", "\n".join(lines) + "\n", [name])
-        self.toml += ["", "[[mesh]]", f"# the area light {ob.name}", f'obj = "{file_name}"']
-        self.report.warn("area lights become emissive surfaces: seen by the camera and casting shadows "
-                         "(Blender's do neither)")
+        if abs(x.normalized().dot(y.normalized())) > 1e-4:
+            # A sheared frame (a non-uniform scale under a rotated parent): tilefarm's
+            # light is a rectangle or ellipse, so its y axis is turned square to its x.
+            y_square = (y - x * (x.dot(y) / x.dot(x))).normalized() * y.length
+            for r in range(3):
+                m[r][1] = y_square[r]
+            self.report.warn(f"light {ob.name}: a sheared shape (its y axis made square to its x)")
+            y = y_square
+        # Blender's light emits along its matrix's −Z; tilefarm's along the normal of its
+        # x and y on that side. Cycles lights nothing with a Z scaled to nothing (its
+        # direction is lost); a Z sheared off the normal becomes the unit normal.
+        z, n = m.col[2].xyz, x.cross(y).normalized()
+        if abs(z.dot(n)) <= 1e-6 * max(x.length, y.length):
+            self.report.warn(f"light {ob.name}: its Z axis is scaled to nothing (Cycles lights nothing with it: "
+                             "skipped)")
+            return
+        if (z - n * z.dot(n)).length > 1e-4 * z.length:
+            n = -n if z.dot(n) < 0.0 else n
+            for r in range(3):
+                m[r][2] = n[r]
+            self.report.warn(f"light {ob.name}: its Z axis is sheared off its plane's normal (the normal used)")
+        kind = {"SQUARE": "rectangle", "RECTANGLE": "rectangle", "DISK": "disk", "ELLIPSE": "ellipse"}[shape]
+        size_text = f"{size[0]:.9g}" if shape in {"SQUARE", "DISK"} else _vec(size)
+        visible = bool(ob.visible_camera)
+        self.toml += ["", "[[light]]", f"# {ob.name}", 'type = "area"', f'shape = "{kind}"', f"size = {size_text}",
+                      f"matrix = {_matrix(m)}", f"power = {light.energy:.9g}", f"color = {_vec(color)}",
+                      f"visible = {'true' if visible else 'false'}"]
+        if visible:
+            self.report.warn(f"light {ob.name}: visible to the camera: an emissive surface here, which also "
+                             "casts shadows (Blender's does not)")
+        if light.spread < math.pi - 1e-6:
+            self.report.warn(f"light {ob.name}: spread {math.degrees(light.spread):.3g}° (180° here: its light "
+                             "is not narrowed)")
+        unseen = [what for what, flag in [("diffuse", "visible_diffuse"), ("glossy", "visible_glossy"),
+                                          ("transmission", "visible_transmission")] if not getattr(ob, flag)]
+        if unseen:
+            self.report.warn(f"light {ob.name}: off for {', '.join(unseen)} rays (it lights every surface here)")
+        if not light.use_shadow:
+            self.report.warn(f"light {ob.name}: shadows off (shadowed here)")
+        if cy is not None and not cy.use_multiple_importance_sampling:
+            self.report.warn(f"light {ob.name}: multiple importance sampling off (on here)")
 
     # Camera, world and settings ------------------------------------------------------
 

@@ -27,14 +27,12 @@ def safe_name(name, taken):
 
 class Mapped:
     """One material: its tables for scene.toml (the first its own, then a Mix Shader's
-    parts), the table its MTL describes, and what could not be mapped. An area light's
-    material is raw MTL `lines` instead."""
+    parts), the table its MTL describes, and what could not be mapped."""
 
     def __init__(self, name):
         self.name = name
         self.tables = []  # [(name, {key: value})]
         self.mtl_table = None
-        self.lines = None
         self.problems = []
 
     def refs(self):
@@ -57,8 +55,7 @@ class Mapped:
                     table[base] = ref.fallback
 
     def mtl(self):
-        lines = self.lines if self.lines is not None else mtl_lines(self.mtl_table)
-        return "\n".join([f"newmtl {self.name}"] + lines) + "\n"
+        return "\n".join([f"newmtl {self.name}"] + mtl_lines(self.mtl_table)) + "\n"
 
     def toml(self):
         out = []
