@@ -32,6 +32,38 @@ fn python_or_skip() -> Option<String> {
     python_with_bpy().map_err(skipped).ok()
 }
 
+/// What a script of `blender/tests` said: its output and its `figures` line.
+struct Said {
+    out: std::process::Output,
+    figures: String,
+}
+
+/// Runs `blender/tests/SCRIPT` with `python`, `args` (the coordinator binary as
+/// `{coordinator}`, the scratch folder's `work` as `{work}`) and `argv` verbatim, HOME in
+/// the scratch folder (Blender keeps its preferences and extensions there).
+fn run_script(python: &str, script: &str, dir: &TempDir, args: &[&str]) -> Said {
+    let here = Path::new(env!("CARGO_MANIFEST_DIR"));
+    let mut cmd = Command::new(python);
+    cmd.arg(here.join("../blender/tests").join(script));
+    for a in args {
+        match *a {
+            "{coordinator}" => cmd.arg(bin("coordinator")),
+            "{work}" => cmd.arg(dir.path("work")),
+            other => cmd.arg(other),
+        };
+    }
+    let out = run(cmd.env("HOME", dir.path("home")), LIMIT);
+    let figures = figures_of(&out, "figures");
+    Said { out, figures }
+}
+
+/// Asserts that a comparison script passed, showing its figures and FAILED lines if not.
+fn assert_passed(said: &Said, what: &str) {
+    let failed = String::from_utf8_lossy(&said.out.stderr);
+    let failed: Vec<&str> = failed.lines().filter(|l| l.starts_with("FAILED")).collect();
+    assert!(said.out.status.success(), "{what}:\n{}\n{}", said.figures, failed.join("\n"));
+}
+
 #[test]
 fn blender_scenes_export_and_render_like_cycles() {
     let Some(python) = python_or_skip() else { return };
@@ -105,19 +137,13 @@ fn blender_principled_materials_export_as_tables() {
 #[test]
 fn blender_worlds_export_as_backgrounds() {
     let Some(python) = python_or_skip() else { return };
-    let here = Path::new(env!("CARGO_MANIFEST_DIR"));
     let dir = TempDir::new("blender-world");
-    let mut cmd = Command::new(&python);
-    cmd.arg(here.join("../blender/tests/world_export.py"))
-        .arg(dir.path("work"))
-        .arg(bin("coordinator"))
-        .env("HOME", dir.path("home"));
-    let out = run(&mut cmd, LIMIT);
-    let figures = figures_of(&out, "figures");
+    let said = run_script(&python, "world_export.py", &dir, &["{work}", "{coordinator}"]);
+    let figures = &said.figures;
     assert!(
-        out.status.success() && figures.contains("\"failed\": {}") && figures.contains("\"rendered\": true"),
+        said.out.status.success() && figures.contains("\"failed\": {}") && figures.contains("\"rendered\": true"),
         "the world export checks failed:\n{figures}\n{}",
-        String::from_utf8_lossy(&out.stderr)
+        String::from_utf8_lossy(&said.out.stderr)
     );
     assert!(figures.contains("\"orientation_is_where_cycles_looks\""), "the cases ran: {figures}");
 }
@@ -130,22 +156,10 @@ fn blender_worlds_export_as_backgrounds() {
 #[test]
 fn blender_environment_maps_light_like_cycles() {
     let Some(python) = python_or_skip() else { return };
-    let here = Path::new(env!("CARGO_MANIFEST_DIR"));
     let dir = TempDir::new("blender-world-cycles");
-    let mut cmd = Command::new(&python);
-    cmd.arg(here.join("../blender/tests/compare_world.py"))
-        .arg(bin("coordinator"))
-        .arg(dir.path("work"))
-        .arg("256")
-        .env("HOME", dir.path("home"));
-    let out = run(&mut cmd, LIMIT);
-    let figures = figures_of(&out, "figures");
-    assert!(
-        out.status.success(),
-        "the environment-lit scenes differ from Cycles':\n{figures}\n{}",
-        String::from_utf8_lossy(&out.stderr).lines().filter(|l| l.starts_with("FAILED")).collect::<Vec<_>>().join("\n")
-    );
-    assert!(figures.contains("\"nishita\""), "every case ran: {figures}");
+    let said = run_script(&python, "compare_world.py", &dir, &["{coordinator}", "{work}", "256"]);
+    assert_passed(&said, "the environment-lit scenes differ from Cycles'");
+    assert!(said.figures.contains("\"nishita\""), "every case ran: {}", said.figures);
 }
 
 /// The Principled cases against Cycles 4.2 (`blender/tests/compare_principled.py`):
@@ -158,22 +172,11 @@ fn blender_environment_maps_light_like_cycles() {
 #[test]
 fn blender_principled_materials_render_like_cycles() {
     let Some(python) = python_or_skip() else { return };
-    let here = Path::new(env!("CARGO_MANIFEST_DIR"));
     let dir = TempDir::new("blender-principled-cycles");
-    let mut cmd = Command::new(&python);
-    cmd.arg(here.join("../blender/tests/compare_principled.py"))
-        .arg(bin("coordinator"))
-        .arg(dir.path("work"))
-        .args(["256", "all", "1024"])
-        .env("HOME", dir.path("home"));
-    let out = run(&mut cmd, LIMIT);
-    let figures = figures_of(&out, "figures");
-    assert!(
-        out.status.success(),
-        "tilefarm's Principled materials differ from Cycles':\n{}",
-        String::from_utf8_lossy(&out.stderr).lines().filter(|l| l.starts_with("FAILED")).collect::<Vec<_>>().join("\n")
-    );
-    assert!(figures.contains("\"passed\": 22"), "every case ran: {figures}");
+    let args = ["{coordinator}", "{work}", "256", "all", "1024"];
+    let said = run_script(&python, "compare_principled.py", &dir, &args);
+    assert_passed(&said, "tilefarm's Principled materials differ from Cycles'");
+    assert!(said.figures.contains("\"passed\": 22"), "every case ran: {}", said.figures);
 }
 
 /// Blender's area lights as `[[light]] type = "area"` (`blender/tests/compare_area_lights.py`):
@@ -187,21 +190,10 @@ fn blender_principled_materials_render_like_cycles() {
 #[test]
 fn blender_area_lights_light_like_cycles() {
     let Some(python) = python_or_skip() else { return };
-    let here = Path::new(env!("CARGO_MANIFEST_DIR"));
     let dir = TempDir::new("blender-area-lights");
-    let mut cmd = Command::new(&python);
-    cmd.arg(here.join("../blender/tests/compare_area_lights.py"))
-        .arg(bin("coordinator"))
-        .arg(dir.path("work"))
-        .arg("256")
-        .env("HOME", dir.path("home"));
-    let out = run(&mut cmd, LIMIT);
-    let figures = figures_of(&out, "figures");
-    assert!(
-        out.status.success(),
-        "tilefarm's area lights differ from Cycles':\n{figures}\n{}",
-        String::from_utf8_lossy(&out.stderr).lines().filter(|l| l.starts_with("FAILED")).collect::<Vec<_>>().join("\n")
-    );
+    let said = run_script(&python, "compare_area_lights.py", &dir, &["{coordinator}", "{work}", "256"]);
+    assert_passed(&said, "tilefarm's area lights differ from Cycles'");
+    let figures = &said.figures;
     assert!(figures.contains("\"rectangle\"") && figures.contains("\"disk\""), "both lights ran: {figures}");
     assert!(figures.contains("\"lights\": 6"), "the export checks ran: {figures}");
 }
