@@ -9,8 +9,8 @@ use std::f32::consts::PI;
 use glam::{Mat3, Vec3};
 
 use super::builder::Builder;
+use super::error::SceneError;
 use super::file::{AreaDesc, AreaShapeDesc, AreaSize, LightDesc};
-use super::load::SceneError;
 use super::placement::from_rows;
 use super::{NONE, Tri};
 use crate::light::{Area, AreaShape, Cone, Light, SoftPoint, Sun};

@@ -5,9 +5,9 @@ use std::path::Path;
 
 use glam::Vec3;
 
+use super::error::SceneError;
 use super::file::{BackgroundDesc, UpDesc};
 use super::files::{MAX_ENVIRONMENT_BYTES, MAX_ENVIRONMENT_SIZE};
-use super::load::SceneError;
 use super::textures::{Decode, decode_image};
 use crate::light::{EnvironmentMap, Up};
 

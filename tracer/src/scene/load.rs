@@ -9,7 +9,7 @@ use super::builder::Builder;
 pub(super) use super::builder::Depth;
 use super::environment::Background;
 use super::file::{LightDesc, SceneFile, SphereDesc, UpAxis};
-use super::obj::{ObjError, ObjModel, load_obj_as};
+use super::obj::{ObjModel, load_obj_as};
 use super::{Geometry, Scene, Sphere};
 use crate::accel::Primitives;
 use crate::accel::bvh8::{Bvh8, Bvh8Params};
@@ -20,18 +20,7 @@ use crate::light::{Light, LightSet};
 use crate::material::{Material, MaterialDesc, Slot};
 use crate::math;
 
-#[derive(Debug, thiserror::Error)]
-pub enum SceneError {
-    #[error("{path}: {message}")]
-    Io { path: String, message: String },
-    /// TOML syntax or schema errors; the message names the line and the key.
-    #[error("{path}: {message}")]
-    Syntax { path: String, message: String },
-    #[error("{path}: {field}: {message}")]
-    Invalid { path: String, field: String, message: String },
-    #[error(transparent)]
-    Obj(#[from] ObjError),
-}
+pub use super::error::SceneError;
 
 /// Render settings from the `[render]` table.
 #[derive(Clone, Copy, Debug, PartialEq, serde::Serialize, serde::Deserialize)]

@@ -6,6 +6,7 @@ pub mod assets;
 mod builder;
 pub mod check;
 mod environment;
+mod error;
 pub mod file;
 pub mod files;
 pub mod generate;
