@@ -13,8 +13,10 @@ local −Z with +Y up and +X right; tilefarm's right is forward × up, which is 
 an object to the camera's right in Blender is on the image's right.
 
 Light units, measured against Cycles 4.2 (a white Lambertian plane under each light):
-a point or spot light of power P watts has intensity P / 4π W/sr; a sun of strength S
-gives irradiance S W/m²; an area light of power P and area A has radiance P / (π A),
+a point or spot light of power P watts has intensity P / 4π W/sr, and its Radius is
+`radius`, a disk of that radius facing the point it lights (Cycles' Soft Falloff); a sun
+of strength S gives irradiance S W/m², and its Angle is `angle` (degrees), a disc of
+directions of that diameter; an area light of power P and area A has radiance P / (π A),
 emitted from its front (local −Z) only (tilefarm's `type = "area"` takes Blender's
 power, size and matrix as they are); an Emission shader of strength s emits s × its
 colour.
@@ -227,8 +229,7 @@ class _Exporter:
             self.report.warn(f"light {ob.name}: its node tree (only its colour and power are used)")
         if light.type in {"POINT", "SPOT"}:
             intensity = [c * light.energy / (4.0 * math.pi) for c in color]
-            if light.shadow_soft_size > 0.0:
-                self.report.warn(f"light {ob.name}: radius {light.shadow_soft_size:.3g} (a point light here: hard shadows)")
+            radius = float(light.shadow_soft_size)
             self.toml += ["", "[[light]]", f"# {ob.name}", f'type = "{light.type.lower()}"', f"position = {_vec(pos)}"]
             if light.type == "SPOT":
                 half = light.spot_size / 2.0
@@ -237,12 +238,26 @@ class _Exporter:
                 self.toml += [f"direction = {_vec(aim)}", f"cone_angle = {math.degrees(half):.6g}",
                               f"falloff_start = {math.degrees(min(full, half)):.6g}"]
             self.toml.append(f"intensity = {_vec(intensity)}")
+            if radius > 0.0:
+                # Blender's Radius, as Cycles uses it: a disk of that radius facing the
+                # point it lights (Soft Falloff, Blender's default), radiance I / (π r²).
+                self.toml.append(f"radius = {radius:.9g}")
+                if not getattr(light, "use_soft_falloff", True):
+                    self.report.warn(f"light {ob.name}: Soft Falloff off (Cycles makes it a sphere of radius "
+                                     f"{radius:.3g}, I / d² up to its surface; here a disk facing what it lights, "
+                                     "I / (d² + r²): darker within a few radii)")
         elif light.type == "SUN":
-            if light.angle > 0.0:
-                self.report.warn(f"light {ob.name}: sun angle {math.degrees(light.angle):.3g}° (a directional light here: hard shadows)")
             irradiance = [c * light.energy for c in color]
             self.toml += ["", "[[light]]", f"# {ob.name}", 'type = "directional"', f"direction = {_vec(aim)}",
                           f"irradiance = {_vec(irradiance)}"]
+            angle = math.degrees(light.angle)
+            if angle > 0.0:
+                # Blender's Angle (the disc's angular diameter), in degrees; tilefarm takes
+                # less than 180°.
+                if angle >= 179.99:
+                    self.report.warn(f"light {ob.name}: sun angle {angle:.4g}° (179.99° here)")
+                    angle = 179.99
+                self.toml.append(f"angle = {angle:.9g}")
         elif light.type == "AREA":
             self.area_light(ob, light, color, matrix)
         else:
