@@ -269,9 +269,11 @@ def _sky(world, node, folder, warn):
             f"({file or 'black: nothing'}, smooth at that size)")
     if sun is not None:
         direction, irradiance = sun
-        line += f", its sun disc a directional light of irradiance {_vec(irradiance)} (hard shadows)"
+        # The disc's angular diameter, as a soft sun (tilefarm takes angles under 180°).
+        angle = min(math.degrees(node.sun_size), 179.99)
+        line += f", its sun disc a directional light of irradiance {_vec(irradiance)} and angle {angle:.4g}°"
         lines += ["", "[[light]]", "# the Sky Texture's sun disc", 'type = "directional"',
-                  f"direction = {_vec(direction)}", f"irradiance = {_vec(irradiance)}"]
+                  f"direction = {_vec(direction)}", f"irradiance = {_vec(irradiance)}", f"angle = {angle:.9g}"]
     warn(line)
     return lines
 
