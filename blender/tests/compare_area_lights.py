@@ -307,23 +307,8 @@ def compare(coordinator, work, spp, kind):
     var = cc.layer(path("tilefarm1"), "variance")
     figures["seconds"] = {"cycles": round(t_cy, 2), "tilefarm": round(t_tf, 2)}
 
-    # Means, and blocks within their noise (as compare_cycles.py).
-    means_cy = (cy1 + cy2).reshape(-1, 3).mean(0) / 2
-    means_tf = (tf1 + tf2).reshape(-1, 3).mean(0) / 2
-    figures["means_cycles"] = means_cy.round(5).tolist()
-    figures["means_tilefarm"] = means_tf.round(5).tolist()
-    figures["means_ratio"] = (means_tf / means_cy).round(4).tolist()
-    if not (np.abs(means_tf / means_cy - 1.0) < 0.02).all():
-        failed.append(f"{kind}: channel means differ: tilefarm / Cycles {figures['means_ratio']} (more than 2 %)")
-    n = 8
-    # Against the mean of Cycles' two seeds (a block's variance that of tilefarm's own
-    # plus half of it), so that one seed's firefly weighs half.
-    z = (cc.blocks(tf1, n) - cc.blocks((cy1 + cy2) / 2, n)) / np.sqrt(1.5 * cc.blocks(var, n) / (n * n) + 1e-12)
-    figures["block_z_rms"] = round(float(np.sqrt(np.mean(z * z))), 3)
-    figures["blocks_over_4"] = f"{int((np.abs(z) > 4).sum())} of {z.size}"
-    if figures["block_z_rms"] > 2.0 or (np.abs(z) > 4).sum() > max(1, z.size // 50):
-        failed.append(f"{kind}: blocks differ beyond their noise: rms z {figures['block_z_rms']}, "
-                      f"{figures['blocks_over_4']} over 4")
+    # Means, and blocks within their noise.
+    cc.means_and_blocks(kind, cy1, cy2, tf1, tf2, var, figures, failed)
 
     # Noise: each renderer's two seeds against each other, over one reference.
     ref = (cy1 + cy2 + tf1 + tf2) / 4

@@ -228,6 +228,28 @@ def blocks(a, n=8):
     return a[: h // n * n, : w // n * n].reshape(h // n, n, w // n, n, -1).mean(axis=(1, 3))
 
 
+def means_and_blocks(kind, cy1, cy2, tf1, tf2, var, figures, failed, n=8):
+    """Two seeds of Cycles against two of tilefarm (`var`: tilefarm's variance layer):
+    channel means within 2 %, and n × n blocks within their noise, against the mean of
+    Cycles' two seeds (a block's variance that of tilefarm's own plus half of it, so that
+    one seed's firefly weighs half). Adds the figures; a failure is a line of `failed`.
+    Returns the two renderers' channel means."""
+    means_cy = (cy1 + cy2).reshape(-1, 3).mean(0) / 2
+    means_tf = (tf1 + tf2).reshape(-1, 3).mean(0) / 2
+    figures["means_cycles"] = means_cy.round(5).tolist()
+    figures["means_tilefarm"] = means_tf.round(5).tolist()
+    figures["means_ratio"] = (means_tf / means_cy).round(4).tolist()
+    if not (np.abs(means_tf / means_cy - 1.0) < 0.02).all():
+        failed.append(f"{kind}: channel means differ: tilefarm / Cycles {figures['means_ratio']} (more than 2 %)")
+    z = (blocks(tf1, n) - blocks((cy1 + cy2) / 2, n)) / np.sqrt(1.5 * blocks(var, n) / (n * n) + 1e-12)
+    figures["block_z_rms"] = round(float(np.sqrt(np.mean(z * z))), 3)
+    figures["blocks_over_4"] = f"{int((np.abs(z) > 4).sum())} of {z.size}"
+    if figures["block_z_rms"] > 2.0 or (np.abs(z) > 4).sum() > max(1, z.size // 50):
+        failed.append(f"{kind}: blocks differ beyond their noise: rms z {figures['block_z_rms']}, "
+                      f"{figures['blocks_over_4']} over 4")
+    return means_cy, means_tf
+
+
 def compare(coordinator, work, spp, name, build):
     scene = build(work)
     cycles_settings(scene, spp, seed=1)
