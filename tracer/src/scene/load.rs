@@ -282,12 +282,11 @@ pub(super) fn assemble_parts(
             let d = finite3(field(k), v)?.normalize_or_zero();
             if d == Vec3::ZERO { Err(invalid(field(k), "must not be zero".into())) } else { Ok(d) }
         };
-        if let LightDesc::Area(a) = l {
-            lights.extend(super::area_lights::area_light(a, &mut b, &field, &invalid)?);
-            continue;
-        }
         let hard = match *l {
-            LightDesc::Area(_) => unreachable!("handled above"),
+            LightDesc::Area(ref a) => {
+                lights.extend(super::area_lights::area_light(a, &mut b, &field, &invalid)?);
+                continue;
+            }
             LightDesc::Point { position, intensity, .. } => Light::Point {
                 position: finite3(field("position"), position)?,
                 intensity: non_negative3(field("intensity"), intensity)?,
@@ -489,7 +488,6 @@ fn finish(
         material_names,
         textures,
         lights,
-        background,
         has_cutouts,
         center,
         radius,

@@ -62,7 +62,6 @@ pub struct Scene {
     pub material_names: Vec<String>,
     pub textures: Vec<Texture>,
     pub lights: LightSet,
-    pub background: Vec3,
     /// Some material has `d < 1` (stochastic opacity): shadow rays must see through it.
     pub has_cutouts: bool,
     /// Bounding sphere of the geometry.
